@@ -1,0 +1,28 @@
+# Single entry point. `make test` and `make demo` install what is missing first (tools/setup-debian.sh).
+CARGO ?= cargo
+# The suite runs with the Khronos validation layer and fails on any message it prints.
+export MSNERF_REQUIRE_VALIDATION ?= 1
+
+.PHONY: setup test lint build demo devices bench clean
+
+setup:
+	@bash tools/setup-debian.sh
+
+lint: setup
+	$(CARGO) fmt --all -- --check
+	$(CARGO) clippy --all-targets --release -- -D warnings
+
+test: lint
+	$(CARGO) test --release
+
+build: setup
+	$(CARGO) build --release
+
+devices: build
+	./target/release/msnerf devices
+
+demo: build
+	./target/release/msnerf demo
+
+clean:
+	$(CARGO) clean

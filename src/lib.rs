@@ -1,0 +1,1 @@
+//! msnerf: multispectral neural radiance fields (nerfacto for B spectral bands) on Vulkan compute.
