@@ -1,0 +1,47 @@
+//! The `msnerf` command line: one module per subcommand; `main.rs` only parses and dispatches.
+
+pub mod devices;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(name = "msnerf", version, about = "Multispectral neural radiance fields on Vulkan compute")]
+pub struct Cli {
+    /// Vulkan device: index as `msnerf devices` lists them, or part of its name [env: MSNERF_DEVICE]
+    #[arg(long, global = true)]
+    pub device: Option<String>,
+    /// Enable the Khronos validation layer (slow; for debugging) [env: MSNERF_VALIDATION]
+    #[arg(long, global = true)]
+    pub validation: bool,
+    /// More log output (-v info, -vv debug)
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// List Vulkan devices and their capabilities
+    Devices(devices::DevicesArgs),
+}
+
+impl Cli {
+    /// The context description from flags, falling back to the environment.
+    pub fn context_desc(&self) -> crate::gpu::ContextDesc {
+        let mut d = crate::gpu::ContextDesc::from_env();
+        if self.device.is_some() {
+            d.device = self.device.clone();
+        }
+        if self.validation && d.validation == crate::gpu::Validation::Off {
+            d.validation = crate::gpu::Validation::IfAvailable;
+        }
+        d
+    }
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match &cli.command {
+        Command::Devices(a) => devices::run(&cli, a),
+    }
+}

@@ -1,0 +1,298 @@
+//! `Recorder`: records a sequence of kernel dispatches into one command buffer, then submits and waits.
+//! - Barriers: a compute-to-compute memory barrier goes in before a dispatch that binds a buffer an earlier
+//!   dispatch since the last barrier also bound (every binding counts as read-write: conservative and simple).
+//!   Independent dispatches run without one.
+//! - Descriptors: pushed with VK_KHR_push_descriptor, or allocated from per-recorder pools when the device
+//!   lacks it (or `MSNERF_DISABLE_PUSH_DESCRIPTOR=1`).
+//! - Timing: a GPU timestamp after every dispatch, reported per named dispatch ([`TimingReport`]).
+//! - Temporaries handed to [`Recorder::keep_alive`] live until the work completes.
+
+use super::buffer::Binding;
+use super::context::{Context, MAX_BINDINGS};
+use super::error::{GpuError, GpuResult, VkCheck};
+use super::kernel::{fold_groups, Kernel};
+use super::timing::{DispatchTime, TimingReport};
+use ash::vk;
+use bytemuck::Pod;
+use std::any::Any;
+use std::time::Instant;
+
+const QUERIES_PER_POOL: u32 = 1024;
+const SETS_PER_POOL: u32 = 256;
+
+pub struct Recorder<'a> {
+    ctx: &'a Context,
+    cmd: vk::CommandBuffer,
+    label: String,
+    /// Buffers bound since the last barrier.
+    touched: Vec<vk::Buffer>,
+    barriers: u32,
+    names: Vec<&'static str>,
+    query_pools: Vec<vk::QueryPool>,
+    desc_pools: Vec<vk::DescriptorPool>,
+    sets_in_pool: u32,
+    keep: Vec<Box<dyn Any>>,
+    timing: bool,
+    finished: bool,
+}
+
+impl Context {
+    /// Starts recording; `label` names the sequence in timing reports.
+    pub fn recorder(&self, label: &str) -> GpuResult<Recorder<'_>> {
+        let cmd = self.alloc_command_buffer()?;
+        let timing = self.caps().timestamp_period_ns.is_some();
+        let mut rec = Recorder {
+            ctx: self,
+            cmd,
+            label: label.to_owned(),
+            touched: Vec::new(),
+            barriers: 0,
+            names: Vec::new(),
+            query_pools: Vec::new(),
+            desc_pools: Vec::new(),
+            sets_in_pool: SETS_PER_POOL,
+            keep: Vec::new(),
+            timing,
+            finished: false,
+        };
+        // Earlier submissions (uploads, other sequences) finish their writes before this one reads.
+        rec.global_barrier(vk::PipelineStageFlags2::ALL_COMMANDS, vk::AccessFlags2::MEMORY_WRITE, false);
+        if rec.timing {
+            rec.write_timestamp(vk::PipelineStageFlags2::NONE)?;
+        }
+        Ok(rec)
+    }
+}
+
+impl<'a> Recorder<'a> {
+    pub fn context(&self) -> &'a Context {
+        self.ctx
+    }
+
+    /// A 1D dispatch over `elements` invocations, named after the kernel.
+    pub fn dispatch<P: Pod>(&mut self, k: &Kernel<P>, bindings: &[Binding], push: &P, elements: u64) -> GpuResult<()> {
+        self.dispatch_named(k.name, k, bindings, &[], push, elements)
+    }
+
+    /// A 1D dispatch with a label for the timing report, and buffers the kernel reaches through device
+    /// addresses (`extra_deps`) so barriers account for them.
+    pub fn dispatch_named<P: Pod>(
+        &mut self,
+        label: &'static str,
+        k: &Kernel<P>,
+        bindings: &[Binding],
+        extra_deps: &[vk::Buffer],
+        push: &P,
+        elements: u64,
+    ) -> GpuResult<()> {
+        let groups = k.groups_for(elements);
+        let grid = fold_groups(groups, self.ctx.caps().max_workgroup_count).ok_or_else(|| GpuError::Dispatch {
+            kernel: k.name.to_owned(),
+            msg: format!("{elements} elements need {groups} groups: more than the device can launch"),
+        })?;
+        self.dispatch_groups(label, k, bindings, extra_deps, push, grid)
+    }
+
+    /// A dispatch of an explicit group grid.
+    pub fn dispatch_groups<P: Pod>(
+        &mut self,
+        label: &'static str,
+        k: &Kernel<P>,
+        bindings: &[Binding],
+        extra_deps: &[vk::Buffer],
+        push: &P,
+        groups: [u32; 3],
+    ) -> GpuResult<()> {
+        let caps = self.ctx.caps();
+        let fail = |msg: String| GpuError::Dispatch { kernel: k.name.to_owned(), msg };
+        if bindings.len() != k.arity() {
+            return Err(fail(format!("{} bindings given, the kernel declares {}", bindings.len(), k.arity())));
+        }
+        if let Some(b) = bindings.iter().find(|b| b.range > caps.max_storage_buffer_range) {
+            return Err(fail(format!(
+                "binding {:?} covers {} bytes, over maxStorageBufferRange {} (use LargeArray or a slice)",
+                b.name, b.range, caps.max_storage_buffer_range
+            )));
+        }
+        if groups.iter().zip(caps.max_workgroup_count).any(|(g, m)| *g > m) {
+            return Err(fail(format!("group grid {groups:?} exceeds {:?}", caps.max_workgroup_count)));
+        }
+        if groups.contains(&0) {
+            return Ok(());
+        }
+        let deps = bindings.iter().map(|b| b.buffer).chain(extra_deps.iter().copied());
+        if deps.clone().any(|b| self.touched.contains(&b)) {
+            self.global_barrier(vk::PipelineStageFlags2::COMPUTE_SHADER, vk::AccessFlags2::SHADER_STORAGE_WRITE, true);
+        }
+        self.touched.extend(deps);
+
+        let d = self.ctx.device();
+        let layout = self.ctx.shared.pipeline_layout;
+        let infos: Vec<vk::DescriptorBufferInfo> = bindings
+            .iter()
+            .map(|b| vk::DescriptorBufferInfo { buffer: b.buffer, offset: b.offset, range: b.range })
+            .collect();
+        unsafe { d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, k.pipeline) };
+        if !infos.is_empty() {
+            let set =
+                if self.ctx.shared.push_descriptor.is_some() { vk::DescriptorSet::null() } else { self.alloc_set()? };
+            let writes: Vec<vk::WriteDescriptorSet> = infos
+                .iter()
+                .enumerate()
+                .map(|(i, info)| {
+                    vk::WriteDescriptorSet::default()
+                        .dst_set(set)
+                        .dst_binding(i as u32)
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .buffer_info(std::slice::from_ref(info))
+                })
+                .collect();
+            match &self.ctx.shared.push_descriptor {
+                Some(pd) => unsafe {
+                    pd.cmd_push_descriptor_set(self.cmd, vk::PipelineBindPoint::COMPUTE, layout, 0, &writes)
+                },
+                None => unsafe {
+                    d.update_descriptor_sets(&writes, &[]);
+                    d.cmd_bind_descriptor_sets(self.cmd, vk::PipelineBindPoint::COMPUTE, layout, 0, &[set], &[]);
+                },
+            }
+        }
+        let bytes = bytemuck::bytes_of(push);
+        if !bytes.is_empty() {
+            unsafe { d.cmd_push_constants(self.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, bytes) };
+        }
+        unsafe { d.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]) };
+        if self.timing {
+            self.write_timestamp(vk::PipelineStageFlags2::COMPUTE_SHADER)?;
+            self.names.push(label);
+        }
+        Ok(())
+    }
+
+    /// An explicit full compute barrier (e.g. after work that reached buffers the recorder cannot see).
+    pub fn barrier(&mut self) {
+        self.global_barrier(vk::PipelineStageFlags2::COMPUTE_SHADER, vk::AccessFlags2::SHADER_STORAGE_WRITE, true);
+    }
+
+    /// Keeps `value` (typically temporary buffers) alive until the recorded work has completed.
+    pub fn keep_alive<T: Any>(&mut self, value: T) {
+        self.keep.push(Box::new(value));
+    }
+
+    /// Number of barriers recorded so far (including the leading one).
+    pub fn barrier_count(&self) -> u32 {
+        self.barriers
+    }
+
+    /// Submits, waits for completion and returns the timing report.
+    pub fn submit_and_wait(mut self) -> GpuResult<TimingReport> {
+        self.finished = true;
+        let start = Instant::now();
+        let ticket = self.ctx.submit(self.cmd)?;
+        self.ctx.wait(ticket)?;
+        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        let mut report =
+            TimingReport { label: self.label.clone(), wall_ms, barriers: self.barriers, ..Default::default() };
+        if self.timing && !self.names.is_empty() {
+            let n = self.names.len() as u32 + 1;
+            let mut ticks = vec![0u64; n as usize];
+            for (p, pool) in self.query_pools.iter().enumerate() {
+                let first = p as u32 * QUERIES_PER_POOL;
+                let count = (n - first).min(QUERIES_PER_POOL);
+                let dst = &mut ticks[first as usize..(first + count) as usize];
+                unsafe {
+                    self.ctx.device().get_query_pool_results(
+                        *pool,
+                        0,
+                        dst,
+                        vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                    )
+                }
+                .vk("vkGetQueryPoolResults")?;
+            }
+            let period = self.ctx.caps().timestamp_period_ns.unwrap_or(1.0) as f64;
+            for (i, name) in self.names.iter().enumerate() {
+                let ms = ticks[i + 1].saturating_sub(ticks[i]) as f64 * period * 1e-6;
+                report.gpu_ms += ms;
+                report.dispatches.push(DispatchTime { name: (*name).to_owned(), ms });
+            }
+        }
+        Ok(report)
+    }
+
+    fn global_barrier(&mut self, src_stage: vk::PipelineStageFlags2, src_access: vk::AccessFlags2, count: bool) {
+        let b = [vk::MemoryBarrier2::default()
+            .src_stage_mask(src_stage)
+            .src_access_mask(src_access)
+            .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+            .dst_access_mask(vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE)];
+        unsafe {
+            self.ctx.device().cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().memory_barriers(&b))
+        };
+        if count {
+            self.barriers += 1;
+        }
+        self.touched.clear();
+    }
+
+    fn write_timestamp(&mut self, stage: vk::PipelineStageFlags2) -> GpuResult<()> {
+        let index = self.names.len() as u32 + u32::from(stage != vk::PipelineStageFlags2::NONE);
+        let pool_index = (index / QUERIES_PER_POOL) as usize;
+        if pool_index == self.query_pools.len() {
+            let info =
+                vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(QUERIES_PER_POOL);
+            let pool = unsafe { self.ctx.device().create_query_pool(&info, None) }.vk("vkCreateQueryPool")?;
+            unsafe { self.ctx.device().cmd_reset_query_pool(self.cmd, pool, 0, QUERIES_PER_POOL) };
+            self.query_pools.push(pool);
+        }
+        let stage = if stage == vk::PipelineStageFlags2::NONE { vk::PipelineStageFlags2::TOP_OF_PIPE } else { stage };
+        unsafe {
+            self.ctx.device().cmd_write_timestamp2(
+                self.cmd,
+                stage,
+                self.query_pools[pool_index],
+                index % QUERIES_PER_POOL,
+            )
+        };
+        Ok(())
+    }
+
+    fn alloc_set(&mut self) -> GpuResult<vk::DescriptorSet> {
+        let d = self.ctx.device();
+        if self.sets_in_pool == SETS_PER_POOL {
+            let sizes = [vk::DescriptorPoolSize {
+                ty: vk::DescriptorType::STORAGE_BUFFER,
+                descriptor_count: SETS_PER_POOL * MAX_BINDINGS,
+            }];
+            let info = vk::DescriptorPoolCreateInfo::default().max_sets(SETS_PER_POOL).pool_sizes(&sizes);
+            self.desc_pools.push(unsafe { d.create_descriptor_pool(&info, None) }.vk("vkCreateDescriptorPool")?);
+            self.sets_in_pool = 0;
+        }
+        let layouts = [self.ctx.shared.set_layout];
+        let pool = *self.desc_pools.last().expect("pool created above");
+        let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts);
+        let set = unsafe { d.allocate_descriptor_sets(&info) }.vk("vkAllocateDescriptorSets")?[0];
+        self.sets_in_pool += 1;
+        Ok(set)
+    }
+}
+
+impl Drop for Recorder<'_> {
+    fn drop(&mut self) {
+        let d = self.ctx.device();
+        if !self.finished {
+            // Never submitted (an error while recording): end the buffer so it can be freed.
+            let _ = unsafe { d.end_command_buffer(self.cmd) };
+        }
+        self.ctx.free_command_buffer(self.cmd);
+        unsafe {
+            for p in self.query_pools.drain(..) {
+                d.destroy_query_pool(p, None);
+            }
+            for p in self.desc_pools.drain(..) {
+                d.destroy_descriptor_pool(p, None);
+            }
+        }
+        self.keep.clear();
+    }
+}

@@ -1,0 +1,65 @@
+//! `fill` and `copy` for any 4-byte element type (kernels `fill_u32`, `copy_u32`).
+
+use crate::gpu::{GpuBuffer, GpuError, GpuResult, Kernel, Recorder};
+use crate::shaders;
+use bytemuck::{Pod, Zeroable};
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct FillPush {
+    n: u32,
+    offset: u32,
+    value: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct CopyPush {
+    n: u32,
+    src_offset: u32,
+    dst_offset: u32,
+}
+
+fn check_word<T>(name: &str) -> GpuResult<()> {
+    if std::mem::size_of::<T>() != 4 {
+        return Err(GpuError::Buffer { name: name.into(), msg: "fill/copy need a 4-byte element type".into() });
+    }
+    Ok(())
+}
+
+fn check_range(name: &str, start: usize, n: usize, len: usize) -> GpuResult<()> {
+    if start.checked_add(n).is_none_or(|e| e > len) || len > u32::MAX as usize {
+        return Err(GpuError::Buffer {
+            name: name.into(),
+            msg: format!("range {start}..{} outside 0..{len}", start.saturating_add(n)),
+        });
+    }
+    Ok(())
+}
+
+/// `buf[start .. start + n] = value`.
+pub fn fill<T: Pod>(rec: &mut Recorder, buf: &GpuBuffer<T>, value: T, start: usize, n: usize) -> GpuResult<()> {
+    check_word::<T>(buf.name())?;
+    check_range(buf.name(), start, n, buf.len())?;
+    let k = Kernel::<FillPush>::new(rec.context(), &shaders::FILL_U32)?;
+    let value: u32 = bytemuck::cast(value);
+    let push = FillPush { n: n as u32, offset: start as u32, value };
+    rec.dispatch(&k, &[buf.binding()], &push, n as u64)
+}
+
+/// `dst[dst_start .. dst_start + n] = src[src_start .. src_start + n]`.
+pub fn copy<T: Pod>(
+    rec: &mut Recorder,
+    src: &GpuBuffer<T>,
+    src_start: usize,
+    dst: &GpuBuffer<T>,
+    dst_start: usize,
+    n: usize,
+) -> GpuResult<()> {
+    check_word::<T>(src.name())?;
+    check_range(src.name(), src_start, n, src.len())?;
+    check_range(dst.name(), dst_start, n, dst.len())?;
+    let k = Kernel::<CopyPush>::new(rec.context(), &shaders::COPY_U32)?;
+    let push = CopyPush { n: n as u32, src_offset: src_start as u32, dst_offset: dst_start as u32 };
+    rec.dispatch(&k, &[src.binding(), dst.binding()], &push, n as u64)
+}

@@ -1,0 +1,40 @@
+//! Generic compute operations built on the runtime: fill, copy, sum reduction and exclusive prefix scans
+//! (whole-array and segmented per ray). Each records into a [`Recorder`](crate::gpu::Recorder) and has a CPU
+//! twin in [`crate::reference::util`].
+
+mod fill_copy;
+mod reduce;
+mod scan;
+
+pub use fill_copy::{copy, fill};
+pub use reduce::{reduce_sum, sum};
+pub use scan::{exclusive_scan, segmented_exclusive_scan};
+
+use crate::gpu::ShaderBlob;
+use crate::shaders;
+use bytemuck::Pod;
+
+/// Element types the generic reduce and scan kernels come in.
+pub trait ScanValue: Pod + Default + std::fmt::Debug {
+    const REDUCE: &'static ShaderBlob;
+    const SCAN_BLOCK: &'static ShaderBlob;
+    const SCAN_ADD: &'static ShaderBlob;
+    const SCAN_SEGMENTED: &'static ShaderBlob;
+}
+
+impl ScanValue for f32 {
+    const REDUCE: &'static ShaderBlob = &shaders::REDUCE_SUM_F32;
+    const SCAN_BLOCK: &'static ShaderBlob = &shaders::SCAN_BLOCK_F32;
+    const SCAN_ADD: &'static ShaderBlob = &shaders::SCAN_ADD_F32;
+    const SCAN_SEGMENTED: &'static ShaderBlob = &shaders::SCAN_SEGMENTED_F32;
+}
+
+impl ScanValue for u32 {
+    const REDUCE: &'static ShaderBlob = &shaders::REDUCE_SUM_U32;
+    const SCAN_BLOCK: &'static ShaderBlob = &shaders::SCAN_BLOCK_U32;
+    const SCAN_ADD: &'static ShaderBlob = &shaders::SCAN_ADD_U32;
+    const SCAN_SEGMENTED: &'static ShaderBlob = &shaders::SCAN_SEGMENTED_U32;
+}
+
+/// Block width of the reduce and scan kernels (their `local_size_x`).
+pub const BLOCK: usize = 256;

@@ -1,0 +1,192 @@
+//! The runtime itself: device caps, the kernel checks, the pipeline cache, the memory ledger, barrier
+//! insertion, the descriptor-pool fallback and the per-dispatch timestamp breakdown.
+
+mod common;
+
+use bytemuck::{Pod, Zeroable};
+use common::gpu;
+use msnerf::gpu::{BufferDesc, GpuBuffer, GpuError, Kernel, MemoryCategory};
+use msnerf::{ops, shaders};
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct FillPush {
+    n: u32,
+    offset: u32,
+    value: u32,
+}
+
+#[test]
+fn caps_are_read_and_sane() {
+    let g = gpu();
+    let c = g.caps();
+    assert!(!c.name.is_empty());
+    assert!(c.max_storage_buffer_range >= 1 << 27, "Vulkan guarantees 128 MiB bindings");
+    assert!(c.max_shared_memory >= 16 << 10);
+    assert!(c.subgroup_size.is_power_of_two());
+    assert!(c.max_workgroup_count[0] >= 65535);
+    assert!(c.timestamp_period_ns.is_some(), "both target devices have timestamps");
+    let line = c.summary_line();
+    assert!(line.contains("subgroup") && line.contains(&c.name));
+    let listed = msnerf::gpu::context::list_devices().expect("list devices");
+    assert!(listed.iter().any(|d| d.name == c.name));
+}
+
+#[test]
+fn kernel_creation_checks_push_constants_and_caches_pipelines() {
+    let g = gpu();
+    // Wrong push-constant type: 4 bytes against the shader's 12.
+    let err = Kernel::<u32>::new(&g, &shaders::FILL_U32).err().expect("size mismatch must be refused");
+    assert!(matches!(err, GpuError::Shader { .. }), "{err}");
+    assert!(err.to_string().contains("12 bytes"), "{err}");
+    let before = g.pipeline_count();
+    let k1 = Kernel::<FillPush>::new(&g, &shaders::FILL_U32).expect("kernel");
+    let k2 = Kernel::<FillPush>::new(&g, &shaders::FILL_U32).expect("kernel");
+    assert_eq!(g.pipeline_count(), before + 1, "the second creation is a cache hit");
+    assert_eq!(k1.arity(), 1);
+    assert_eq!(k2.local_size(), [256, 1, 1]);
+}
+
+#[test]
+fn every_shipped_variant_builds_a_pipeline() {
+    let g = gpu();
+    for blob in shaders::ALL {
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(blob.spirv)).expect("SPIR-V words");
+        let info = msnerf::gpu::spirv::reflect(&words, blob.spec_defaults).expect("reflect");
+        assert!(info.local_size.iter().product::<u32>() > 0, "{}", blob.name);
+        assert!(info.shared_bytes <= g.caps().max_shared_memory, "{}", blob.name);
+    }
+}
+
+#[test]
+fn dispatch_asserts_binding_count_and_range() {
+    let g = gpu();
+    let k = Kernel::<FillPush>::new(&g, &shaders::FILL_U32).expect("kernel");
+    let a =
+        GpuBuffer::<u32>::new(&g, &BufferDesc { name: "a", len: 64, category: MemoryCategory::Other }).expect("buffer");
+    let mut rec = g.recorder("bad").expect("recorder");
+    let push = FillPush { n: 64, offset: 0, value: 7 };
+    let err =
+        rec.dispatch(&k, &[a.binding(), a.binding()], &push, 64).expect_err("two bindings for a one-binding kernel");
+    assert!(err.to_string().contains("2 bindings given, the kernel declares 1"), "{err}");
+    let err = a.slice(3, 9).expect_err("offset 12 bytes is not aligned to 16 on lavapipe");
+    assert!(err.to_string().contains("alignment"), "{err}");
+    drop(rec);
+    // A binding over maxStorageBufferRange is refused before it reaches the driver.
+    let max = g.caps().max_storage_buffer_range as usize;
+    let big = GpuBuffer::<u8>::new(&g, &BufferDesc { name: "big", len: max + 256, category: MemoryCategory::Other })
+        .expect("buffer");
+    let k_copy = Kernel::<FillPush>::new(&g, &shaders::COPY_U32).expect("kernel");
+    let mut rec = g.recorder("too big").expect("recorder");
+    let err = rec.dispatch(&k_copy, &[big.binding(), a.binding()], &push, 1).expect_err("over the binding limit");
+    assert!(err.to_string().contains("maxStorageBufferRange"), "{err}");
+}
+
+#[test]
+fn ledger_counts_exact_bytes_through_alloc_free_cycles() {
+    let g = gpu();
+    let base = g.memory_report().total_current;
+    let sizes = [1usize, 1000, 4096, 65_537, 3 << 20];
+    let mut expected_peak = base;
+    for round in 0..3 {
+        let mut live = Vec::new();
+        let mut want = base;
+        for (i, &n) in sizes.iter().enumerate() {
+            let cat = if i % 2 == 0 { MemoryCategory::Parameters } else { MemoryCategory::Activations };
+            let b = GpuBuffer::<f32>::new(&g, &BufferDesc { name: "cycle", len: n, category: cat }).expect("buffer");
+            want += g.buffer_footprint((n * 4) as u64);
+            live.push(b);
+            assert_eq!(g.memory_report().total_current, want, "round {round}, after {} buffers", i + 1);
+        }
+        expected_peak = expected_peak.max(want);
+        let params: u64 = [0, 2, 4].iter().map(|&i| g.buffer_footprint((sizes[i] * 4) as u64)).sum();
+        g.with_ledger(|l| assert_eq!(l.current(MemoryCategory::Parameters), params));
+        live.truncate(2);
+        let left = base + g.buffer_footprint(4) + g.buffer_footprint(4000);
+        assert_eq!(g.memory_report().total_current, left);
+        drop(live);
+        assert_eq!(g.memory_report().total_current, base, "everything freed in round {round}");
+    }
+    assert_eq!(g.memory_report().total_peak, expected_peak);
+    g.with_ledger(|l| {
+        l.reset_peaks();
+        assert_eq!(l.total_peak(), base);
+    });
+}
+
+#[test]
+fn barriers_only_between_dependent_dispatches() {
+    let g = gpu();
+    let mk = |name| {
+        GpuBuffer::<u32>::new(&g, &BufferDesc { name, len: 1000, category: MemoryCategory::Other }).expect("buffer")
+    };
+    let (a, b, c) = (mk("a"), mk("b"), mk("c"));
+    let mut rec = g.recorder("deps").expect("recorder");
+    ops::fill(&mut rec, &a, 1u32, 0, 1000).expect("fill a");
+    ops::fill(&mut rec, &b, 2u32, 0, 1000).expect("fill b (independent: no barrier)");
+    assert_eq!(rec.barrier_count(), 0);
+    ops::copy(&mut rec, &a, 0, &c, 0, 500).expect("copy a->c (reads a: barrier)");
+    assert_eq!(rec.barrier_count(), 1);
+    ops::copy(&mut rec, &b, 0, &c, 500, 500).expect("copy b->c (c written before: barrier)");
+    assert_eq!(rec.barrier_count(), 2);
+    rec.submit_and_wait().expect("submit");
+    let got = g.download(&c).expect("download");
+    assert!(got[..500].iter().all(|&v| v == 1) && got[500..].iter().all(|&v| v == 2));
+}
+
+#[test]
+fn descriptor_pool_fallback_gives_the_same_results() {
+    let g = common::gpu_with(|d| d.force_descriptor_pools = true);
+    assert!(!g.caps().push_descriptor);
+    let data: Vec<u32> = (0..5000).collect();
+    let src = GpuBuffer::from_slice(&g, "src", MemoryCategory::Other, &data).expect("upload");
+    let dst = GpuBuffer::<u32>::new(&g, &BufferDesc { name: "dst", len: 5000, category: MemoryCategory::Other })
+        .expect("buffer");
+    let mut rec = g.recorder("pools").expect("recorder");
+    // More dispatches than one descriptor pool holds, to cover pool growth.
+    for i in 0..300 {
+        ops::copy(&mut rec, &src, i, &dst, i, 1).expect("copy");
+    }
+    ops::copy(&mut rec, &src, 300, &dst, 300, 4700).expect("copy");
+    rec.submit_and_wait().expect("submit");
+    common::assert_same(&g.download(&dst).expect("download"), &data, "pool fallback copy");
+}
+
+#[test]
+fn timestamps_name_every_dispatch() {
+    let g = gpu();
+    let a = GpuBuffer::<f32>::from_slice(&g, "a", MemoryCategory::Other, &vec![1.0; 100_000]).expect("upload");
+    let out = GpuBuffer::<f32>::new(&g, &BufferDesc { name: "out", len: 100_000, category: MemoryCategory::Other })
+        .expect("buffer");
+    let sum = GpuBuffer::<f32>::new(&g, &BufferDesc { name: "sum", len: 1, category: MemoryCategory::Other })
+        .expect("buffer");
+    let mut rec = g.recorder("breakdown").expect("recorder");
+    ops::fill(&mut rec, &out, 0.0f32, 0, 100_000).expect("fill");
+    ops::copy(&mut rec, &a, 0, &out, 0, 100_000).expect("copy");
+    ops::reduce_sum(&mut rec, &out, 100_000, &sum).expect("reduce");
+    let report = rec.submit_and_wait().expect("submit");
+    let names: Vec<&str> = report.dispatches.iter().map(|d| d.name.as_str()).collect();
+    // 100000 elements: 391 partials, then 2, then 1.
+    assert_eq!(names, ["fill_u32", "copy_u32", "reduce_sum_f32", "reduce_sum_f32", "reduce_sum_f32"]);
+    assert!(report.dispatches.iter().all(|d| d.ms >= 0.0 && d.ms.is_finite()));
+    assert!(report.gpu_ms > 0.0 && report.wall_ms > 0.0);
+    let by = report.by_kernel();
+    assert_eq!(by.iter().find(|k| k.name == "reduce_sum_f32").map(|k| k.count), Some(3));
+    assert!(report.table().contains("copy_u32"));
+    assert_eq!(g.download(&sum).expect("download")[0], 100_000.0);
+}
+
+#[test]
+fn upload_and_download_through_staging_in_pieces() {
+    let g = gpu();
+    // 80 MiB: larger than one 64 MiB staging buffer, so both directions go in two pieces.
+    let n = 20 << 20;
+    let data: Vec<u32> = (0..n as u32).map(|i| i.wrapping_mul(2_654_435_761)).collect();
+    let buf = GpuBuffer::from_slice(&g, "big", MemoryCategory::Images, &data).expect("upload");
+    common::assert_same(&g.download(&buf).expect("download"), &data, "80 MiB round trip");
+    assert_eq!(g.download_range(&buf, 12_345, 12_400).expect("range"), data[12_345..12_400]);
+    // Both staging buffers grew to their 64 MiB cap, and the ledger holds exactly their bytes.
+    let staging = g.with_ledger(|l| l.current(MemoryCategory::Staging));
+    assert_eq!(staging, 2 * g.buffer_footprint(64 << 20), "staging is ledgered");
+    assert!(g.upload(&buf, n - 1, &[1, 2]).is_err(), "an upload past the end is refused");
+}
