@@ -43,6 +43,10 @@ const VARIANTS: &[Variant] = &[
     vd("scan_segmented_f32", "util/scan_segmented.comp", &[("VALUE_F32", "1")]),
     vd("scan_segmented_u32", "util/scan_segmented.comp", &[("VALUE_U32", "1")]),
     v("large_array_iota", "util/large_array_iota.comp"),
+    // encoding: multiresolution hash grid (src/nn/hashgrid.rs)
+    v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
+    v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
+    v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
 ];
 
 fn main() {

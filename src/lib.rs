@@ -5,6 +5,7 @@
 
 pub mod cli;
 pub mod gpu;
+pub mod nn;
 pub mod ops;
 pub mod reference;
 pub mod shaders;

@@ -202,8 +202,7 @@ impl Context {
             .timeline_semaphore(true)
             .buffer_device_address(caps.buffer_device_address)
             .shader_float16(caps.shader_float16)
-            .scalar_block_layout(true)
-            .vulkan_memory_model(true);
+            .scalar_block_layout(true);
         let mut v13 = vk::PhysicalDeviceVulkan13Features::default()
             .synchronization2(true)
             .subgroup_size_control(caps.subgroup_size_control);

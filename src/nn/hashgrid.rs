@@ -1,0 +1,297 @@
+//! Multiresolution hash encoding (instant-ngp / tiny-cuda-nn `HashGrid`, spec/nerfacto.md §3).
+//!
+//! [`HashGridConfig`] computes tcnn's level table (vertex-count resolutions, dense levels where res^3 fits the
+//! table, CoherentPrime hashing otherwise, entries padded to multiples of 8). [`HashGrid`] records the kernels:
+//! - `hashgrid_fwd`: one invocation per (point, level), level = workgroup z; writes L*F features per row plus
+//!   optional padding columns.
+//! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array.
+//! - `hashgrid_bwd_input`: gradient to the positions, one invocation per point.
+//!
+//! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
+
+use crate::gpu::{BufferDesc, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, MemoryCategory, Recorder};
+use crate::shaders;
+use bytemuck::{Pod, Zeroable};
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HashGridConfig {
+    pub n_levels: u32,
+    pub features_per_level: u32,
+    pub log2_hashmap_size: u32,
+    pub base_resolution: u32,
+    pub max_resolution: u32,
+}
+
+/// One level of the table, laid out as the kernels read it (`HashLevel` in hashgrid_common.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, PartialEq, Pod, Zeroable)]
+pub struct HashLevel {
+    pub scale: f32,
+    pub res: u32,
+    pub entries: u32,
+    pub offset: u32,
+    pub hashed: u32,
+    pub pad: [u32; 3],
+}
+
+impl HashGridConfig {
+    /// nerfstudio's growth factor b = exp((ln N_max - ln N_min) / (L - 1)).
+    pub fn per_level_scale(&self) -> f64 {
+        if self.n_levels <= 1 {
+            return 1.0;
+        }
+        ((self.max_resolution as f64).ln() - (self.base_resolution as f64).ln())
+            .exp()
+            .powf(1.0 / (self.n_levels - 1) as f64)
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        let f = self.features_per_level;
+        if self.n_levels == 0 || self.n_levels > 32 {
+            return Err(format!("n_levels must be 1..=32, got {}", self.n_levels));
+        }
+        if ![1, 2, 4, 8].contains(&f) {
+            return Err(format!("features_per_level must be 1, 2, 4 or 8, got {f}"));
+        }
+        if !(8..=24).contains(&self.log2_hashmap_size) {
+            return Err(format!("log2_hashmap_size must be 8..=24, got {}", self.log2_hashmap_size));
+        }
+        if self.base_resolution < 2 || self.max_resolution < self.base_resolution {
+            return Err(format!(
+                "need 2 <= base_resolution <= max_resolution, got {} and {}",
+                self.base_resolution, self.max_resolution
+            ));
+        }
+        Ok(())
+    }
+
+    /// The level table (tcnn: scale_l = 2^(l log2 b) N_min - 1 in f32, res_l = ceil(scale_l) + 1).
+    pub fn levels(&self) -> Vec<HashLevel> {
+        let log2_b = (self.per_level_scale() as f32).log2();
+        let table = 1u64 << self.log2_hashmap_size;
+        let mut offset = 0u64;
+        (0..self.n_levels)
+            .map(|l| {
+                let scale = (l as f32 * log2_b).exp2() * self.base_resolution as f32 - 1.0;
+                let res = scale.ceil() as u64 + 1;
+                let dense = res.pow(3).min((1u64 << 31) - 1).next_multiple_of(8);
+                let entries = dense.min(table);
+                let lv = HashLevel {
+                    scale,
+                    res: res as u32,
+                    entries: entries as u32,
+                    offset: offset as u32,
+                    hashed: u32::from(entries < res.pow(3)),
+                    pad: [0; 3],
+                };
+                offset += entries;
+                lv
+            })
+            .collect()
+    }
+
+    /// Table entries over all levels.
+    pub fn n_entries(&self) -> usize {
+        self.levels().iter().map(|l| l.entries as usize).sum()
+    }
+
+    /// Trainable floats (entries x features).
+    pub fn n_params(&self) -> usize {
+        self.n_entries() * self.features_per_level as usize
+    }
+
+    /// Encoded width L x F.
+    pub fn n_output(&self) -> usize {
+        (self.n_levels * self.features_per_level) as usize
+    }
+}
+
+/// Where the encoding lands in the output rows.
+#[derive(Copy, Clone, Debug)]
+pub struct OutputSlot {
+    pub stride: usize,
+    pub col: usize,
+    /// Columns written from `col`, padding included (>= L x F).
+    pub pad_to: usize,
+    pub pad_value: f32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct FwdPush {
+    params: u64,
+    shift: u32,
+    param_offset: u32,
+    n: u32,
+    n_levels: u32,
+    out_stride: u32,
+    out_col: u32,
+    pad_to: u32,
+    pad_value: f32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct BwdPush {
+    grads: u64,
+    shift: u32,
+    param_offset: u32,
+    n: u32,
+    dy_stride: u32,
+    dy_col: u32,
+    pad: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct BwdInputPush {
+    params: u64,
+    shift: u32,
+    param_offset: u32,
+    n: u32,
+    n_levels: u32,
+    dy_stride: u32,
+    dy_col: u32,
+}
+
+pub struct HashGrid {
+    pub config: HashGridConfig,
+    levels: GpuBuffer<HashLevel>,
+    fwd: Kernel<FwdPush>,
+    bwd: Kernel<BwdPush>,
+    bwd_input: Kernel<BwdInputPush>,
+}
+
+fn check_array(a: &LargeArray<f32>, offset: usize, n_params: usize) -> GpuResult<()> {
+    if offset + n_params > a.len() || offset % 8 != 0 {
+        return Err(GpuError::Buffer {
+            name: a.name().into(),
+            msg: format!("hash grid of {n_params} floats at {offset} does not fit (or offset not a multiple of 8)"),
+        });
+    }
+    Ok(())
+}
+
+impl HashGrid {
+    pub fn new(ctx: &crate::gpu::Context, config: &HashGridConfig) -> GpuResult<Self> {
+        config.validate().map_err(|msg| GpuError::Buffer { name: "hash grid config".into(), msg })?;
+        let levels = GpuBuffer::from_slice(ctx, "hash grid levels", MemoryCategory::Other, &config.levels())?;
+        let spec = [(0, config.features_per_level)];
+        Ok(Self {
+            config: config.clone(),
+            levels,
+            fwd: Kernel::with_spec(ctx, &shaders::HASHGRID_FWD, &spec)?,
+            bwd: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD, &spec)?,
+            bwd_input: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD_INPUT, &spec)?,
+        })
+    }
+
+    fn grid(&self, rec: &Recorder, n: usize) -> GpuResult<[u32; 3]> {
+        let groups = self.fwd.groups_for(n as u64);
+        let caps = rec.context().caps();
+        let [x, y, _] = crate::gpu::kernel::fold_groups(groups, caps.max_workgroup_count).ok_or_else(|| {
+            GpuError::Dispatch { kernel: "hashgrid".into(), msg: format!("{n} points need too many groups") }
+        })?;
+        Ok([x, y, self.config.n_levels])
+    }
+
+    /// Records the encoding of `n` positions (float[3n] in [0,1]^3) into `out`.
+    pub fn forward(
+        &self,
+        rec: &mut Recorder,
+        params: &LargeArray<f32>,
+        param_offset: usize,
+        positions: &GpuBuffer<f32>,
+        n: usize,
+        out: &GpuBuffer<f32>,
+        slot: OutputSlot,
+    ) -> GpuResult<()> {
+        check_array(params, param_offset, self.config.n_params())?;
+        if slot.pad_to < self.config.n_output() || slot.col + slot.pad_to > slot.stride || n * slot.stride > out.len() {
+            return Err(GpuError::Buffer {
+                name: out.name().into(),
+                msg: format!("output slot {slot:?} does not fit"),
+            });
+        }
+        let push = FwdPush {
+            params: params.table_address()?,
+            shift: params.chunk_shift(),
+            param_offset: param_offset as u32,
+            n: n as u32,
+            n_levels: self.config.n_levels,
+            out_stride: slot.stride as u32,
+            out_col: slot.col as u32,
+            pad_to: slot.pad_to as u32,
+            pad_value: slot.pad_value,
+        };
+        let grid = self.grid(rec, n)?;
+        let bindings = [positions.binding(), self.levels.binding(), out.binding()];
+        rec.dispatch_groups("hashgrid_fwd", &self.fwd, &bindings, &params.deps(), &push, grid)
+    }
+
+    /// Records grads[...] += d(encoding)/d(params)^T dL/dy (dy rows of `dy_stride`, encoding at `dy_col`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_params(
+        &self,
+        rec: &mut Recorder,
+        grads: &LargeArray<f32>,
+        param_offset: usize,
+        positions: &GpuBuffer<f32>,
+        n: usize,
+        dy: &GpuBuffer<f32>,
+        dy_stride: usize,
+        dy_col: usize,
+    ) -> GpuResult<()> {
+        check_array(grads, param_offset, self.config.n_params())?;
+        let push = BwdPush {
+            grads: grads.table_address()?,
+            shift: grads.chunk_shift(),
+            param_offset: param_offset as u32,
+            n: n as u32,
+            dy_stride: dy_stride as u32,
+            dy_col: dy_col as u32,
+            pad: 0,
+        };
+        let grid = self.grid(rec, n)?;
+        let bindings = [positions.binding(), self.levels.binding(), dy.binding()];
+        rec.dispatch_groups("hashgrid_bwd", &self.bwd, &bindings, &grads.deps(), &push, grid)
+    }
+
+    /// Records dL/dp (float[3n]) from dL/dy.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_input(
+        &self,
+        rec: &mut Recorder,
+        params: &LargeArray<f32>,
+        param_offset: usize,
+        positions: &GpuBuffer<f32>,
+        n: usize,
+        dy: &GpuBuffer<f32>,
+        dy_stride: usize,
+        dy_col: usize,
+        dp: &GpuBuffer<f32>,
+    ) -> GpuResult<()> {
+        check_array(params, param_offset, self.config.n_params())?;
+        let push = BwdInputPush {
+            params: params.table_address()?,
+            shift: params.chunk_shift(),
+            param_offset: param_offset as u32,
+            n: n as u32,
+            n_levels: self.config.n_levels,
+            dy_stride: dy_stride as u32,
+            dy_col: dy_col as u32,
+        };
+        let bindings = [positions.binding(), self.levels.binding(), dy.binding(), dp.binding()];
+        rec.dispatch_named("hashgrid_bwd_input", &self.bwd_input, &bindings, &params.deps(), &push, n as u64)
+    }
+
+    /// A scratch output buffer of `n` rows for this grid (tests and benchmarks).
+    pub fn output_buffer(&self, ctx: &crate::gpu::Context, n: usize, stride: usize) -> GpuResult<GpuBuffer<f32>> {
+        GpuBuffer::new(
+            ctx,
+            &BufferDesc { name: "hash grid output", len: n * stride, category: MemoryCategory::Activations },
+        )
+    }
+}
