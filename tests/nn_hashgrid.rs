@@ -7,6 +7,7 @@ mod common;
 use common::{assert_all_close_f32, gpu, rng};
 use msnerf::gpu::{BufferDesc, Context, GpuBuffer, LargeArray, MemoryCategory};
 use msnerf::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
+use msnerf::nn::{ParamSlice, RowSlice};
 use msnerf::ops;
 use msnerf::reference::hashgrid as twin;
 use rand::Rng;
@@ -113,7 +114,14 @@ fn forward_matches_twin_with_padding() {
     let out = GpuBuffer::from_slice(&g, "out", MemoryCategory::Activations, &vec![-9.0f32; n * stride]).expect("out");
     let mut rec = g.recorder("fwd").expect("recorder");
     s.grid
-        .forward(&mut rec, &s.params, s.offset, &pos, n, &out, OutputSlot { stride, col, pad_to, pad_value: 1.0 })
+        .forward(
+            &mut rec,
+            ParamSlice { array: &s.params, offset: s.offset },
+            &pos,
+            n,
+            &out,
+            OutputSlot { stride, col, pad_to, pad_value: 1.0 },
+        )
         .expect("fwd");
     rec.submit_and_wait().expect("submit");
     let got = g.download(&out).expect("download");
@@ -142,7 +150,15 @@ fn backward_params_matches_twin_at_99th_percentile() {
     for c in grads.chunks() {
         ops::fill(&mut rec, c, 0.0f32, 0, c.len()).expect("zero");
     }
-    s.grid.backward_params(&mut rec, &grads, 0, &pos, n, &dy, 12, 0).expect("bwd");
+    s.grid
+        .backward_params(
+            &mut rec,
+            ParamSlice { array: &grads, offset: 0 },
+            &pos,
+            n,
+            RowSlice { buf: &dy, stride: 12, col: 0 },
+        )
+        .expect("bwd");
     rec.submit_and_wait().expect("submit");
     let got = grads.download(&g).expect("download");
     let levels = cfg.levels();
@@ -175,7 +191,16 @@ fn backward_input_matches_twin_and_finite_differences() {
     let dp = GpuBuffer::<f32>::new(&g, &BufferDesc { name: "dp", len: 3 * n, category: MemoryCategory::Activations })
         .expect("dp");
     let mut rec = g.recorder("bwd input").expect("recorder");
-    s.grid.backward_input(&mut rec, &s.params, s.offset, &pos, n, &dy, 12, 0, &dp).expect("bwd input");
+    s.grid
+        .backward_input(
+            &mut rec,
+            ParamSlice { array: &s.params, offset: s.offset },
+            &pos,
+            n,
+            RowSlice { buf: &dy, stride: 12, col: 0 },
+            &dp,
+        )
+        .expect("bwd input");
     rec.submit_and_wait().expect("submit");
     let got = g.download(&dp).expect("download");
     let levels = cfg.levels();
@@ -251,7 +276,14 @@ fn table1_grid_of_256_mib_works_on_every_device() {
     let out = s.grid.output_buffer(&g, n, 32).expect("out");
     let mut rec = g.recorder("table1").expect("recorder");
     s.grid
-        .forward(&mut rec, &s.params, 0, &pos, n, &out, OutputSlot { stride: 32, col: 0, pad_to: 32, pad_value: 0.0 })
+        .forward(
+            &mut rec,
+            ParamSlice { array: &s.params, offset: 0 },
+            &pos,
+            n,
+            &out,
+            OutputSlot { stride: 32, col: 0, pad_to: 32, pad_value: 0.0 },
+        )
         .expect("fwd");
     rec.submit_and_wait().expect("submit");
     let got = g.download(&out).expect("download");

@@ -9,6 +9,7 @@
 //!
 //! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
 
+use super::{ParamSlice, RowSlice};
 use crate::gpu::{BufferDesc, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, MemoryCategory, Recorder};
 use crate::shaders;
 use bytemuck::{Pod, Zeroable};
@@ -201,13 +202,13 @@ impl HashGrid {
     pub fn forward(
         &self,
         rec: &mut Recorder,
-        params: &LargeArray<f32>,
-        param_offset: usize,
+        params: ParamSlice,
         positions: &GpuBuffer<f32>,
         n: usize,
         out: &GpuBuffer<f32>,
         slot: OutputSlot,
     ) -> GpuResult<()> {
+        let (params, param_offset) = (params.array, params.offset);
         check_array(params, param_offset, self.config.n_params())?;
         if slot.pad_to < self.config.n_output() || slot.col + slot.pad_to > slot.stride || n * slot.stride > out.len() {
             return Err(GpuError::Buffer {
@@ -231,19 +232,17 @@ impl HashGrid {
         rec.dispatch_groups("hashgrid_fwd", &self.fwd, &bindings, &params.deps(), &push, grid)
     }
 
-    /// Records grads[...] += d(encoding)/d(params)^T dL/dy (dy rows of `dy_stride`, encoding at `dy_col`).
-    #[allow(clippy::too_many_arguments)]
+    /// Records grads += d(encoding)/d(params)^T dL/dy.
     pub fn backward_params(
         &self,
         rec: &mut Recorder,
-        grads: &LargeArray<f32>,
-        param_offset: usize,
+        grads: ParamSlice,
         positions: &GpuBuffer<f32>,
         n: usize,
-        dy: &GpuBuffer<f32>,
-        dy_stride: usize,
-        dy_col: usize,
+        dy: RowSlice,
     ) -> GpuResult<()> {
+        let (grads, param_offset) = (grads.array, grads.offset);
+        let (dy, dy_stride, dy_col) = (dy.buf, dy.stride, dy.col);
         check_array(grads, param_offset, self.config.n_params())?;
         let push = BwdPush {
             grads: grads.table_address()?,
@@ -260,19 +259,17 @@ impl HashGrid {
     }
 
     /// Records dL/dp (float[3n]) from dL/dy.
-    #[allow(clippy::too_many_arguments)]
     pub fn backward_input(
         &self,
         rec: &mut Recorder,
-        params: &LargeArray<f32>,
-        param_offset: usize,
+        params: ParamSlice,
         positions: &GpuBuffer<f32>,
         n: usize,
-        dy: &GpuBuffer<f32>,
-        dy_stride: usize,
-        dy_col: usize,
+        dy: RowSlice,
         dp: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
+        let (params, param_offset) = (params.array, params.offset);
+        let (dy, dy_stride, dy_col) = (dy.buf, dy.stride, dy.col);
         check_array(params, param_offset, self.config.n_params())?;
         let push = BwdInputPush {
             params: params.table_address()?,

@@ -83,12 +83,12 @@ pub fn backward_input<T: Float>(levels: &[HashLevel], f: usize, params: &[T], p:
             let (v, _) = corner(c, c0, frac);
             let base = param_index(lv, v, f);
             let gtheta = (0..f).fold(T::zero(), |acc, k| acc + dy[l * f + k] * params[base + k]);
-            for d in 0..3 {
+            for (d, g) in grad.iter_mut().enumerate() {
                 let mut w = if (c >> d) & 1 == 1 { T::one() } else { -T::one() };
                 for e in (0..3).filter(|&e| e != d) {
                     w = w * if (c >> e) & 1 == 1 { frac[e] } else { T::one() - frac[e] };
                 }
-                grad[d] = grad[d] + w * gtheta * scale;
+                *g = *g + w * gtheta * scale;
             }
         }
     }
