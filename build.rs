@@ -47,6 +47,11 @@ const VARIANTS: &[Variant] = &[
     v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
+    // network: fully fused MLP (src/nn/mlp.rs)
+    v("mlp_fwd", "network/mlp_fwd.comp"),
+    v("mlp_bwd", "network/mlp_bwd.comp"),
+    v("mlp_wgrad", "network/mlp_wgrad.comp"),
+    v("mlp_wgrad_reduce", "network/mlp_wgrad_reduce.comp"),
 ];
 
 fn main() {

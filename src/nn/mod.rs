@@ -2,6 +2,7 @@
 //! ([`hashgrid`]) and the fully fused MLP ([`mlp`]).
 
 pub mod hashgrid;
+pub mod mlp;
 
 use crate::gpu::{GpuBuffer, LargeArray};
 

@@ -2,4 +2,5 @@
 //! (and usable as a slow fallback). One file per kernel family.
 
 pub mod hashgrid;
+pub mod mlp;
 pub mod util;
