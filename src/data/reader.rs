@@ -72,9 +72,7 @@ pub fn read_image_bytes(bytes: &[u8], max_bytes: usize) -> Result<DecodedImage, 
         return Err("file too short to be an image".into());
     }
     guarded(|| match sniff(bytes) {
-        FileKind::Tiff => {
-            super::tiff_reader::read_tiff_from(std::io::Cursor::new(bytes), max_bytes)
-        }
+        FileKind::Tiff => super::tiff_reader::read_tiff_bytes(bytes, max_bytes),
         FileKind::Exr => super::exr_reader::read_exr_from(std::io::Cursor::new(bytes), max_bytes),
         FileKind::Other => super::png_reader::read_png_jpeg_bytes(bytes, max_bytes),
     })

@@ -28,7 +28,66 @@ fn err<E: std::fmt::Display>(e: E) -> String {
 /// Reads a whole TIFF into a `Raster` (identity scaling) plus band metadata. `max_bytes` bounds allocations.
 pub fn read_tiff(path: &Path, max_bytes: usize) -> Result<DecodedImage, String> {
     let file = File::open(path).map_err(err)?;
-    read_tiff_from(BufReader::new(file), max_bytes)
+    match read_tiff_from(BufReader::new(file), max_bytes) {
+        Err(e) if e == NEEDS_GRAY => {
+            let bytes = std::fs::read(path).map_err(err)?;
+            read_tiff_from(std::io::Cursor::new(as_multiband(&bytes)), max_bytes)
+        }
+        r => r,
+    }
+}
+
+/// Reads TIFF bytes in memory.
+pub fn read_tiff_bytes(bytes: &[u8], max_bytes: usize) -> Result<DecodedImage, String> {
+    match read_tiff_from(std::io::Cursor::new(bytes), max_bytes) {
+        Err(e) if e == NEEDS_GRAY => {
+            read_tiff_from(std::io::Cursor::new(as_multiband(bytes)), max_bytes)
+        }
+        r => r,
+    }
+}
+
+/// Marker error: the page is RGB/CMYK with extra non-alpha samples, which the `tiff` crate decodes as its
+/// colour samples only (it drops the extras: a 5-band GeoTIFF written as RGB + 2 extra samples comes back
+/// with 3). We then re-read an in-memory copy whose PhotometricInterpretation is patched to BlackIsZero,
+/// which the crate decodes as `Multiband` with every sample. The user's file is never modified.
+const NEEDS_GRAY: &str = "tiff: photometric RGB/CMYK with extra samples";
+
+/// A copy of `bytes` with every IFD's PhotometricInterpretation (tag 262) set to 1 (BlackIsZero).
+fn as_multiband(bytes: &[u8]) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    let le = b.starts_with(b"II");
+    let rd = |b: &[u8], o: usize, n: usize| -> Option<u64> {
+        let s = b.get(o..o + n)?;
+        let mut v = 0u64;
+        for i in 0..n {
+            let byte = if le { s[n - 1 - i] } else { s[i] } as u64;
+            v = (v << 8) | byte;
+        }
+        Some(v)
+    };
+    let big = rd(&b, 2, 2) == Some(43);
+    let (mut ifd, cnt_sz, ent_sz, val_off) = if big {
+        (rd(&b, 8, 8).unwrap_or(0) as usize, 8, 20, 12)
+    } else {
+        (rd(&b, 4, 4).unwrap_or(0) as usize, 2, 12, 8)
+    };
+    for _ in 0..4096 {
+        let Some(n) = rd(&b, ifd, cnt_sz) else { break };
+        for e in 0..n.min(4096) as usize {
+            let o = ifd + cnt_sz + e * ent_sz;
+            if rd(&b, o, 2) == Some(262) && rd(&b, o + 2, 2) == Some(3) && o + val_off + 2 <= b.len() {
+                let v: [u8; 2] = if le { [1, 0] } else { [0, 1] };
+                b[o + val_off..o + val_off + 2].copy_from_slice(&v);
+            }
+        }
+        let next_o = ifd + cnt_sz + n as usize * ent_sz;
+        match rd(&b, next_o, if big { 8 } else { 4 }) {
+            Some(next) if next != 0 && (next as usize) != ifd => ifd = next as usize,
+            _ => break,
+        }
+    }
+    b
 }
 
 /// Same as [`read_tiff`] for any seekable reader (used by the mutation tests on in-memory bytes).
@@ -96,7 +155,22 @@ fn read_page<R: std::io::Read + std::io::Seek>(
 ) -> Result<(u32, u32, usize, Samples), String> {
     let (w, h) = dec.dimensions().map_err(err)?;
     let color = dec.colortype().map_err(err)?;
-    let samples = color.num_samples() as usize;
+    // SamplesPerPixel, not the colour type: an RGB image with extra samples (e.g. a 5-band GeoTIFF written
+    // as RGB + 2 extra) reports 3 colour samples but stores 5.
+    let samples = dec
+        .find_tag_unsigned::<u16>(Tag::SamplesPerPixel)
+        .map_err(err)?
+        .unwrap_or(color.num_samples()) as usize;
+    if samples == 0 {
+        return Err("SamplesPerPixel is 0".into());
+    }
+    let photometric = dec
+        .find_tag_unsigned::<u16>(Tag::PhotometricInterpretation)
+        .map_err(err)?
+        .unwrap_or(1);
+    if samples > color.num_samples() as usize && matches!(photometric, 2 | 5) {
+        return Err(NEEDS_GRAY.into());
+    }
     let bits = color.bit_depth();
     if !matches!(bits, 8 | 16 | 32) {
         return Err(format!(
