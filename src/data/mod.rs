@@ -10,10 +10,10 @@
 //! - [`check`]: `dataset check` as a library function.
 //! - [`bench`]: cache/load benchmark.
 
-// pub mod bench;
-// pub mod cache;
+pub mod bench;
+pub mod cache;
 pub mod camera;
-// pub mod check;
+pub mod check;
 pub mod error;
 pub mod exr_reader;
 pub mod loader;
@@ -22,14 +22,14 @@ pub mod pose;
 pub mod raster;
 pub mod reader;
 pub mod split;
-// pub mod synth;
+pub mod synth;
 pub mod tiff_reader;
 pub mod transforms;
 pub mod xmp;
 
-// pub use cache::{CacheConfig, ImageCache, PixelBatch};
+pub use cache::{CacheConfig, ImageCache, PixelBatch};
 pub use camera::{Camera, CameraModel, Distortion, Ray};
-// pub use check::{check_dataset, CheckReport};
+pub use check::{check_dataset, CheckReport};
 pub use error::{DataError, FrameRef};
 pub use loader::{load_dataset, Band, Dataset, Frame, ImageSource, LoadOptions};
 pub use pose::PoseTransform;
