@@ -188,6 +188,10 @@ fn read_page<R: std::io::Read + std::io::Seek>(
         .map_err(err)?
         .and_then(PlanarConfiguration::from_u16)
         == Some(PlanarConfiguration::Planar);
+    if dec.get_chunk_type() == tiff::decoder::ChunkType::Tile {
+        let s = read_tiles(dec, w, h, samples, planar)?;
+        return Ok((w, h, samples, s));
+    }
     let mut result = DecodingResult::U8(vec![]);
     dec.read_image_to_buffer(&mut result).map_err(err)?;
     let s = match result {
@@ -211,6 +215,62 @@ fn read_page<R: std::io::Read + std::io::Seek>(
         truncate(s, n)
     };
     Ok((w, h, samples, s))
+}
+
+fn to_samples(r: DecodingResult) -> Result<Samples, String> {
+    Ok(match r {
+        DecodingResult::U8(v) => Samples::U8(v),
+        DecodingResult::U16(v) => Samples::U16(v),
+        DecodingResult::U32(v) => Samples::U32(v),
+        DecodingResult::F16(v) => Samples::F16(v),
+        DecodingResult::F32(v) => Samples::F32(v),
+        _ => return Err("unsupported sample format (signed or 64-bit samples)".into()),
+    })
+}
+
+/// Tiled images are assembled tile by tile with `read_chunk`: `tiff` 0.11's whole-image path asserts
+/// (panics) on planar images with partial edge tiles, and fails on LZW edge tiles of multi-sample chunky
+/// images, while its per-tile path decodes both.
+fn read_tiles<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+    w: u32,
+    h: u32,
+    samples: usize,
+    planar: bool,
+) -> Result<Samples, String> {
+    let (tw, th) = dec.chunk_dimensions();
+    if tw == 0 || th == 0 {
+        return Err("zero tile size".into());
+    }
+    let across = w.div_ceil(tw);
+    let down = h.div_ceil(th);
+    let per_plane = across * down;
+    let (planes, spp) = if planar { (samples, 1) } else { (1, samples) };
+    let mut out: Option<Samples> = None;
+    for p in 0..planes {
+        for t in 0..per_plane {
+            let (tx, ty) = (t % across, t / across);
+            let dw = tw.min(w - tx * tw) as usize;
+            let dh = th.min(h - ty * th) as usize;
+            let chunk = to_samples(dec.read_chunk(p as u32 * per_plane + t).map_err(err)?)?;
+            if chunk.len() < dw * dh * spp {
+                return Err(format!("tile {t} decoded {} samples, expected {}", chunk.len(), dw * dh * spp));
+            }
+            let o = out.get_or_insert_with(|| Samples::zeros(chunk.sample_type(), w as usize * h as usize * samples));
+            for r in 0..dh {
+                for c in 0..dw {
+                    let px = (ty as usize * th as usize + r) * w as usize + tx as usize * tw as usize + c;
+                    for k in 0..spp {
+                        let src = (r * dw + c) * spp + k;
+                        if !o.copy_from(px * samples + p + k, &chunk, src) {
+                            return Err("tiles of different sample types".into());
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out.ok_or_else(|| "image has no tiles".to_string())
 }
 
 fn truncate(s: Samples, n: usize) -> Samples {
