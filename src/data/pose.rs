@@ -32,9 +32,20 @@ impl PoseTransform {
         [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
     }
 
+    /// Applies R⁻¹. Nerfstudio's Rodrigues formula has a `+1e-8` in a denominator, so R is orthonormal only
+    /// to ~1e-8 and Rᵀ is not its inverse to the precision UTM coordinates need: use the true inverse.
     fn rot_t(&self, v: [f64; 3]) -> [f64; 3] {
         let m = &self.transform;
-        [0, 1, 2].map(|i| m[0][i] * v[0] + m[1][i] * v[1] + m[2][i] * v[2])
+        let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+        let c = |r: usize, k: usize| {
+            let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
+            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+            m[r1][k1] * m[r2][k2] - m[r1][k2] * m[r2][k1]
+        };
+        // inverse[i][j] = cofactor(j, i) / det
+        [0, 1, 2].map(|i| (c(0, i) * v[0] + c(1, i) * v[1] + c(2, i) * v[2]) / det)
     }
 
     /// A world point in normalised coordinates.
