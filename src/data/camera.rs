@@ -187,12 +187,22 @@ impl Camera {
     /// World ray through the centre of pixel (row, col) in f64; `c2w` is the 3x4 (or 4x4) camera-to-world.
     pub fn ray_f64(&self, c2w: &[[f64; 4]; 4], row: u32, col: u32) -> Ray<f64> {
         let m = [c2w[0], c2w[1], c2w[2]];
-        generate_ray(&self.intrinsics::<f64>(), &m, row as f64 + 0.5, col as f64 + 0.5)
+        generate_ray(
+            &self.intrinsics::<f64>(),
+            &m,
+            row as f64 + 0.5,
+            col as f64 + 0.5,
+        )
     }
 
     /// World ray through the centre of pixel (row, col) in f32.
     pub fn ray_f32(&self, c2w: &[[f32; 4]; 3], row: u32, col: u32) -> Ray<f32> {
-        generate_ray(&self.intrinsics::<f32>(), c2w, row as f32 + 0.5, col as f32 + 0.5)
+        generate_ray(
+            &self.intrinsics::<f32>(),
+            c2w,
+            row as f32 + 0.5,
+            col as f32 + 0.5,
+        )
     }
 }
 

@@ -23,8 +23,8 @@ pub fn read_exr_from<R: Read + Seek>(
 ) -> std::result::Result<DecodedImage, String> {
     // Check the header's size before the pixel data is allocated.
     let mut reader = reader;
-    let meta = exr::meta::MetaData::read_from_buffered(&mut reader, false)
-        .map_err(|e| e.to_string())?;
+    let meta =
+        exr::meta::MetaData::read_from_buffered(&mut reader, false).map_err(|e| e.to_string())?;
     for h in &meta.headers {
         let px = h.layer_size.area() as u128;
         let bytes: u128 = h

@@ -109,8 +109,16 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
             if let Some(prev) = seen.insert(n.clone(), f.index) {
                 errors.push(DataError::DuplicateFileName {
                     path: tpath.clone(),
-                    key: if f.file_path.is_some() { "file_path" } else { "band_files" }.into(),
-                    frame: Some(FrameRef { index: f.index, name: f.name.clone() }),
+                    key: if f.file_path.is_some() {
+                        "file_path"
+                    } else {
+                        "band_files"
+                    }
+                    .into(),
+                    frame: Some(FrameRef {
+                        index: f.index,
+                        name: f.name.clone(),
+                    }),
                     name: format!("{n} (also in frame {prev})"),
                 });
             }
@@ -133,7 +141,10 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
 
     let mut frames = Vec::with_capacity(raw_frames.len());
     for (f, split) in raw_frames.into_iter().zip(splits) {
-        let fr = FrameRef { index: f.index, name: f.name.clone() };
+        let fr = FrameRef {
+            index: f.index,
+            name: f.name.clone(),
+        };
         let image = match (f.file_path, f.band_files) {
             (Some(p), _) => ImageSource::File(p),
             (None, Some(b)) => ImageSource::BandFiles(b),
@@ -233,7 +244,10 @@ fn infer_bands(ds: &Dataset, probe: &[DecodedImage]) -> Result<Vec<Band>, DataEr
                     return Err(DataError::MissingKey {
                         path: ds.transforms_path.clone(),
                         key: "bands".into(),
-                        frame: Some(FrameRef { index: f0.index_in_file, name: format!("band file {i}: {}", p.display()) }),
+                        frame: Some(FrameRef {
+                            index: f0.index_in_file,
+                            name: format!("band file {i}: {}", p.display()),
+                        }),
                     });
                 };
                 out.push(band(name, x.center_nm, x.fwhm_nm));
@@ -243,21 +257,36 @@ fn infer_bands(ds: &Dataset, probe: &[DecodedImage]) -> Result<Vec<Band>, DataEr
         ImageSource::File(p) => {
             let d = &probe[0];
             if !d.meta.channel_names.is_empty() && d.raster.bands != 3 {
-                return Ok(d.meta.channel_names.iter().map(|n| band(n.clone(), None, None)).collect());
+                return Ok(d
+                    .meta
+                    .channel_names
+                    .iter()
+                    .map(|n| band(n.clone(), None, None))
+                    .collect());
             }
             let n = d.raster.bands;
             if n == 3 || n == 4 {
-                return Ok(["red", "green", "blue"].iter().map(|s| band(s.to_string(), None, None)).collect());
+                return Ok(["red", "green", "blue"]
+                    .iter()
+                    .map(|s| band(s.to_string(), None, None))
+                    .collect());
             }
             if n == 1 {
                 if let Some(x) = d.meta.xmp.clone().filter(|x| x.name.is_some()) {
-                    return Ok(vec![band(x.name.unwrap_or_default(), x.center_nm, x.fwhm_nm)]);
+                    return Ok(vec![band(
+                        x.name.unwrap_or_default(),
+                        x.center_nm,
+                        x.fwhm_nm,
+                    )]);
                 }
             }
             Err(DataError::MissingKey {
                 path: ds.transforms_path.clone(),
                 key: "bands".into(),
-                frame: Some(FrameRef { index: f0.index_in_file, name: format!("{} has {n} channels", p.display()) }),
+                frame: Some(FrameRef {
+                    index: f0.index_in_file,
+                    name: format!("{} has {n} channels", p.display()),
+                }),
             })
         }
     }
@@ -265,7 +294,11 @@ fn infer_bands(ds: &Dataset, probe: &[DecodedImage]) -> Result<Vec<Band>, DataEr
 
 /// Whether an EXR channel name matches a band name (case-insensitive; `layer.R` matches `R`; `red`/`r`).
 fn channel_matches(channel: &str, band: &str) -> bool {
-    let c = channel.rsplit('.').next().unwrap_or(channel).to_ascii_lowercase();
+    let c = channel
+        .rsplit('.')
+        .next()
+        .unwrap_or(channel)
+        .to_ascii_lowercase();
     let b = band.to_ascii_lowercase();
     if c == b || channel.eq_ignore_ascii_case(band) {
         return true;
@@ -286,18 +319,27 @@ impl Dataset {
 
     /// Bytes one image takes in memory (samples only).
     pub fn image_bytes(&self) -> u64 {
-        self.width as u64 * self.height as u64 * self.bands.len() as u64 * self.sample_type.bytes() as u64
+        self.width as u64
+            * self.height as u64
+            * self.bands.len() as u64
+            * self.sample_type.bytes() as u64
     }
 
     /// Bytes one image takes in memory including its mask plane, if the frame has one.
     pub fn frame_bytes(&self, i: usize) -> u64 {
-        let mask = if self.frames[i].mask.is_some() { self.width as u64 * self.height as u64 } else { 0 };
+        let mask = if self.frames[i].mask.is_some() {
+            self.width as u64 * self.height as u64
+        } else {
+            0
+        };
         self.image_bytes() + mask
     }
 
     /// Indices of the frames in a split.
     pub fn split_indices(&self, split: Split) -> Vec<usize> {
-        (0..self.frames.len()).filter(|&i| self.frames[i].split == split).collect()
+        (0..self.frames.len())
+            .filter(|&i| self.frames[i].split == split)
+            .collect()
     }
 
     /// The pose normalisation over all frames (nerfstudio normalises before splitting).
@@ -309,7 +351,9 @@ impl Dataset {
     fn max_decode_bytes(&self) -> usize {
         // The expected image at 4 bytes a sample plus slack; bounds what a corrupt header can allocate.
         let px = self.width as usize * self.height as usize;
-        (px * self.bands.len().max(4) * 4).saturating_mul(2).max(1 << 24)
+        (px * self.bands.len().max(4) * 4)
+            .saturating_mul(2)
+            .max(1 << 24)
     }
 
     fn decode_sources(&self, i: usize) -> Result<Vec<DecodedImage>, DataError> {
@@ -357,7 +401,11 @@ impl Dataset {
             return Err(DataError::Decode {
                 path: self.image_path(i).to_path_buf(),
                 frame: Some(frame_of(f)),
-                reason: format!("sample type {:?} differs from the first frame's {:?}", raster.sample_type(), self.sample_type),
+                reason: format!(
+                    "sample type {:?} differs from the first frame's {:?}",
+                    raster.sample_type(),
+                    self.sample_type
+                ),
             });
         }
         raster.scaling = (0..nb)
@@ -402,8 +450,15 @@ impl Dataset {
         }
         let band = &self.bands[b];
         BandScale {
-            black: band.black_level.or(self.black_level).or(file_black).unwrap_or(0.0),
-            scale: band.pixel_scale.or(self.pixel_scale).unwrap_or(self.sample_type.default_scale()),
+            black: band
+                .black_level
+                .or(self.black_level)
+                .or(file_black)
+                .unwrap_or(0.0),
+            scale: band
+                .pixel_scale
+                .or(self.pixel_scale)
+                .unwrap_or(self.sample_type.default_scale()),
         }
     }
 
@@ -428,7 +483,9 @@ impl Dataset {
         match (r.bands, nb) {
             (a, b) if a == b => Ok(r),
             (4, 3) | (2, 1) => Ok(select_channels(&r, &[0, 1, 2][..nb])),
-            (1, 3) if matches!(r.sample_type(), SampleType::U8 | SampleType::U16) => Ok(select_channels(&r, &[0, 0, 0])),
+            (1, 3) if matches!(r.sample_type(), SampleType::U8 | SampleType::U16) => {
+                Ok(select_channels(&r, &[0, 0, 0]))
+            }
             (a, _) => Err(self.band_count_err(p, f, a)),
         }
     }
@@ -436,7 +493,12 @@ impl Dataset {
     fn band_count_err(&self, p: &Path, f: &Frame, found: usize) -> DataError {
         DataError::BandCount {
             path: p.to_path_buf(),
-            key: if matches!(f.image, ImageSource::File(_)) { "file_path" } else { "band_files" }.into(),
+            key: if matches!(f.image, ImageSource::File(_)) {
+                "file_path"
+            } else {
+                "band_files"
+            }
+            .into(),
             frame: Some(frame_of(f)),
             expected: self.bands.len(),
             found,
@@ -466,7 +528,9 @@ impl Dataset {
             .iter()
             .map(|d| {
                 let n = d.meta.xmp.as_ref()?.name.as_ref()?;
-                self.bands.iter().position(|b| b.name.eq_ignore_ascii_case(n))
+                self.bands
+                    .iter()
+                    .position(|b| b.name.eq_ignore_ascii_case(n))
             })
             .collect();
         let mut used = vec![false; nb];
@@ -495,7 +559,11 @@ impl Dataset {
                 return Err(DataError::Decode {
                     path: p.clone(),
                     frame: Some(frame_of(f)),
-                    reason: format!("sample type {:?} differs from the other bands' {:?}", d.raster.sample_type(), ty),
+                    reason: format!(
+                        "sample type {:?} differs from the other bands' {:?}",
+                        d.raster.sample_type(),
+                        ty
+                    ),
                 });
             }
             let b = slot[k];
@@ -509,11 +577,12 @@ impl Dataset {
     }
 
     fn read_mask(&self, p: &Path, f: &Frame) -> Result<Vec<u8>, DataError> {
-        let d = read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
-            path: p.to_path_buf(),
-            frame: Some(frame_of(f)),
-            reason,
-        })?;
+        let d =
+            read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
+                path: p.to_path_buf(),
+                frame: Some(frame_of(f)),
+                reason,
+            })?;
         let r = d.raster;
         if (r.width, r.height) != (self.width, self.height) {
             return Err(DataError::ImageSize {
@@ -525,18 +594,21 @@ impl Dataset {
             });
         }
         let px = (self.width * self.height) as usize;
-        Ok((0..px).map(|q| u8::from(r.samples.raw(q * r.bands) != 0.0)).collect())
+        Ok((0..px)
+            .map(|q| u8::from(r.samples.raw(q * r.bands) != 0.0))
+            .collect())
     }
 
     /// Reads frame `i`'s depth file in metres (× `depth_unit_scale_factor`), row-major; `None` without one.
     pub fn read_depth(&self, i: usize) -> Result<Option<Vec<f32>>, DataError> {
         let f = &self.frames[i];
         let Some(p) = &f.depth else { return Ok(None) };
-        let d = read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
-            path: p.clone(),
-            frame: Some(frame_of(f)),
-            reason,
-        })?;
+        let d =
+            read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
+                path: p.clone(),
+                frame: Some(frame_of(f)),
+                reason,
+            })?;
         let r = d.raster;
         if (r.width, r.height) != (self.width, self.height) {
             return Err(DataError::ImageSize {
@@ -549,7 +621,11 @@ impl Dataset {
         }
         let s = self.depth_unit_scale_factor;
         let px = (self.width * self.height) as usize;
-        Ok(Some((0..px).map(|q| (r.samples.raw(q * r.bands) * s) as f32).collect()))
+        Ok(Some(
+            (0..px)
+                .map(|q| (r.samples.raw(q * r.bands) * s) as f32)
+                .collect(),
+        ))
     }
 }
 

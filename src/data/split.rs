@@ -91,11 +91,20 @@ pub fn assign_splits(
         return (s, SplitMethod::Filenames);
     }
     if per_frame.iter().any(|s| s.is_some()) {
-        let s = per_frame.iter().map(|s| s.unwrap_or(Split::Train)).collect();
+        let s = per_frame
+            .iter()
+            .map(|s| s.unwrap_or(Split::Train))
+            .collect();
         return (s, SplitMethod::PerFrame);
     }
     let s = (0..names.len())
-        .map(|i| if i % 8 == 0 { Split::Eval } else { Split::Train })
+        .map(|i| {
+            if i % 8 == 0 {
+                Split::Eval
+            } else {
+                Split::Train
+            }
+        })
         .collect();
     (s, SplitMethod::Interval)
 }

@@ -76,7 +76,10 @@ fn as_multiband(bytes: &[u8]) -> Vec<u8> {
         let Some(n) = rd(&b, ifd, cnt_sz) else { break };
         for e in 0..n.min(4096) as usize {
             let o = ifd + cnt_sz + e * ent_sz;
-            if rd(&b, o, 2) == Some(262) && rd(&b, o + 2, 2) == Some(3) && o + val_off + 2 <= b.len() {
+            if rd(&b, o, 2) == Some(262)
+                && rd(&b, o + 2, 2) == Some(3)
+                && o + val_off + 2 <= b.len()
+            {
                 let v: [u8; 2] = if le { [1, 0] } else { [0, 1] };
                 b[o + val_off..o + val_off + 2].copy_from_slice(&v);
             }
@@ -254,12 +257,20 @@ fn read_tiles<R: std::io::Read + std::io::Seek>(
             let dh = th.min(h - ty * th) as usize;
             let chunk = to_samples(dec.read_chunk(p as u32 * per_plane + t).map_err(err)?)?;
             if chunk.len() < dw * dh * spp {
-                return Err(format!("tile {t} decoded {} samples, expected {}", chunk.len(), dw * dh * spp));
+                return Err(format!(
+                    "tile {t} decoded {} samples, expected {}",
+                    chunk.len(),
+                    dw * dh * spp
+                ));
             }
-            let o = out.get_or_insert_with(|| Samples::zeros(chunk.sample_type(), w as usize * h as usize * samples));
+            let o = out.get_or_insert_with(|| {
+                Samples::zeros(chunk.sample_type(), w as usize * h as usize * samples)
+            });
             for r in 0..dh {
                 for c in 0..dw {
-                    let px = (ty as usize * th as usize + r) * w as usize + tx as usize * tw as usize + c;
+                    let px = (ty as usize * th as usize + r) * w as usize
+                        + tx as usize * tw as usize
+                        + c;
                     for k in 0..spp {
                         let src = (r * dw + c) * spp + k;
                         if !o.copy_from(px * samples + p + k, &chunk, src) {

@@ -74,7 +74,12 @@ impl Ctx<'_> {
             frame: frame.cloned(),
         });
     }
-    fn num(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<f64> {
+    fn num(
+        &mut self,
+        obj: &Map<String, Value>,
+        key: &str,
+        frame: Option<&FrameRef>,
+    ) -> Option<f64> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::Number(n)) => n.as_f64().filter(|v| v.is_finite()).or_else(|| {
@@ -87,7 +92,12 @@ impl Ctx<'_> {
             }
         }
     }
-    fn string(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<String> {
+    fn string(
+        &mut self,
+        obj: &Map<String, Value>,
+        key: &str,
+        frame: Option<&FrameRef>,
+    ) -> Option<String> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::String(s)) if !s.is_empty() => Some(s.clone()),
@@ -97,11 +107,17 @@ impl Ctx<'_> {
             }
         }
     }
-    fn string_list(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<Vec<String>> {
+    fn string_list(
+        &mut self,
+        obj: &Map<String, Value>,
+        key: &str,
+        frame: Option<&FrameRef>,
+    ) -> Option<Vec<String>> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::Array(a)) => {
-                let v: Option<Vec<String>> = a.iter().map(|x| x.as_str().map(str::to_string)).collect();
+                let v: Option<Vec<String>> =
+                    a.iter().map(|x| x.as_str().map(str::to_string)).collect();
                 if v.is_none() {
                     self.invalid(key, frame, "expected a list of strings");
                 }
@@ -157,7 +173,11 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
         None | Some("z") => true,
         Some("ray_distance") => false,
         Some(o) => {
-            cx.invalid("depth_type", None, format!("`{o}` is neither `z` nor `ray_distance`"));
+            cx.invalid(
+                "depth_type",
+                None,
+                format!("`{o}` is neither `z` nor `ray_distance`"),
+            );
             true
         }
     };
@@ -184,7 +204,14 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
     let mut frames = Vec::new();
     for (i, fv) in frames_v.iter().enumerate() {
         let Some(f) = fv.as_object() else {
-            cx.invalid("frames", Some(&FrameRef { index: i, name: String::new() }), "frame is not an object");
+            cx.invalid(
+                "frames",
+                Some(&FrameRef {
+                    index: i,
+                    name: String::new(),
+                }),
+                "frame is not an object",
+            );
             continue;
         };
         if let Some(fr) = parse_frame(&mut cx, top, f, i, &dir) {
@@ -210,7 +237,11 @@ fn parse_bands(cx: &mut Ctx, top: &Map<String, Value>) -> Option<Vec<Band>> {
         None | Some(Value::Null) => return None,
         Some(Value::Array(a)) => a,
         Some(_) => {
-            cx.invalid("bands", None, "expected a list of {name, center_nm, fwhm_nm?}");
+            cx.invalid(
+                "bands",
+                None,
+                "expected a list of {name, center_nm, fwhm_nm?}",
+            );
             return None;
         }
     };
@@ -243,8 +274,15 @@ fn parse_bands(cx: &mut Ctx, top: &Map<String, Value>) -> Option<Vec<Band>> {
         if band.pixel_scale.is_some_and(|v| v <= 0.0) {
             cx.invalid(&format!("{key}.pixel_scale"), None, "must be positive");
         }
-        if out.iter().any(|o: &Band| o.name.eq_ignore_ascii_case(&band.name)) {
-            cx.invalid(&format!("{key}.name"), None, format!("duplicate band name `{}`", band.name));
+        if out
+            .iter()
+            .any(|o: &Band| o.name.eq_ignore_ascii_case(&band.name))
+        {
+            cx.invalid(
+                &format!("{key}.name"),
+                None,
+                format!("duplicate band name `{}`", band.name),
+            );
         }
         out.push(band);
     }
@@ -258,18 +296,35 @@ fn parse_frame(
     index: usize,
     dir: &Path,
 ) -> Option<RawFrame> {
-    let file_path = cx.string(f, "file_path", Some(&FrameRef { index, name: String::new() }));
-    let fr0 = FrameRef { index, name: String::new() };
+    let file_path = cx.string(
+        f,
+        "file_path",
+        Some(&FrameRef {
+            index,
+            name: String::new(),
+        }),
+    );
+    let fr0 = FrameRef {
+        index,
+        name: String::new(),
+    };
     let band_files = cx.string_list(f, "band_files", Some(&fr0));
     let name = file_path
         .clone()
         .or_else(|| band_files.as_ref().and_then(|b| b.first().cloned()))
         .unwrap_or_default();
-    let fr = FrameRef { index, name: name.clone() };
+    let fr = FrameRef {
+        index,
+        name: name.clone(),
+    };
     let before = cx.errors.len();
     match (&file_path, &band_files) {
         (None, None) => cx.missing("file_path", Some(&fr)),
-        (Some(_), Some(_)) => cx.invalid("band_files", Some(&fr), "give either `file_path` or `band_files`, not both"),
+        (Some(_), Some(_)) => cx.invalid(
+            "band_files",
+            Some(&fr),
+            "give either `file_path` or `band_files`, not both",
+        ),
         (None, Some(b)) if b.is_empty() => cx.invalid("band_files", Some(&fr), "empty list"),
         _ => {}
     }
@@ -306,10 +361,9 @@ fn parse_frame(
         }
     }
     for (k, key) in [(4, "w"), (5, "h")] {
-        if vals[k] < 1.0 || vals[k].fract() != 0.0 || vals[k] > 1e6 {
-            if f.contains_key(key) || top.contains_key(key) {
-                cx.invalid(key, Some(&fr), "image size must be a positive integer");
-            }
+        let bad = vals[k] < 1.0 || vals[k].fract() != 0.0 || vals[k] > 1e6;
+        if bad && (f.contains_key(key) || top.contains_key(key)) {
+            cx.invalid(key, Some(&fr), "image size must be a positive integer");
         }
     }
     let get = |cx: &mut Ctx, key: &str| -> f64 {
@@ -344,7 +398,11 @@ fn parse_frame(
             }
         }
         Some(o) => {
-            cx.invalid("camera_model", Some(&fr), format!("unsupported camera model `{o}`"));
+            cx.invalid(
+                "camera_model",
+                Some(&fr),
+                format!("unsupported camera model `{o}`"),
+            );
             CameraModel::Pinhole
         }
     };
@@ -356,7 +414,9 @@ fn parse_frame(
         }),
     };
     let mask_path = cx.string(f, "mask_path", Some(&fr)).map(|p| dir.join(p));
-    let depth_path = cx.string(f, "depth_file_path", Some(&fr)).map(|p| dir.join(p));
+    let depth_path = cx
+        .string(f, "depth_file_path", Some(&fr))
+        .map(|p| dir.join(p));
     if cx.errors.len() > before {
         return None;
     }
@@ -390,7 +450,10 @@ fn parse_matrix(cx: &mut Ctx, f: &Map<String, Value>, fr: &FrameRef) -> Option<M
     };
     let rows: Option<Vec<Vec<f64>>> = v.as_array().and_then(|rows| {
         rows.iter()
-            .map(|r| r.as_array().and_then(|r| r.iter().map(|x| x.as_f64()).collect()))
+            .map(|r| {
+                r.as_array()
+                    .and_then(|r| r.iter().map(|x| x.as_f64()).collect())
+            })
             .collect()
     });
     let Some(rows) = rows else {

@@ -118,7 +118,11 @@ fn predict_row(row: &mut [u8], kind: Kind, spp: usize, predictor: u16) {
                 }
                 v
             };
-            let mask = if bs == 8 { u64::MAX } else { (1u64 << (8 * bs)) - 1 };
+            let mask = if bs == 8 {
+                u64::MAX
+            } else {
+                (1u64 << (8 * bs)) - 1
+            };
             for i in (spp..n).rev() {
                 let d = get(row, i).wrapping_sub(get(row, i - spp)) & mask;
                 for k in 0..bs {
@@ -152,20 +156,32 @@ fn chunks(s: &TiffSpec, bands: &[usize]) -> Vec<Vec<u8>> {
         vec![bands.to_vec()]
     };
     let (cw, ch) = s.tiles.unwrap_or((s.width, s.rows_per_strip));
-    let across = if s.tiles.is_some() { s.width.div_ceil(cw) } else { 1 };
+    let across = if s.tiles.is_some() {
+        s.width.div_ceil(cw)
+    } else {
+        1
+    };
     let down = s.height.div_ceil(ch);
     let mut out = Vec::new();
     for plane in &planes {
         for ty in 0..down {
             for tx in 0..across {
                 let mut blob = Vec::new();
-                let rows = if s.tiles.is_some() { ch } else { ch.min(s.height - ty * ch) };
+                let rows = if s.tiles.is_some() {
+                    ch
+                } else {
+                    ch.min(s.height - ty * ch)
+                };
                 for rr in 0..rows {
                     let mut row = Vec::new();
                     for cc in 0..cw {
                         let (r, c) = (ty * ch + rr, tx * cw + cc);
                         for &b in plane {
-                            let v = if r < s.height && c < s.width { value(s.kind, b, r, c) } else { 0.0 };
+                            let v = if r < s.height && c < s.width {
+                                value(s.kind, b, r, c)
+                            } else {
+                                0.0
+                            };
                             push_sample(&mut row, s.kind, v);
                         }
                     }
@@ -269,7 +285,13 @@ pub fn tiff_bytes(s: &TiffSpec) -> Vec<u8> {
 }
 
 /// Writes `transforms.json` with `frames` (each a JSON object) and extra top-level keys.
-pub fn write_transforms(dir: &Path, w: u32, h: u32, extra: serde_json::Value, frames: Vec<serde_json::Value>) {
+pub fn write_transforms(
+    dir: &Path,
+    w: u32,
+    h: u32,
+    extra: serde_json::Value,
+    frames: Vec<serde_json::Value>,
+) {
     let mut j = serde_json::json!({
         "camera_model": "PINHOLE", "fl_x": 100.0, "fl_y": 100.0, "cx": w as f64 / 2.0, "cy": h as f64 / 2.0,
         "w": w, "h": h, "frames": frames,
@@ -279,7 +301,11 @@ pub fn write_transforms(dir: &Path, w: u32, h: u32, extra: serde_json::Value, fr
             o.insert(k.clone(), v.clone());
         }
     }
-    std::fs::write(dir.join("transforms.json"), serde_json::to_string_pretty(&j).unwrap()).unwrap();
+    std::fs::write(
+        dir.join("transforms.json"),
+        serde_json::to_string_pretty(&j).unwrap(),
+    )
+    .unwrap();
 }
 
 /// A frame object with an identity-rotation pose at `x` and a split.
