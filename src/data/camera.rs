@@ -1,0 +1,253 @@
+//! Camera models and CPU ray generation, the CPU twin of the GPU ray-generation kernel (spec/nerfacto.md §2.3).
+//!
+//! Pure functions of (camera, pose, pixel), generic over f32 and f64 ([`Real`]):
+//! 1. pixel centre (u, v) = (col + 0.5, row + 0.5); normalised x = (u − cx)/fx, y = (v − cy)/fy (y down);
+//! 2. OPENCV / OPENCV_FISHEYE: undistort by Newton's method, at most 10 iterations from the distorted point,
+//!    a step taken only where |det J| > 1e-3; distortion d = 1 + k1 r + k2 r² + k3 r³ + k4 r⁴ with r = x² + y²;
+//! 3. flip to OpenGL (y ← −y), camera direction (x, y, −1) (fisheye: (x sinθ/θ, y sinθ/θ, −cosθ), θ = |(x,y)|
+//!    clipped to [0, π]);
+//! 4. world direction = R_c2w · dir, normalised; its norm before normalising is kept in `direction_norm`.
+
+use serde::{Deserialize, Serialize};
+
+/// Projection model (dataset.md `camera_model`; SIMPLE_PINHOLE maps to `Pinhole`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum CameraModel {
+    Pinhole,
+    OpenCv,
+    OpenCvFisheye,
+}
+
+/// Distortion coefficients; missing ones are 0.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Distortion {
+    pub k1: f64,
+    pub k2: f64,
+    pub k3: f64,
+    pub k4: f64,
+    pub p1: f64,
+    pub p2: f64,
+}
+
+impl Distortion {
+    pub fn is_zero(&self) -> bool {
+        [self.k1, self.k2, self.k3, self.k4, self.p1, self.p2]
+            .iter()
+            .all(|&v| v == 0.0)
+    }
+    /// As `[k1, k2, k3, k4, p1, p2]` in `T`.
+    pub fn params<T: Real>(&self) -> [T; 6] {
+        [self.k1, self.k2, self.k3, self.k4, self.p1, self.p2].map(T::from_f64)
+    }
+}
+
+/// Intrinsics of one image (pixels).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Camera {
+    pub model: CameraModel,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub width: u32,
+    pub height: u32,
+    pub distortion: Distortion,
+}
+
+/// A ray in world (or normalised) space.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray<T> {
+    pub origin: [T; 3],
+    /// Unit length.
+    pub direction: [T; 3],
+    /// Length of the world direction before normalisation (for z-depth ↔ ray-distance conversion).
+    pub direction_norm: T,
+}
+
+/// The float operations ray generation needs; implemented for f32 and f64.
+pub trait Real:
+    Copy
+    + PartialOrd
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+    + std::ops::Neg<Output = Self>
+{
+    fn from_f64(v: f64) -> Self;
+    fn sqrt(self) -> Self;
+    fn sin(self) -> Self;
+    fn cos(self) -> Self;
+    fn abs(self) -> Self;
+}
+
+macro_rules! impl_real {
+    ($t:ty) => {
+        impl Real for $t {
+            #[inline]
+            fn from_f64(v: f64) -> Self {
+                v as $t
+            }
+            #[inline]
+            fn sqrt(self) -> Self {
+                <$t>::sqrt(self)
+            }
+            #[inline]
+            fn sin(self) -> Self {
+                <$t>::sin(self)
+            }
+            #[inline]
+            fn cos(self) -> Self {
+                <$t>::cos(self)
+            }
+            #[inline]
+            fn abs(self) -> Self {
+                <$t>::abs(self)
+            }
+        }
+    };
+}
+impl_real!(f32);
+impl_real!(f64);
+
+/// Forward distortion of normalised coordinates (y down), params `[k1, k2, k3, k4, p1, p2]`.
+#[inline]
+pub fn distort<T: Real>(x: T, y: T, p: &[T; 6]) -> (T, T) {
+    let [k1, k2, k3, k4, p1, p2] = *p;
+    let one = T::from_f64(1.0);
+    let two = T::from_f64(2.0);
+    let r = x * x + y * y;
+    let d = one + r * (k1 + r * (k2 + r * (k3 + r * k4)));
+    (
+        x * d + two * p1 * x * y + p2 * (r + two * x * x),
+        y * d + two * p2 * x * y + p1 * (r + two * y * y),
+    )
+}
+
+/// Newton undistortion exactly as nerfstudio's `radial_and_tangential_undistort` (10 iterations, eps 1e-3).
+#[inline]
+pub fn undistort<T: Real>(xd: T, yd: T, p: &[T; 6]) -> (T, T) {
+    let [k1, k2, k3, k4, p1, p2] = *p;
+    let one = T::from_f64(1.0);
+    let two = T::from_f64(2.0);
+    let three = T::from_f64(3.0);
+    let four = T::from_f64(4.0);
+    let six = T::from_f64(6.0);
+    let eps = T::from_f64(1e-3);
+    let (mut x, mut y) = (xd, yd);
+    for _ in 0..10 {
+        let r = x * x + y * y;
+        let d = one + r * (k1 + r * (k2 + r * (k3 + r * k4)));
+        let fx = d * x + two * p1 * x * y + p2 * (r + two * x * x) - xd;
+        let fy = d * y + two * p2 * x * y + p1 * (r + two * y * y) - yd;
+        let d_r = k1 + r * (two * k2 + r * (three * k3 + r * four * k4));
+        let d_x = two * x * d_r;
+        let d_y = two * y * d_r;
+        let fx_x = d + d_x * x + two * p1 * y + six * p2 * x;
+        let fx_y = d_y * x + two * p1 * x + two * p2 * y;
+        let fy_x = d_x * y + two * p2 * y + two * p1 * x;
+        let fy_y = d + d_y * y + two * p2 * x + six * p1 * y;
+        let den = fy_x * fx_y - fx_x * fy_y;
+        if den.abs() > eps {
+            x = x + (fx * fy_y - fy * fx_y) / den;
+            y = y + (fy * fx_x - fx * fy_x) / den;
+        }
+        // else: nerfstudio takes a zero step (and keeps iterating with the same state).
+    }
+    (x, y)
+}
+
+/// Camera intrinsics in `T` for the pure ray function.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Intrinsics<T> {
+    pub model: CameraModel,
+    pub fx: T,
+    pub fy: T,
+    pub cx: T,
+    pub cy: T,
+    /// `[k1, k2, k3, k4, p1, p2]`.
+    pub dist: [T; 6],
+    pub distorted: bool,
+}
+
+impl Camera {
+    /// The intrinsics in `T` (f32 for the GPU twin, f64 for reference).
+    pub fn intrinsics<T: Real>(&self) -> Intrinsics<T> {
+        Intrinsics {
+            model: self.model,
+            fx: T::from_f64(self.fx),
+            fy: T::from_f64(self.fy),
+            cx: T::from_f64(self.cx),
+            cy: T::from_f64(self.cy),
+            dist: self.distortion.params(),
+            distorted: self.model != CameraModel::Pinhole && !self.distortion.is_zero(),
+        }
+    }
+
+    /// World ray through the centre of pixel (row, col) in f64; `c2w` is the 3x4 (or 4x4) camera-to-world.
+    pub fn ray_f64(&self, c2w: &[[f64; 4]; 4], row: u32, col: u32) -> Ray<f64> {
+        let m = [c2w[0], c2w[1], c2w[2]];
+        generate_ray(
+            &self.intrinsics::<f64>(),
+            &m,
+            row as f64 + 0.5,
+            col as f64 + 0.5,
+        )
+    }
+
+    /// World ray through the centre of pixel (row, col) in f32.
+    pub fn ray_f32(&self, c2w: &[[f32; 4]; 3], row: u32, col: u32) -> Ray<f32> {
+        generate_ray(
+            &self.intrinsics::<f32>(),
+            c2w,
+            row as f32 + 0.5,
+            col as f32 + 0.5,
+        )
+    }
+}
+
+/// Camera-space direction (OpenGL axes, not normalised) for image point (u, v) in pixels.
+#[inline]
+pub fn camera_direction<T: Real>(k: &Intrinsics<T>, v: T, u: T) -> [T; 3] {
+    let mut x = (u - k.cx) / k.fx;
+    let mut y = (v - k.cy) / k.fy;
+    if k.distorted {
+        let (ux, uy) = undistort(x, y, &k.dist);
+        x = ux;
+        y = uy;
+    }
+    let y = -y;
+    match k.model {
+        CameraModel::OpenCvFisheye => {
+            let pi = T::from_f64(std::f64::consts::PI);
+            let mut theta = (x * x + y * y).sqrt();
+            if theta > pi {
+                theta = pi;
+            }
+            let s = if theta > T::from_f64(1e-12) {
+                theta.sin() / theta
+            } else {
+                T::from_f64(1.0)
+            };
+            [x * s, y * s, -theta.cos()]
+        }
+        _ => [x, y, T::from_f64(-1.0)],
+    }
+}
+
+/// The pure ray function: image point (v = row coordinate, u = column coordinate, both in pixels, centres at
+/// +0.5) to a world ray with camera-to-world `c2w` (3x4, rows).
+#[inline]
+pub fn generate_ray<T: Real>(k: &Intrinsics<T>, c2w: &[[T; 4]; 3], v: T, u: T) -> Ray<T> {
+    let d = camera_direction(k, v, u);
+    let mut w = [T::from_f64(0.0); 3];
+    for (i, wi) in w.iter_mut().enumerate() {
+        *wi = c2w[i][0] * d[0] + c2w[i][1] * d[1] + c2w[i][2] * d[2];
+    }
+    let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+    Ray {
+        origin: [c2w[0][3], c2w[1][3], c2w[2][3]],
+        direction: [w[0] / n, w[1] / n, w[2] / n],
+        direction_norm: n,
+    }
+}

@@ -1,0 +1,236 @@
+//! `dataset check` as a library function: loads a dataset, decodes every image, and reports frames, splits,
+//! bands, image size and sample type, per-band value ranges, scene bounds in world units, the host memory a
+//! full load needs and what the cache will use. Every problem is collected, not just the first.
+
+use std::fmt;
+use std::path::Path;
+
+use serde::Serialize;
+
+use super::cache::{plan_cache, CachePlan};
+use super::error::DataError;
+use super::loader::{load_dataset, LoadOptions};
+use super::pose::PoseTransform;
+use super::raster::SampleType;
+use super::split::Split;
+
+/// One band in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct BandReport {
+    pub name: String,
+    pub center_nm: Option<f64>,
+    pub fwhm_nm: Option<f64>,
+    /// Range of the values the model will see (after black level and scaling), over all readable images.
+    pub min: Option<f32>,
+    pub max: Option<f32>,
+}
+
+/// What `msnerf dataset check DIR` prints (Display) or writes (`to_json`).
+#[derive(Debug, Serialize)]
+pub struct CheckReport {
+    pub dir: String,
+    pub frames: usize,
+    pub train: usize,
+    pub eval: usize,
+    pub test: usize,
+    pub unused: usize,
+    pub split_method: Option<String>,
+    pub width: u32,
+    pub height: u32,
+    pub sample_type: Option<SampleType>,
+    pub bands: Vec<BandReport>,
+    /// Camera centres' bounding box in the dataset's world units: (min, max).
+    pub scene_bounds: Option<([f64; 3], [f64; 3])>,
+    pub pose_transform: Option<PoseTransform>,
+    /// Host bytes to hold every image (all splits) in its stored type, masks included.
+    pub full_load_bytes: u64,
+    pub cache_budget_bytes: u64,
+    /// The cache plan for the train split under the budget.
+    pub cache: Option<CachePlan>,
+    /// Every problem found, one line each.
+    pub errors: Vec<String>,
+    #[serde(skip)]
+    pub problems: Vec<DataError>,
+}
+
+impl CheckReport {
+    pub fn is_ok(&self) -> bool {
+        self.problems.is_empty()
+    }
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("report is plain data")
+    }
+    fn push(&mut self, e: DataError) {
+        for e in e.flatten() {
+            self.errors.push(e.to_string());
+            self.problems.push(e);
+        }
+    }
+}
+
+/// Checks the dataset at `dir` (its folder or its transforms.json) against a host cache budget.
+pub fn check_dataset(dir: &Path, budget_bytes: u64) -> CheckReport {
+    let mut rep = CheckReport {
+        dir: dir.display().to_string(),
+        frames: 0,
+        train: 0,
+        eval: 0,
+        test: 0,
+        unused: 0,
+        split_method: None,
+        width: 0,
+        height: 0,
+        sample_type: None,
+        bands: vec![],
+        scene_bounds: None,
+        pose_transform: None,
+        full_load_bytes: 0,
+        cache_budget_bytes: budget_bytes,
+        cache: None,
+        errors: vec![],
+        problems: vec![],
+    };
+    let ds = match load_dataset(dir, &LoadOptions::default()) {
+        Ok(ds) => ds,
+        Err(e) => {
+            rep.push(e);
+            return rep;
+        }
+    };
+    rep.frames = ds.frames.len();
+    let count = |s: Split| ds.frames.iter().filter(|f| f.split == s).count();
+    rep.train = count(Split::Train);
+    rep.eval = count(Split::Eval);
+    rep.test = count(Split::Test);
+    rep.unused = count(Split::Unused);
+    rep.split_method = Some(format!("{:?}", ds.split_method));
+    rep.width = ds.width;
+    rep.height = ds.height;
+    rep.sample_type = Some(ds.sample_type);
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for f in &ds.frames {
+        for i in 0..3 {
+            lo[i] = lo[i].min(f.c2w[i][3]);
+            hi[i] = hi[i].max(f.c2w[i][3]);
+        }
+    }
+    rep.scene_bounds = Some((lo, hi));
+    rep.pose_transform = Some(ds.pose_transform());
+    rep.full_load_bytes = (0..ds.frames.len()).map(|i| ds.frame_bytes(i)).sum();
+    let train = ds.split_indices(Split::Train);
+    let per = train.iter().map(|&i| ds.frame_bytes(i)).max().unwrap_or(0);
+    rep.cache = plan_cache(train.len(), per, budget_bytes);
+    if rep.cache.is_none() && !train.is_empty() {
+        rep.push(DataError::InvalidValue {
+            path: ds.transforms_path.clone(),
+            key: "cache budget".into(),
+            frame: None,
+            reason: format!(
+                "{budget_bytes} bytes cannot hold one image of {per} bytes plus scratch"
+            ),
+        });
+    }
+    let mut ranges: Vec<Option<(f32, f32)>> = vec![None; ds.n_bands()];
+    for i in 0..ds.frames.len() {
+        match ds.read_frame(i) {
+            Ok(r) => {
+                for (b, rr) in r.band_ranges().into_iter().enumerate() {
+                    if let Some((l, h)) = rr {
+                        ranges[b] = Some(match ranges[b] {
+                            None => (l, h),
+                            Some((a, c)) => (a.min(l), c.max(h)),
+                        });
+                    }
+                }
+            }
+            Err(e) => rep.push(e),
+        }
+        if let Err(e) = ds.read_depth(i) {
+            rep.push(e);
+        }
+    }
+    rep.bands = ds
+        .bands
+        .iter()
+        .zip(ranges)
+        .map(|(b, r)| BandReport {
+            name: b.name.clone(),
+            center_nm: b.center_nm,
+            fwhm_nm: b.fwhm_nm,
+            min: r.map(|r| r.0),
+            max: r.map(|r| r.1),
+        })
+        .collect();
+    rep
+}
+
+fn gib(b: u64) -> String {
+    format!("{:.2} GiB", b as f64 / (1u64 << 30) as f64)
+}
+
+impl fmt::Display for CheckReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "dataset {}", self.dir)?;
+        writeln!(
+            f,
+            "  frames {} (train {}, eval {}, test {}, unused {}; split by {})",
+            self.frames,
+            self.train,
+            self.eval,
+            self.test,
+            self.unused,
+            self.split_method.as_deref().unwrap_or("-")
+        )?;
+        if let Some(t) = self.sample_type {
+            writeln!(f, "  images {}x{} {:?}", self.width, self.height, t)?;
+        }
+        for b in &self.bands {
+            let nm = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v}"));
+            let r = match (b.min, b.max) {
+                (Some(l), Some(h)) => format!("[{l}, {h}]"),
+                _ => "-".into(),
+            };
+            writeln!(
+                f,
+                "  band {:<10} centre {} nm  fwhm {} nm  values {r}",
+                b.name,
+                nm(b.center_nm),
+                nm(b.fwhm_nm)
+            )?;
+        }
+        if let Some((lo, hi)) = self.scene_bounds {
+            writeln!(f, "  camera centres (world units) min {lo:?} max {hi:?}")?;
+        }
+        writeln!(f, "  full load {}", gib(self.full_load_bytes))?;
+        match &self.cache {
+            Some(c) => writeln!(
+                f,
+                "  cache budget {}: {} of {} train images resident, peak {}{}",
+                gib(self.cache_budget_bytes),
+                c.n_resident,
+                c.n_images,
+                gib(c.peak_bytes),
+                if c.fits_all {
+                    " (all fit)"
+                } else {
+                    " (resampled)"
+                }
+            )?,
+            None => writeln!(
+                f,
+                "  cache budget {}: no plan",
+                gib(self.cache_budget_bytes)
+            )?,
+        }
+        if self.errors.is_empty() {
+            writeln!(f, "  OK")
+        } else {
+            writeln!(f, "  {} problem(s):", self.errors.len())?;
+            for e in &self.errors {
+                writeln!(f, "    - {e}")?;
+            }
+            Ok(())
+        }
+    }
+}

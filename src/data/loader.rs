@@ -1,0 +1,645 @@
+//! `Dataset`: a `transforms.json` folder turned into sorted frames with poses, intrinsics, image sources,
+//! splits and bands; images are decoded on demand by [`Dataset::read_frame`] into compact [`Raster`]s.
+//!
+//! Loading checks everything that needs no pixel decode for every frame (keys, values, orthonormal
+//! rotations, focal lengths, file existence, duplicate names, empty train split) and decodes the first
+//! frame to learn the image size, sample type and, when `bands` is absent, the band identity (XMP of rig
+//! files, else RGB for 3-channel images). Pixel-level checks (size, band count, NaN/Inf) happen per image
+//! in `read_frame` and for all images in `check::check_dataset`. Files are only ever opened for reading.
+
+use std::path::{Path, PathBuf};
+
+use super::camera::Camera;
+use super::error::{DataError, FrameRef};
+use super::pose::{normalize_poses, Mat4, PoseTransform};
+use super::raster::{BandScale, Raster, SampleType, Samples};
+use super::reader::{read_image_file, DecodedImage};
+use super::split::{assign_splits, normalize_name, Split, SplitMethod};
+use super::transforms::parse_transforms;
+pub use super::transforms::Band;
+
+/// Options for [`load_dataset`].
+#[derive(Debug, Clone, Default)]
+pub struct LoadOptions {
+    /// Mask NaN/Inf pixels out instead of rejecting the image.
+    pub mask_non_finite: bool,
+}
+
+/// Where a frame's pixels come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ImageSource {
+    /// One file with all bands.
+    File(PathBuf),
+    /// One single-band file per band, in band order.
+    BandFiles(Vec<PathBuf>),
+}
+
+/// One frame, after sorting by file name.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// `file_path` (or first band file) as written; the sort key.
+    pub name: String,
+    /// Index of the frame in `transforms.json` as written.
+    pub index_in_file: usize,
+    /// Camera-to-world, OpenGL axes, the dataset's own world units.
+    pub c2w: Mat4,
+    pub camera: Camera,
+    pub image: ImageSource,
+    pub mask: Option<PathBuf>,
+    pub depth: Option<PathBuf>,
+    pub split: Split,
+}
+
+impl Frame {
+    pub fn frame_ref(&self) -> FrameRef {
+        FrameRef {
+            index: self.index_in_file,
+            name: self.name.clone(),
+        }
+    }
+}
+
+/// A loaded dataset (no pixels held; see [`Dataset::read_frame`]).
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    pub root: PathBuf,
+    pub transforms_path: PathBuf,
+    /// Sorted by file name.
+    pub frames: Vec<Frame>,
+    pub bands: Vec<Band>,
+    pub width: u32,
+    pub height: u32,
+    pub sample_type: SampleType,
+    pub split_method: SplitMethod,
+    pub pixel_scale: Option<f64>,
+    pub black_level: Option<f64>,
+    /// Metres per stored depth unit.
+    pub depth_unit_scale_factor: f64,
+    /// `depth_type`: true for `z`, false for `ray_distance`.
+    pub depth_is_z: bool,
+    pub options: LoadOptions,
+}
+
+fn frame_of(f: &Frame) -> FrameRef {
+    f.frame_ref()
+}
+
+/// Loads `dir/transforms.json` (or `dir` itself when it is a file). All errors are collected.
+pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataError> {
+    let tpath = if dir.is_file() {
+        dir.to_path_buf()
+    } else {
+        dir.join("transforms.json")
+    };
+    let root = tpath.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let raw = parse_transforms(&tpath)?;
+    let mut errors = Vec::new();
+
+    // Sort by file name and reject duplicates.
+    let mut raw_frames = raw.frames;
+    raw_frames.sort_by(|a, b| a.name.cmp(&b.name).then(a.index.cmp(&b.index)));
+    let mut seen = std::collections::HashMap::new();
+    for f in &raw_frames {
+        let files: Vec<String> = match (&f.file_path, &f.band_files) {
+            (Some(_), _) => vec![normalize_name(&f.name)],
+            (None, Some(b)) => b.iter().map(|p| p.to_string_lossy().into_owned()).collect(),
+            _ => vec![],
+        };
+        for n in files {
+            if let Some(prev) = seen.insert(n.clone(), f.index) {
+                errors.push(DataError::DuplicateFileName {
+                    path: tpath.clone(),
+                    key: if f.file_path.is_some() {
+                        "file_path"
+                    } else {
+                        "band_files"
+                    }
+                    .into(),
+                    frame: Some(FrameRef {
+                        index: f.index,
+                        name: f.name.clone(),
+                    }),
+                    name: format!("{n} (also in frame {prev})"),
+                });
+            }
+        }
+    }
+    let names: Vec<String> = raw_frames.iter().map(|f| f.name.clone()).collect();
+    let per_frame: Vec<Option<Split>> = raw_frames.iter().map(|f| f.split).collect();
+    let (splits, split_method) = assign_splits(&names, &per_frame, &raw.lists);
+    if !splits.contains(&Split::Train) {
+        errors.push(DataError::EmptyTrainSplit {
+            path: tpath.clone(),
+            key: match split_method {
+                SplitMethod::Filenames => "train_filenames",
+                SplitMethod::PerFrame => "split",
+                SplitMethod::Interval => "frames",
+            }
+            .into(),
+        });
+    }
+
+    let mut frames = Vec::with_capacity(raw_frames.len());
+    for (f, split) in raw_frames.into_iter().zip(splits) {
+        let fr = FrameRef {
+            index: f.index,
+            name: f.name.clone(),
+        };
+        let image = match (f.file_path, f.band_files) {
+            (Some(p), _) => ImageSource::File(p),
+            (None, Some(b)) => ImageSource::BandFiles(b),
+            (None, None) => unreachable!("parse_frame rejects frames without images"),
+        };
+        let mut check = |p: &Path, key: &str| {
+            if !p.is_file() {
+                errors.push(DataError::MissingFile {
+                    path: p.to_path_buf(),
+                    key: key.into(),
+                    frame: Some(fr.clone()),
+                    reason: "no such file".into(),
+                });
+            }
+        };
+        match &image {
+            ImageSource::File(p) => check(p, "file_path"),
+            ImageSource::BandFiles(b) => b.iter().for_each(|p| check(p, "band_files")),
+        }
+        if let Some(m) = &f.mask_path {
+            check(m, "mask_path");
+        }
+        if let Some(d) = &f.depth_path {
+            check(d, "depth_file_path");
+        }
+        frames.push(Frame {
+            name: f.name,
+            index_in_file: f.index,
+            c2w: f.c2w,
+            camera: f.camera,
+            image,
+            mask: f.mask_path,
+            depth: f.depth_path,
+            split,
+        });
+    }
+    // One image size for the whole dataset.
+    if let Some(f0) = frames.first() {
+        for f in &frames[1..] {
+            if (f.camera.width, f.camera.height) != (f0.camera.width, f0.camera.height) {
+                errors.push(DataError::InvalidValue {
+                    path: tpath.clone(),
+                    key: "w".into(),
+                    frame: Some(frame_of(f)),
+                    reason: format!(
+                        "all frames must share one image size: {}x{} here, {}x{} in {}",
+                        f.camera.width, f.camera.height, f0.camera.width, f0.camera.height, f0.name
+                    ),
+                });
+                break;
+            }
+        }
+    }
+    if let Some(e) = DataError::from_list(errors) {
+        return Err(e);
+    }
+    let (width, height) = (frames[0].camera.width, frames[0].camera.height);
+    let mut ds = Dataset {
+        root,
+        transforms_path: tpath.clone(),
+        frames,
+        bands: raw.bands.clone().unwrap_or_default(),
+        width,
+        height,
+        sample_type: SampleType::F32,
+        split_method,
+        pixel_scale: raw.pixel_scale,
+        black_level: raw.black_level,
+        depth_unit_scale_factor: raw.depth_unit_scale_factor,
+        depth_is_z: raw.depth_is_z,
+        options: options.clone(),
+    };
+    // Probe the first frame: sample type, and band identity when the header does not name the bands.
+    let probe = ds.decode_sources(0)?;
+    ds.sample_type = probe[0].raster.sample_type();
+    if raw.bands.is_none() {
+        ds.bands = infer_bands(&ds, &probe)?;
+    }
+    Ok(ds)
+}
+
+fn infer_bands(ds: &Dataset, probe: &[DecodedImage]) -> Result<Vec<Band>, DataError> {
+    let f0 = &ds.frames[0];
+    let band = |name: String, c: Option<f64>, w: Option<f64>| Band {
+        name,
+        center_nm: c,
+        fwhm_nm: w,
+        pixel_scale: None,
+        black_level: None,
+    };
+    match &f0.image {
+        ImageSource::BandFiles(files) => {
+            let mut out = Vec::new();
+            for (i, (d, p)) in probe.iter().zip(files).enumerate() {
+                let x = d.meta.xmp.clone().unwrap_or_default();
+                let Some(name) = x.name.or_else(|| x.center_nm.map(|c| format!("{c:.0}nm"))) else {
+                    return Err(DataError::MissingKey {
+                        path: ds.transforms_path.clone(),
+                        key: "bands".into(),
+                        frame: Some(FrameRef {
+                            index: f0.index_in_file,
+                            name: format!("band file {i}: {}", p.display()),
+                        }),
+                    });
+                };
+                out.push(band(name, x.center_nm, x.fwhm_nm));
+            }
+            Ok(out)
+        }
+        ImageSource::File(p) => {
+            let d = &probe[0];
+            if !d.meta.channel_names.is_empty() && d.raster.bands != 3 {
+                return Ok(d
+                    .meta
+                    .channel_names
+                    .iter()
+                    .map(|n| band(n.clone(), None, None))
+                    .collect());
+            }
+            let n = d.raster.bands;
+            if n == 3 || n == 4 {
+                return Ok(["red", "green", "blue"]
+                    .iter()
+                    .map(|s| band(s.to_string(), None, None))
+                    .collect());
+            }
+            if n == 1 {
+                if let Some(x) = d.meta.xmp.clone().filter(|x| x.name.is_some()) {
+                    return Ok(vec![band(
+                        x.name.unwrap_or_default(),
+                        x.center_nm,
+                        x.fwhm_nm,
+                    )]);
+                }
+            }
+            Err(DataError::MissingKey {
+                path: ds.transforms_path.clone(),
+                key: "bands".into(),
+                frame: Some(FrameRef {
+                    index: f0.index_in_file,
+                    name: format!("{} has {n} channels", p.display()),
+                }),
+            })
+        }
+    }
+}
+
+/// Whether an EXR channel name matches a band name (case-insensitive; `layer.R` matches `R`; `red`/`r`).
+fn channel_matches(channel: &str, band: &str) -> bool {
+    let c = channel
+        .rsplit('.')
+        .next()
+        .unwrap_or(channel)
+        .to_ascii_lowercase();
+    let b = band.to_ascii_lowercase();
+    if c == b || channel.eq_ignore_ascii_case(band) {
+        return true;
+    }
+    let alias = |s: &str| match s {
+        "r" | "red" => "red",
+        "g" | "green" => "green",
+        "b" | "blue" => "blue",
+        _ => "",
+    };
+    !alias(&c).is_empty() && alias(&c) == alias(&b)
+}
+
+impl Dataset {
+    pub fn n_bands(&self) -> usize {
+        self.bands.len()
+    }
+
+    /// Bytes one image takes in memory (samples only).
+    pub fn image_bytes(&self) -> u64 {
+        self.width as u64
+            * self.height as u64
+            * self.bands.len() as u64
+            * self.sample_type.bytes() as u64
+    }
+
+    /// Bytes one image takes in memory including its mask plane, if the frame has one.
+    pub fn frame_bytes(&self, i: usize) -> u64 {
+        let mask = if self.frames[i].mask.is_some() {
+            self.width as u64 * self.height as u64
+        } else {
+            0
+        };
+        self.image_bytes() + mask
+    }
+
+    /// Indices of the frames in a split.
+    pub fn split_indices(&self, split: Split) -> Vec<usize> {
+        (0..self.frames.len())
+            .filter(|&i| self.frames[i].split == split)
+            .collect()
+    }
+
+    /// The pose normalisation over all frames (nerfstudio normalises before splitting).
+    pub fn pose_transform(&self) -> PoseTransform {
+        let poses: Vec<Mat4> = self.frames.iter().map(|f| f.c2w).collect();
+        normalize_poses(&poses)
+    }
+
+    fn max_decode_bytes(&self) -> usize {
+        // The expected image at 4 bytes a sample plus slack; bounds what a corrupt header can allocate.
+        let px = self.width as usize * self.height as usize;
+        (px * self.bands.len().max(4) * 4)
+            .saturating_mul(2)
+            .max(1 << 24)
+    }
+
+    fn decode_sources(&self, i: usize) -> Result<Vec<DecodedImage>, DataError> {
+        let f = &self.frames[i];
+        let max = self.max_decode_bytes();
+        let files: Vec<(&PathBuf, &str)> = match &f.image {
+            ImageSource::File(p) => vec![(p, "file_path")],
+            ImageSource::BandFiles(b) => b.iter().map(|p| (p, "band_files")).collect(),
+        };
+        let mut out = Vec::new();
+        for (p, key) in files {
+            let d = read_image_file(p, max).map_err(|reason| DataError::Decode {
+                path: p.clone(),
+                frame: Some(frame_of(f)),
+                reason,
+            })?;
+            if (d.raster.width, d.raster.height) != (self.width, self.height) {
+                return Err(DataError::ImageSize {
+                    path: p.clone(),
+                    key: key.into(),
+                    frame: Some(frame_of(f)),
+                    expected: (self.width, self.height),
+                    found: (d.raster.width, d.raster.height),
+                });
+            }
+            out.push(d);
+        }
+        Ok(out)
+    }
+
+    /// Decodes frame `i` into a compact raster with band scaling, mask and NaN/Inf handling.
+    pub fn read_frame(&self, i: usize) -> Result<Raster, DataError> {
+        let f = &self.frames[i];
+        let nb = self.bands.len();
+        let decoded = self.decode_sources(i)?;
+        let (mut raster, file_black) = match &f.image {
+            ImageSource::File(p) => {
+                let d = decoded.into_iter().next().expect("one file");
+                let black = vec![d.meta.black_level; nb];
+                (self.arrange_channels(d, p, f)?, black)
+            }
+            ImageSource::BandFiles(files) => self.stack_bands(decoded, files, f)?,
+        };
+        if raster.sample_type() != self.sample_type {
+            return Err(DataError::Decode {
+                path: self.image_path(i).to_path_buf(),
+                frame: Some(frame_of(f)),
+                reason: format!(
+                    "sample type {:?} differs from the first frame's {:?}",
+                    raster.sample_type(),
+                    self.sample_type
+                ),
+            });
+        }
+        raster.scaling = (0..nb)
+            .map(|b| self.band_scale(b, file_black.get(b).copied().flatten()))
+            .collect();
+        if let Some(mp) = &f.mask {
+            raster.mask = Some(self.read_mask(mp, f)?);
+        }
+        let bad = raster.samples.count_non_finite();
+        if bad > 0 {
+            if !self.options.mask_non_finite {
+                return Err(DataError::NonFinite {
+                    path: self.image_path(i).to_path_buf(),
+                    frame: Some(frame_of(f)),
+                    count: bad,
+                });
+            }
+            let px = (self.width * self.height) as usize;
+            let mut m = raster.mask.take().unwrap_or_else(|| vec![1; px]);
+            for (p, mv) in m.iter_mut().enumerate() {
+                if (0..nb).any(|b| !raster.samples.raw(p * nb + b).is_finite()) {
+                    *mv = 0;
+                }
+            }
+            raster.mask = Some(m);
+        }
+        Ok(raster)
+    }
+
+    /// The main image path of frame `i` (first band file for rigs).
+    pub fn image_path(&self, i: usize) -> &Path {
+        match &self.frames[i].image {
+            ImageSource::File(p) => p,
+            ImageSource::BandFiles(b) => &b[0],
+        }
+    }
+
+    /// Scaling of band `b`: per-band, then top-level, then the file's own black level.
+    pub fn band_scale(&self, b: usize, file_black: Option<f64>) -> BandScale {
+        if !self.sample_type.is_integer() {
+            return BandScale::IDENTITY;
+        }
+        let band = &self.bands[b];
+        BandScale {
+            black: band
+                .black_level
+                .or(self.black_level)
+                .or(file_black)
+                .unwrap_or(0.0),
+            scale: band
+                .pixel_scale
+                .or(self.pixel_scale)
+                .unwrap_or(self.sample_type.default_scale()),
+        }
+    }
+
+    fn arrange_channels(&self, d: DecodedImage, p: &Path, f: &Frame) -> Result<Raster, DataError> {
+        let nb = self.bands.len();
+        let r = d.raster;
+        let names = &d.meta.channel_names;
+        // EXR: match channels to bands by name when every band finds one.
+        if !names.is_empty() {
+            let idx: Option<Vec<usize>> = self
+                .bands
+                .iter()
+                .map(|b| names.iter().position(|c| channel_matches(c, &b.name)))
+                .collect();
+            let order: Vec<usize> = match idx {
+                Some(v) => v,
+                None if r.bands == nb => (0..nb).collect(),
+                None => return Err(self.band_count_err(p, f, r.bands)),
+            };
+            return Ok(select_channels(&r, &order));
+        }
+        match (r.bands, nb) {
+            (a, b) if a == b => Ok(r),
+            (4, 3) | (2, 1) => Ok(select_channels(&r, &[0, 1, 2][..nb])),
+            (1, 3) if matches!(r.sample_type(), SampleType::U8 | SampleType::U16) => {
+                Ok(select_channels(&r, &[0, 0, 0]))
+            }
+            (a, _) => Err(self.band_count_err(p, f, a)),
+        }
+    }
+
+    fn band_count_err(&self, p: &Path, f: &Frame, found: usize) -> DataError {
+        DataError::BandCount {
+            path: p.to_path_buf(),
+            key: if matches!(f.image, ImageSource::File(_)) {
+                "file_path"
+            } else {
+                "band_files"
+            }
+            .into(),
+            frame: Some(frame_of(f)),
+            expected: self.bands.len(),
+            found,
+        }
+    }
+
+    /// Interleaves single-band files. A file whose XMP `BandName` names another band goes to that band's
+    /// slot (rigs are keyed on band identity, not on the file suffix).
+    fn stack_bands(
+        &self,
+        decoded: Vec<DecodedImage>,
+        files: &[PathBuf],
+        f: &Frame,
+    ) -> Result<(Raster, Vec<Option<f64>>), DataError> {
+        let nb = self.bands.len();
+        if files.len() != nb {
+            return Err(DataError::BandCount {
+                path: self.transforms_path.clone(),
+                key: "band_files".into(),
+                frame: Some(frame_of(f)),
+                expected: nb,
+                found: files.len(),
+            });
+        }
+        let mut slot: Vec<usize> = (0..nb).collect();
+        let by_name: Vec<Option<usize>> = decoded
+            .iter()
+            .map(|d| {
+                let n = d.meta.xmp.as_ref()?.name.as_ref()?;
+                self.bands
+                    .iter()
+                    .position(|b| b.name.eq_ignore_ascii_case(n))
+            })
+            .collect();
+        let mut used = vec![false; nb];
+        if by_name.iter().all(|x| x.is_some()) {
+            let s: Vec<usize> = by_name.iter().map(|x| x.expect("checked")).collect();
+            s.iter().for_each(|&x| used[x] = true);
+            if used.iter().all(|&u| u) {
+                slot = s;
+            }
+        }
+        let px = (self.width * self.height) as usize;
+        let ty = decoded[0].raster.sample_type();
+        let mut out = Samples::zeros(ty, px * nb);
+        let mut blacks = vec![None; nb];
+        for (k, (d, p)) in decoded.iter().zip(files).enumerate() {
+            if d.raster.bands != 1 {
+                return Err(DataError::BandCount {
+                    path: p.clone(),
+                    key: "band_files".into(),
+                    frame: Some(frame_of(f)),
+                    expected: 1,
+                    found: d.raster.bands,
+                });
+            }
+            if d.raster.sample_type() != ty {
+                return Err(DataError::Decode {
+                    path: p.clone(),
+                    frame: Some(frame_of(f)),
+                    reason: format!(
+                        "sample type {:?} differs from the other bands' {:?}",
+                        d.raster.sample_type(),
+                        ty
+                    ),
+                });
+            }
+            let b = slot[k];
+            blacks[b] = d.meta.black_level;
+            for q in 0..px {
+                out.copy_from(q * nb + b, &d.raster.samples, q);
+            }
+        }
+        let r = Raster::new(self.width, self.height, nb, out).expect("sizes checked above");
+        Ok((r, blacks))
+    }
+
+    fn read_mask(&self, p: &Path, f: &Frame) -> Result<Vec<u8>, DataError> {
+        let d =
+            read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
+                path: p.to_path_buf(),
+                frame: Some(frame_of(f)),
+                reason,
+            })?;
+        let r = d.raster;
+        if (r.width, r.height) != (self.width, self.height) {
+            return Err(DataError::ImageSize {
+                path: p.to_path_buf(),
+                key: "mask_path".into(),
+                frame: Some(frame_of(f)),
+                expected: (self.width, self.height),
+                found: (r.width, r.height),
+            });
+        }
+        let px = (self.width * self.height) as usize;
+        Ok((0..px)
+            .map(|q| u8::from(r.samples.raw(q * r.bands) != 0.0))
+            .collect())
+    }
+
+    /// Reads frame `i`'s depth file in metres (× `depth_unit_scale_factor`), row-major; `None` without one.
+    pub fn read_depth(&self, i: usize) -> Result<Option<Vec<f32>>, DataError> {
+        let f = &self.frames[i];
+        let Some(p) = &f.depth else { return Ok(None) };
+        let d =
+            read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
+                path: p.clone(),
+                frame: Some(frame_of(f)),
+                reason,
+            })?;
+        let r = d.raster;
+        if (r.width, r.height) != (self.width, self.height) {
+            return Err(DataError::ImageSize {
+                path: p.clone(),
+                key: "depth_file_path".into(),
+                frame: Some(frame_of(f)),
+                expected: (self.width, self.height),
+                found: (r.width, r.height),
+            });
+        }
+        let s = self.depth_unit_scale_factor;
+        let px = (self.width * self.height) as usize;
+        Ok(Some(
+            (0..px)
+                .map(|q| (r.samples.raw(q * r.bands) * s) as f32)
+                .collect(),
+        ))
+    }
+}
+
+fn select_channels(r: &Raster, order: &[usize]) -> Raster {
+    let px = r.width as usize * r.height as usize;
+    let nb = order.len();
+    if order.len() == r.bands && order.iter().enumerate().all(|(i, &o)| i == o) {
+        return r.clone();
+    }
+    let mut out = Samples::zeros(r.sample_type(), px * nb);
+    for q in 0..px {
+        for (b, &c) in order.iter().enumerate() {
+            out.copy_from(q * nb + b, &r.samples, q * r.bands + c);
+        }
+    }
+    Raster::new(r.width, r.height, nb, out).expect("shape follows from the source")
+}

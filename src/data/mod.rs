@@ -1,0 +1,37 @@
+//! Data layer: multispectral datasets (spec/dataset.md) read into memory without losing bit depth.
+//!
+//! - [`error`]: `DataError`, naming the file and the key or frame of every problem.
+//! - [`raster`]: compact in-memory images (u8/u16/u32/f16/f32), scaled to f32 only on access.
+//! - [`reader`], [`tiff_reader`], [`exr_reader`], [`png_reader`], [`xmp`]: file decoders.
+//! - [`transforms`], [`split`], [`loader`]: `transforms.json` to a [`loader::Dataset`].
+//! - [`pose`]: nerfstudio-style pose normalisation in f64 ([`pose::PoseTransform`]).
+//! - [`camera`]: camera models and CPU ray generation (f32 and f64 twins of the GPU kernel).
+//! - [`cache`]: host image cache with a byte budget and pixel sampling.
+//! - [`check`]: `dataset check` as a library function.
+//! - [`bench`]: cache/load benchmark.
+
+pub mod bench;
+pub mod cache;
+pub mod camera;
+pub mod check;
+pub mod error;
+pub mod exr_reader;
+pub mod loader;
+pub mod png_reader;
+pub mod pose;
+pub mod raster;
+pub mod reader;
+pub mod split;
+pub mod synth;
+pub mod tiff_reader;
+pub mod transforms;
+pub mod xmp;
+
+pub use cache::{CacheConfig, ImageCache, PixelBatch};
+pub use camera::{Camera, CameraModel, Distortion, Ray};
+pub use check::{check_dataset, CheckReport};
+pub use error::{DataError, FrameRef};
+pub use loader::{load_dataset, Band, Dataset, Frame, ImageSource, LoadOptions};
+pub use pose::PoseTransform;
+pub use raster::{Raster, SampleType, Samples};
+pub use split::Split;

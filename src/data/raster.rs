@@ -1,0 +1,242 @@
+//! `Raster`: one image held compactly in its source sample type (u8/u16/u32/f16/f32), pixel-interleaved,
+//! with per-band scaling applied only when values are read as f32.
+//!
+//! Integers are mapped to `(raw − black_level) / scale` where `scale` is `pixel_scale` when the dataset
+//! gives it and 2^bits − 1 of the stored type otherwise; floats are returned as stored (no clamping).
+//! There is no 8-bit step anywhere: a u16 stays a u16 until it is turned into an f32.
+
+use half::f16;
+use serde::Serialize;
+
+/// The type samples are stored in, in the file and in memory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum SampleType {
+    U8,
+    U16,
+    U32,
+    F16,
+    F32,
+}
+
+impl SampleType {
+    /// Bytes per sample in memory.
+    pub fn bytes(self) -> usize {
+        match self {
+            SampleType::U8 => 1,
+            SampleType::U16 | SampleType::F16 => 2,
+            SampleType::U32 | SampleType::F32 => 4,
+        }
+    }
+
+    /// 2^bits − 1 for integer types (the default divisor), 1 for floats.
+    pub fn default_scale(self) -> f64 {
+        match self {
+            SampleType::U8 => 255.0,
+            SampleType::U16 => 65535.0,
+            SampleType::U32 => 4294967295.0,
+            SampleType::F16 | SampleType::F32 => 1.0,
+        }
+    }
+
+    /// Whether the type holds integers (scaled and black-level corrected on access).
+    pub fn is_integer(self) -> bool {
+        matches!(self, SampleType::U8 | SampleType::U16 | SampleType::U32)
+    }
+}
+
+/// Samples of one image, pixel-interleaved: index `(row * width + col) * bands + band`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Samples {
+    U8(Vec<u8>),
+    U16(Vec<u16>),
+    U32(Vec<u32>),
+    F16(Vec<f16>),
+    F32(Vec<f32>),
+}
+
+impl Samples {
+    /// Zeroed storage of `len` samples of type `ty`.
+    pub fn zeros(ty: SampleType, len: usize) -> Samples {
+        match ty {
+            SampleType::U8 => Samples::U8(vec![0; len]),
+            SampleType::U16 => Samples::U16(vec![0; len]),
+            SampleType::U32 => Samples::U32(vec![0; len]),
+            SampleType::F16 => Samples::F16(vec![f16::ZERO; len]),
+            SampleType::F32 => Samples::F32(vec![0.0; len]),
+        }
+    }
+
+    pub fn sample_type(&self) -> SampleType {
+        match self {
+            Samples::U8(_) => SampleType::U8,
+            Samples::U16(_) => SampleType::U16,
+            Samples::U32(_) => SampleType::U32,
+            Samples::F16(_) => SampleType::F16,
+            Samples::F32(_) => SampleType::F32,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        match self {
+            Samples::U8(v) => v.len(),
+            Samples::U16(v) => v.len(),
+            Samples::U32(v) => v.len(),
+            Samples::F16(v) => v.len(),
+            Samples::F32(v) => v.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The raw stored value at `i` as f64 (exact for every type).
+    #[inline]
+    pub fn raw(&self, i: usize) -> f64 {
+        match self {
+            Samples::U8(v) => v[i] as f64,
+            Samples::U16(v) => v[i] as f64,
+            Samples::U32(v) => v[i] as f64,
+            Samples::F16(v) => v[i].to_f64(),
+            Samples::F32(v) => v[i] as f64,
+        }
+    }
+
+    /// Copies sample `src_i` of `src` (same type) into `self[dst_i]`. Returns false on a type mismatch.
+    #[inline]
+    pub fn copy_from(&mut self, dst_i: usize, src: &Samples, src_i: usize) -> bool {
+        match (self, src) {
+            (Samples::U8(d), Samples::U8(s)) => d[dst_i] = s[src_i],
+            (Samples::U16(d), Samples::U16(s)) => d[dst_i] = s[src_i],
+            (Samples::U32(d), Samples::U32(s)) => d[dst_i] = s[src_i],
+            (Samples::F16(d), Samples::F16(s)) => d[dst_i] = s[src_i],
+            (Samples::F32(d), Samples::F32(s)) => d[dst_i] = s[src_i],
+            _ => return false,
+        }
+        true
+    }
+
+    /// Number of NaN/Inf values (always 0 for integers).
+    pub fn count_non_finite(&self) -> u64 {
+        match self {
+            Samples::F16(v) => v.iter().filter(|x| !x.is_finite()).count() as u64,
+            Samples::F32(v) => v.iter().filter(|x| !x.is_finite()).count() as u64,
+            _ => 0,
+        }
+    }
+}
+
+/// Per-band mapping from stored values to model values: `(raw − black) / scale`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct BandScale {
+    pub black: f64,
+    pub scale: f64,
+}
+
+impl BandScale {
+    pub const IDENTITY: BandScale = BandScale {
+        black: 0.0,
+        scale: 1.0,
+    };
+}
+
+/// One decoded image: `bands` samples per pixel, row 0 at the top, plus an optional validity mask.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Raster {
+    pub width: u32,
+    pub height: u32,
+    pub bands: usize,
+    pub samples: Samples,
+    /// One entry per band; identity for float images.
+    pub scaling: Vec<BandScale>,
+    /// Optional per-pixel mask, `width * height` bytes, 0 = ignore the pixel.
+    pub mask: Option<Vec<u8>>,
+}
+
+impl Raster {
+    /// Builds a raster, checking that the sample count matches the shape.
+    pub fn new(width: u32, height: u32, bands: usize, samples: Samples) -> Option<Raster> {
+        if samples.len() != width as usize * height as usize * bands || bands == 0 {
+            return None;
+        }
+        Some(Raster {
+            width,
+            height,
+            bands,
+            samples,
+            scaling: vec![BandScale::IDENTITY; bands],
+            mask: None,
+        })
+    }
+
+    pub fn sample_type(&self) -> SampleType {
+        self.samples.sample_type()
+    }
+
+    /// Bytes held in memory (samples plus mask).
+    pub fn bytes(&self) -> u64 {
+        (self.samples.len() * self.sample_type().bytes()) as u64
+            + self.mask.as_ref().map_or(0, |m| m.len() as u64)
+    }
+
+    /// Stored value of one sample, unscaled.
+    #[inline]
+    pub fn raw(&self, row: u32, col: u32, band: usize) -> f64 {
+        self.samples
+            .raw((row as usize * self.width as usize + col as usize) * self.bands + band)
+    }
+
+    /// Model value of one sample: `(raw − black) / scale` as f32.
+    #[inline]
+    pub fn get(&self, row: u32, col: u32, band: usize) -> f32 {
+        let s = self.scaling[band];
+        ((self.raw(row, col, band) - s.black) / s.scale) as f32
+    }
+
+    /// All bands of one pixel as f32 into `out` (length `bands`).
+    #[inline]
+    pub fn pixel_into(&self, row: u32, col: u32, out: &mut [f32]) {
+        let base = (row as usize * self.width as usize + col as usize) * self.bands;
+        for (b, o) in out.iter_mut().enumerate().take(self.bands) {
+            let s = self.scaling[b];
+            *o = ((self.samples.raw(base + b) - s.black) / s.scale) as f32;
+        }
+    }
+
+    /// Mask value of a pixel (1 when there is no mask).
+    #[inline]
+    pub fn mask_at(&self, row: u32, col: u32) -> u8 {
+        match &self.mask {
+            Some(m) => m[row as usize * self.width as usize + col as usize],
+            None => 1,
+        }
+    }
+
+    /// One band as f32, row-major (for checks and tests; allocates).
+    pub fn band_f32(&self, band: usize) -> Vec<f32> {
+        let n = self.width as usize * self.height as usize;
+        let s = self.scaling[band];
+        (0..n)
+            .map(|p| ((self.samples.raw(p * self.bands + band) - s.black) / s.scale) as f32)
+            .collect()
+    }
+
+    /// Per-band (min, max) of the model values over finite samples; `None` for a band with none.
+    pub fn band_ranges(&self) -> Vec<Option<(f32, f32)>> {
+        let mut r: Vec<Option<(f32, f32)>> = vec![None; self.bands];
+        let n = self.width as usize * self.height as usize;
+        for p in 0..n {
+            for (b, slot) in r.iter_mut().enumerate() {
+                let s = self.scaling[b];
+                let v = ((self.samples.raw(p * self.bands + b) - s.black) / s.scale) as f32;
+                if v.is_finite() {
+                    *slot = Some(match *slot {
+                        None => (v, v),
+                        Some((lo, hi)) => (lo.min(v), hi.max(v)),
+                    });
+                }
+            }
+        }
+        r
+    }
+}
