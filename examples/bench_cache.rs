@@ -4,10 +4,7 @@ use msnerf::data::bench::run_cache_bench;
 use msnerf::data::synth::SynthSpec;
 
 fn main() {
-    let a: Vec<u64> = std::env::args()
-        .skip(1)
-        .filter_map(|s| s.parse().ok())
-        .collect();
+    let a: Vec<u64> = std::env::args().skip(1).filter_map(|s| s.parse().ok()).collect();
     let get = |i: usize, d: u64| a.get(i).copied().unwrap_or(d);
     let spec = SynthSpec {
         frames: get(0, 64) as usize,

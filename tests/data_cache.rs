@@ -24,12 +24,7 @@ fn paper_scale_dataset_fits_16_gb() {
 #[test]
 fn budget_respected_and_all_images_visited() {
     let td = TempDir::new("cache");
-    let spec = SynthSpec {
-        frames: 24,
-        width: 40,
-        height: 30,
-        bands: 6,
-    };
+    let spec = SynthSpec { frames: 24, width: 40, height: 30, bands: 6 };
     write_synthetic_dataset(td.path(), &spec).unwrap();
     let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
     let train = ds.split_indices(Split::Train);
@@ -37,11 +32,7 @@ fn budget_respected_and_all_images_visited() {
     let per = ds.image_bytes();
     assert_eq!(per, 40 * 30 * 6 * 2);
     let budget = per * 6 + per / 2; // room for 5 resident + scratch
-    let cfg = CacheConfig {
-        budget_bytes: budget,
-        resample_every: 10,
-        seed: 3,
-    };
+    let cfg = CacheConfig { budget_bytes: budget, resample_every: 10, seed: 3 };
     let mut cache = ImageCache::new(&ds, train.clone(), cfg).unwrap();
     assert_eq!(cache.plan().n_resident, 5);
     let mut rng = ChaCha8Rng::seed_from_u64(9);
@@ -59,10 +50,7 @@ fn budget_respected_and_all_images_visited() {
                 assert_eq!(batch.values[k * 6 + b], (raw / 65520.0) as f32);
             }
         }
-        assert!(
-            cache.current_bytes() <= budget && cache.peak_bytes() <= budget,
-            "step {step}"
-        );
+        assert!(cache.current_bytes() <= budget && cache.peak_bytes() <= budget, "step {step}");
         cache.step().unwrap();
     }
     assert_eq!(cache.visited_fraction(), 1.0);
@@ -76,33 +64,20 @@ fn budget_respected_and_all_images_visited() {
 #[test]
 fn masked_pixels_are_rejected() {
     let td = TempDir::new("cmask");
-    let spec = SynthSpec {
-        frames: 3,
-        width: 10,
-        height: 8,
-        bands: 2,
-    };
+    let spec = SynthSpec { frames: 3, width: 10, height: 8, bands: 2 };
     write_synthetic_dataset(td.path(), &spec).unwrap();
     // Mask out all but column 3 on every frame.
     let mask: Vec<u8> = (0..80).map(|i| if i % 10 == 3 { 255 } else { 0 }).collect();
-    image::GrayImage::from_raw(10, 8, mask)
-        .unwrap()
-        .save(td.path().join("m.png"))
-        .unwrap();
+    image::GrayImage::from_raw(10, 8, mask).unwrap().save(td.path().join("m.png")).unwrap();
     let p = td.path().join("transforms.json");
-    let mut j: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    let mut j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
     for f in j["frames"].as_array_mut().unwrap() {
         f["mask_path"] = serde_json::json!("m.png");
         f["split"] = serde_json::json!("train");
     }
     std::fs::write(&p, j.to_string()).unwrap();
     let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
-    let cfg = CacheConfig {
-        budget_bytes: 1 << 20,
-        resample_every: 0,
-        seed: 1,
-    };
+    let cfg = CacheConfig { budget_bytes: 1 << 20, resample_every: 0, seed: 1 };
     let cache = ImageCache::new(&ds, ds.split_indices(Split::Train), cfg).unwrap();
     assert!(cache.plan().fits_all);
     let b = cache.sample_pixels(&mut ChaCha8Rng::seed_from_u64(2), 500);

@@ -11,26 +11,17 @@ use serde_json::json;
 fn dataset(edit: impl FnOnce(&mut serde_json::Value)) -> TempDir {
     let td = TempDir::new("err");
     for n in ["a", "b", "c"] {
-        std::fs::write(
-            td.path().join(format!("{n}.tif")),
-            tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::U16)),
-        )
-        .unwrap();
+        std::fs::write(td.path().join(format!("{n}.tif")), tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::U16))).unwrap();
     }
     write_transforms(
         td.path(),
         8,
         6,
         json!({"bands": bands_json(2)}),
-        vec![
-            frame("a.tif", 0.0, "train"),
-            frame("b.tif", 1.0, "train"),
-            frame("c.tif", 2.0, "eval"),
-        ],
+        vec![frame("a.tif", 0.0, "train"), frame("b.tif", 1.0, "train"), frame("c.tif", 2.0, "eval")],
     );
     let p = td.path().join("transforms.json");
-    let mut j: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    let mut j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
     edit(&mut j);
     std::fs::write(&p, j.to_string()).unwrap();
     td
@@ -61,9 +52,7 @@ fn valid_dataset_loads_and_checks_ok() {
 }
 
 fn tiff_max(b: usize) -> f64 {
-    (0..6)
-        .flat_map(|r| (0..8).map(move |c| value(Kind::U16, b, r, c)))
-        .fold(0.0, f64::max)
+    (0..6).flat_map(|r| (0..8).map(move |c| value(Kind::U16, b, r, c))).fold(0.0, f64::max)
 }
 
 #[test]
@@ -99,17 +88,7 @@ fn band_count_mismatch() {
     let td = dataset(|j| j["bands"] = bands_json(3));
     let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
     let e = ds.read_frame(0).unwrap_err();
-    assert!(
-        matches!(
-            e,
-            DataError::BandCount {
-                expected: 3,
-                found: 2,
-                ..
-            }
-        ),
-        "{e}"
-    );
+    assert!(matches!(e, DataError::BandCount { expected: 3, found: 2, .. }), "{e}");
     assert_names(&e, &["a.tif", "file_path", "frame 0"]);
 }
 
@@ -128,22 +107,11 @@ fn nan_pixels_are_counted() {
     bytes[8..12].copy_from_slice(&f32::NAN.to_le_bytes());
     bytes[12..16].copy_from_slice(&f32::INFINITY.to_le_bytes());
     std::fs::write(td.path().join("f.tif"), bytes).unwrap();
-    std::fs::write(
-        td.path().join("a.tif"),
-        tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::F32)),
-    )
-    .unwrap();
-    std::fs::write(
-        td.path().join("c.tif"),
-        tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::F32)),
-    )
-    .unwrap();
+    std::fs::write(td.path().join("a.tif"), tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::F32))).unwrap();
+    std::fs::write(td.path().join("c.tif"), tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::F32))).unwrap();
     let rep = check_dataset(td.path(), 1 << 20);
     assert!(!rep.is_ok());
-    assert!(
-        matches!(rep.problems[0], DataError::NonFinite { count: 2, .. }),
-        "{rep}"
-    );
+    assert!(matches!(rep.problems[0], DataError::NonFinite { count: 2, .. }), "{rep}");
     assert_names(&rep.problems[0], &["f.tif", "frame 1", "2 NaN/Inf"]);
 }
 
@@ -152,10 +120,7 @@ fn rotation_not_orthonormal() {
     let td = dataset(|j| j["frames"][2]["transform_matrix"][0][0] = json!(1.5));
     let e = load_err(&td);
     assert!(matches!(e, DataError::NotOrthonormal { .. }), "{e}");
-    assert_names(
-        &e,
-        &["transforms.json", "transform_matrix", "frame 2 (c.tif)"],
-    );
+    assert_names(&e, &["transforms.json", "transform_matrix", "frame 2 (c.tif)"]);
 }
 
 #[test]
@@ -217,10 +182,7 @@ fn all_errors_are_collected_and_unknown_keys_ignored() {
     let rep = check_dataset(td.path(), 1 << 20);
     assert_eq!(rep.errors.len(), 2);
     // Nothing was modified.
-    assert_eq!(
-        std::fs::read(td.path().join("transforms.json")).unwrap(),
-        before
-    );
+    assert_eq!(std::fs::read(td.path().join("transforms.json")).unwrap(), before);
 }
 
 #[test]
@@ -239,11 +201,7 @@ fn splits_three_ways() {
     let mut frames = vec![];
     for i in 0..10 {
         let n = format!("img{:02}.tif", 9 - i);
-        std::fs::write(
-            td.path().join(&n),
-            tiff_bytes(&TiffSpec::new(4, 4, 3, Kind::U8)),
-        )
-        .unwrap();
+        std::fs::write(td.path().join(&n), tiff_bytes(&TiffSpec::new(4, 4, 3, Kind::U8))).unwrap();
         let mut f = frame(&n, i as f64, "");
         f.as_object_mut().unwrap().remove("split");
         frames.push(f);

@@ -42,12 +42,7 @@ fn exr_bytes() -> Vec<u8> {
     use exr::prelude::*;
     let ch: Vec<AnyChannel<FlatSamples>> = ["a", "b"]
         .iter()
-        .map(|n| {
-            AnyChannel::new(
-                *n,
-                FlatSamples::F16((0..96).map(|i| f16::from_f32(i as f32)).collect()),
-            )
-        })
+        .map(|n| AnyChannel::new(*n, FlatSamples::F16((0..96).map(|i| f16::from_f32(i as f32)).collect())))
         .collect();
     let img = Image::from_channels((12, 8), AnyChannels::sort(ch.into()));
     let mut out = std::io::Cursor::new(Vec::new());
@@ -84,14 +79,10 @@ fn corrupted_images_never_panic() {
         let r = catch_unwind(AssertUnwindSafe(|| read_image_bytes(&b, 1 << 22)));
         match r {
             Ok(Err(_)) => errors += 1,
-            Ok(Ok(d)) => assert!(
-                d.raster.samples.len()
-                    == d.raster.width as usize * d.raster.height as usize * d.raster.bands
-            ),
-            Err(_) => panic!(
-                "panic escaped the reader on mutation {i} of seed {}",
-                i % seeds.len()
-            ),
+            Ok(Ok(d)) => {
+                assert!(d.raster.samples.len() == d.raster.width as usize * d.raster.height as usize * d.raster.bands)
+            }
+            Err(_) => panic!("panic escaped the reader on mutation {i} of seed {}", i % seeds.len()),
         }
     }
     assert!(errors > n / 10, "too few corruptions detected: {errors}");
@@ -111,11 +102,7 @@ fn corrupted_json_and_images_through_the_loader_never_panic() {
     let json = std::fs::read(td.path().join("transforms.json")).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     for i in 0..1500 {
-        let j = if i % 3 == 0 {
-            json.clone()
-        } else {
-            mutate(&mut rng, &json)
-        };
+        let j = if i % 3 == 0 { json.clone() } else { mutate(&mut rng, &json) };
         std::fs::write(td.path().join("transforms.json"), &j).unwrap();
         std::fs::write(td.path().join("a.tif"), mutate(&mut rng, &tif)).unwrap();
         std::fs::write(td.path().join("b.tif"), &tif).unwrap();

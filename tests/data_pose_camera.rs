@@ -36,28 +36,17 @@ fn hand_computed_small_case() {
     // Identity rotations: up = +Y → rotate +Y to +Z (x stays, y→z, z→−y). Centres (0,0,0) and (2,0,0).
     let i3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     let t = normalize_poses(&[pose(i3, [0.0, 0.0, 0.0]), pose(i3, [2.0, 0.0, 0.0])]);
-    let expect = [
-        [1.0, 0.0, 0.0, -1.0],
-        [0.0, 0.0, -1.0, 0.0],
-        [0.0, 1.0, 0.0, 0.0],
-    ];
+    let expect = [[1.0, 0.0, 0.0, -1.0], [0.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, 0.0]];
     for i in 0..3 {
         for j in 0..4 {
-            assert!(
-                (t.transform[i][j] - expect[i][j]).abs() < 1e-7,
-                "{:?}",
-                t.transform
-            );
+            assert!((t.transform[i][j] - expect[i][j]).abs() < 1e-7, "{:?}", t.transform);
         }
     }
     assert_eq!(t.scale, 1.0);
     let q = t.to_normalized([2.0, 0.0, 0.0]);
     assert!((q[0] - 1.0).abs() < 1e-12 && q[1].abs() < 1e-12 && q[2].abs() < 1e-12);
     let p = t.to_normalized([1.0, 3.0, 5.0]);
-    assert!(
-        (p[0]).abs() < 1e-7 && (p[1] + 5.0).abs() < 1e-7 && (p[2] - 3.0).abs() < 1e-7,
-        "{p:?}"
-    );
+    assert!((p[0]).abs() < 1e-7 && (p[1] + 5.0).abs() < 1e-7 && (p[2] - 3.0).abs() < 1e-7, "{p:?}");
     // Serialises like nerfstudio's dataparser_transforms.json.
     let j: serde_json::Value = serde_json::from_str(&t.to_json()).unwrap();
     assert_eq!(j["transform"].as_array().unwrap().len(), 3);
@@ -72,11 +61,7 @@ fn utm_offset_poses_round_trip_within_a_micrometre() {
     let mut poses = Vec::new();
     for k in 0..50 {
         let a = k as f64 * 0.37;
-        let t = [
-            512_345.678 + 80.0 * a.cos(),
-            4_123_456.789 + 60.0 * a.sin(),
-            150.0 + k as f64 * 0.1,
-        ];
+        let t = [512_345.678 + 80.0 * a.cos(), 4_123_456.789 + 60.0 * a.sin(), 150.0 + k as f64 * 0.1];
         poses.push(pose(rot(0.1 * a.sin(), 0.2 * a.cos()), t));
     }
     let tf = normalize_poses(&poses);
@@ -89,12 +74,7 @@ fn utm_offset_poses_round_trip_within_a_micrometre() {
         let w = tf.pose_to_world(&n);
         for i in 0..3 {
             for j in 0..4 {
-                assert!(
-                    (w[i][j] - p[i][j]).abs() < 1e-6,
-                    "{} vs {}",
-                    w[i][j],
-                    p[i][j]
-                );
+                assert!((w[i][j] - p[i][j]).abs() < 1e-6, "{} vs {}", w[i][j], p[i][j]);
             }
         }
         // Points too.
@@ -104,10 +84,7 @@ fn utm_offset_poses_round_trip_within_a_micrometre() {
             assert!((x[i] - y[i]).abs() < 1e-6);
         }
     }
-    assert!(
-        (max_abs - 1.0).abs() < 1e-12,
-        "centres fill [-1,1]^3 in L∞: {max_abs}"
-    );
+    assert!((max_abs - 1.0).abs() < 1e-12, "centres fill [-1,1]^3 in L∞: {max_abs}");
     // Mean up maps to +Z.
     let mut up = [0.0; 3];
     for p in &poses {
@@ -121,25 +98,13 @@ fn utm_offset_poses_round_trip_within_a_micrometre() {
 }
 
 fn cam(model: CameraModel, d: Distortion) -> Camera {
-    Camera {
-        model,
-        fx: 500.0,
-        fy: 400.0,
-        cx: 320.0,
-        cy: 240.0,
-        width: 640,
-        height: 480,
-        distortion: d,
-    }
+    Camera { model, fx: 500.0, fy: 400.0, cx: 320.0, cy: 240.0, width: 640, height: 480, distortion: d }
 }
 
 #[test]
 fn pinhole_rays_match_hand_computed_directions() {
     let c = cam(CameraModel::Pinhole, Distortion::default());
-    let id = pose(
-        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        [10.0, 20.0, 30.0],
-    );
+    let id = pose([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [10.0, 20.0, 30.0]);
     // Pixel (row 239, col 319): centre (319.5, 239.5) → x = −0.5/500, y = −0.5/400 → GL (x, −y, −1).
     let r = c.ray_f64(&id, 239, 319);
     let d: [f64; 3] = [-0.001, 0.00125, -1.0];
@@ -159,11 +124,7 @@ fn pinhole_rays_match_hand_computed_directions() {
         assert!((r.direction[i] - w[i] / n).abs() < 1e-12);
     }
     // f32 twin agrees.
-    let c2w32 = [
-        [0.0f32, -1.0, 0.0, 0.0],
-        [1.0, 0.0, 0.0, 0.0],
-        [0.0, 0.0, 1.0, 0.0],
-    ];
+    let c2w32 = [[0.0f32, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
     let r32 = c.ray_f32(&c2w32, 0, 0);
     for i in 0..3 {
         assert!((r32.direction[i] as f64 - r.direction[i]).abs() < 1e-6);
@@ -172,14 +133,7 @@ fn pinhole_rays_match_hand_computed_directions() {
 
 #[test]
 fn undistort_inverts_distort_over_a_grid() {
-    let d = Distortion {
-        k1: -0.1,
-        k2: 0.05,
-        k3: -0.01,
-        k4: 0.002,
-        p1: 0.001,
-        p2: -0.0005,
-    };
+    let d = Distortion { k1: -0.1, k2: 0.05, k3: -0.01, k4: 0.002, p1: 0.001, p2: -0.0005 };
     let p64 = d.params::<f64>();
     let p32 = d.params::<f32>();
     for i in -10..=10 {
@@ -187,10 +141,7 @@ fn undistort_inverts_distort_over_a_grid() {
             let (x, y) = (i as f64 * 0.06, j as f64 * 0.045);
             let (xd, yd) = distort(x, y, &p64);
             let (ux, uy) = undistort(xd, yd, &p64);
-            assert!(
-                (ux - x).abs() < 1e-6 && (uy - y).abs() < 1e-6,
-                "({x},{y}) → ({ux},{uy})"
-            );
+            assert!((ux - x).abs() < 1e-6 && (uy - y).abs() < 1e-6, "({x},{y}) → ({ux},{uy})");
             let (xd32, yd32) = distort(x as f32, y as f32, &p32);
             let (ux32, uy32) = undistort(xd32, yd32, &p32);
             assert!((ux32 as f64 - x).abs() < 1e-5 && (uy32 as f64 - y).abs() < 1e-5);
@@ -198,10 +149,7 @@ fn undistort_inverts_distort_over_a_grid() {
     }
     // Through the camera: the ray of a distorted pixel points at the undistorted normalised point.
     let c = cam(CameraModel::OpenCv, d);
-    let id = pose(
-        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        [0.0; 3],
-    );
+    let id = pose([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [0.0; 3]);
     let r = c.ray_f64(&id, 10, 600);
     let (ux, uy) = undistort((600.5 - 320.0) / 500.0, (10.5 - 240.0) / 400.0, &p64);
     let n = (ux * ux + uy * uy + 1.0f64).sqrt();
@@ -211,10 +159,7 @@ fn undistort_inverts_distort_over_a_grid() {
 #[test]
 fn fisheye_direction_uses_theta() {
     let c = cam(CameraModel::OpenCvFisheye, Distortion::default());
-    let id = pose(
-        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        [0.0; 3],
-    );
+    let id = pose([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [0.0; 3]);
     let r = c.ray_f64(&id, 239, 569); // x = (569.5 − 320)/500 = 0.499, y = −0.5/400
     let (x, y) = (249.5 / 500.0, -(-0.5f64 / 400.0));
     let th = (x * x + y * y).sqrt();

@@ -8,13 +8,8 @@ use msnerf::data::{load_dataset, LoadOptions, SampleType};
 
 fn real_dir() -> Option<PathBuf> {
     let here = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let candidates = [
-        here.join("../shared/data/real"),
-        PathBuf::from("/work/shared/data/real"),
-    ];
-    candidates
-        .into_iter()
-        .find(|p| p.join("README.md").is_file())
+    let candidates = [here.join("../shared/data/real"), PathBuf::from("/work/shared/data/real")];
+    candidates.into_iter().find(|p| p.join("README.md").is_file())
 }
 
 #[test]
@@ -61,13 +56,8 @@ fn micasense_capture_loads_as_a_dataset_with_bands_from_xmp() {
     std::fs::create_dir_all(&tmp).unwrap();
     // Band files in suffix order (not wavelength order); two captures as two frames.
     let frame = |cap: u32, x: f64| {
-        let files: Vec<String> = (1..=5)
-            .map(|b| {
-                m.join(format!("0000SET_IMG_000{cap}_{b}.tif"))
-                    .display()
-                    .to_string()
-            })
-            .collect();
+        let files: Vec<String> =
+            (1..=5).map(|b| m.join(format!("0000SET_IMG_000{cap}_{b}.tif")).display().to_string()).collect();
         serde_json::json!({"band_files": files, "split": "train",
             "transform_matrix": [[1,0,0,x],[0,1,0,0],[0,0,1,0],[0,0,0,1]]})
     };

@@ -28,14 +28,10 @@ fn roundtrip(spec: TiffSpec) {
         serde_json::json!({"bands": bands_json(spec.bands)}),
         vec![frame("a.tif", 0.0, "train"), frame("b.tif", 1.0, "eval")],
     );
-    let ds = load_dataset(td.path(), &LoadOptions::default())
-        .unwrap_or_else(|e| panic!("{spec:?}: {e}"));
+    let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap_or_else(|e| panic!("{spec:?}: {e}"));
     assert_eq!(ds.sample_type, expected_type(spec.kind), "{spec:?}");
     let r = ds.read_frame(0).unwrap_or_else(|e| panic!("{spec:?}: {e}"));
-    assert_eq!(
-        (r.width, r.height, r.bands),
-        (spec.width, spec.height, spec.bands)
-    );
+    assert_eq!((r.width, r.height, r.bands), (spec.width, spec.height, spec.bands));
     let scale = match spec.kind {
         Kind::U8 => 255.0,
         Kind::U16 => 65535.0,
@@ -61,21 +57,13 @@ fn hand_assembled_tiff_variants_roundtrip() {
         for planar in [false, true] {
             for tiles in [None, Some((16, 16))] {
                 for lzw in [false, true] {
-                    let predictors: &[u16] = if kind == Kind::F32 {
-                        &[1, 2, 3]
-                    } else {
-                        &[1, 2]
-                    };
+                    let predictors: &[u16] = if kind == Kind::F32 { &[1, 2, 3] } else { &[1, 2] };
                     for &predictor in predictors {
                         // 37x21 with 16x16 tiles: partial edge tiles on both axes. OPEN: LZW edge tiles of
                         // 6-sample images written by data_support fail to decode ("no lzw end code found",
                         // an error, not a panic); not yet known whether the test encoder or `tiff` is at
                         // fault, so LZW tiles use whole tiles here.
-                        let (w, h) = if tiles.is_some() && lzw {
-                            (32, 32)
-                        } else {
-                            (37, 21)
-                        };
+                        let (w, h) = if tiles.is_some() && lzw { (32, 32) } else { (37, 21) };
                         let mut s = TiffSpec::new(w, h, 6, kind);
                         s.planar = planar;
                         s.tiles = tiles;
@@ -124,18 +112,10 @@ fn tiff_encoder_compressions_roundtrip() {
         let td = TempDir::new("enc");
         // RGB16 (3 bands, no `bands` key: plain RGB dataset).
         let f = std::fs::File::create(td.path().join("rgb.tif")).unwrap();
-        let mut enc = TiffEncoder::new(f)
-            .unwrap()
-            .with_compression(comp)
-            .with_predictor(tiff::tags::Predictor::Horizontal);
+        let mut enc =
+            TiffEncoder::new(f).unwrap().with_compression(comp).with_predictor(tiff::tags::Predictor::Horizontal);
         enc.write_image::<colortype::RGB16>(w, h, &data16).unwrap();
-        write_transforms(
-            td.path(),
-            w,
-            h,
-            serde_json::json!({}),
-            vec![frame("rgb.tif", 0.0, "train")],
-        );
+        write_transforms(td.path(), w, h, serde_json::json!({}), vec![frame("rgb.tif", 0.0, "train")]);
         let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
         let names: Vec<&str> = ds.bands.iter().map(|b| b.name.as_str()).collect();
         assert_eq!(names, ["red", "green", "blue"], "{name}");
@@ -147,8 +127,7 @@ fn tiff_encoder_compressions_roundtrip() {
         // Gray32Float, one band.
         let f = std::fs::File::create(td.path().join("f.tif")).unwrap();
         let mut enc = TiffEncoder::new(f).unwrap().with_compression(comp);
-        enc.write_image::<colortype::Gray32Float>(w, h, &dataf)
-            .unwrap();
+        enc.write_image::<colortype::Gray32Float>(w, h, &dataf).unwrap();
         write_transforms(
             td.path(),
             w,
@@ -193,30 +172,18 @@ fn exr_half_and_float_channels_match_bands_by_name() {
     use exr::prelude::*;
     let (w, h) = (11usize, 7usize);
     let td = TempDir::new("exr");
-    let mk = |k: usize| -> Vec<f32> {
-        (0..w * h)
-            .map(|i| (i as f32) * 0.25 + k as f32 * 100.0 + 0.125)
-            .collect()
-    };
+    let mk = |k: usize| -> Vec<f32> { (0..w * h).map(|i| (i as f32) * 0.25 + k as f32 * 100.0 + 0.125).collect() };
     // Half channels, named in a different case and order than the bands.
     let half_ch: Vec<AnyChannel<FlatSamples>> = ["NIR", "red", "Green"]
         .iter()
         .enumerate()
-        .map(|(k, n)| {
-            AnyChannel::new(
-                *n,
-                FlatSamples::F16(mk(k).iter().map(|&x| f16::from_f32(x)).collect()),
-            )
-        })
+        .map(|(k, n)| AnyChannel::new(*n, FlatSamples::F16(mk(k).iter().map(|&x| f16::from_f32(x)).collect())))
         .collect();
     let img = Image::from_channels((w, h), AnyChannels::sort(half_ch.into()));
     img.write().to_file(td.path().join("h.exr")).unwrap();
     // Float channels with names that match no band: file order.
-    let f_ch: Vec<AnyChannel<FlatSamples>> = ["c0", "c1", "c2"]
-        .iter()
-        .enumerate()
-        .map(|(k, n)| AnyChannel::new(*n, FlatSamples::F32(mk(k))))
-        .collect();
+    let f_ch: Vec<AnyChannel<FlatSamples>> =
+        ["c0", "c1", "c2"].iter().enumerate().map(|(k, n)| AnyChannel::new(*n, FlatSamples::F32(mk(k)))).collect();
     let img = Image::from_channels((w, h), AnyChannels::sort(f_ch.into()));
     img.write().to_file(td.path().join("f.exr")).unwrap();
 
@@ -264,50 +231,26 @@ fn png_8_and_16_bit_and_jpeg_keep_their_depth() {
         .unwrap()
         .save(td.path().join("b8.png"))
         .unwrap();
-    write_transforms(
-        td.path(),
-        w,
-        h,
-        serde_json::json!({}),
-        vec![frame("a16.png", 0.0, "train")],
-    );
+    write_transforms(td.path(), w, h, serde_json::json!({}), vec![frame("a16.png", 0.0, "train")]);
     let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
     assert_eq!(ds.sample_type, SampleType::U16);
     let r = ds.read_frame(0).unwrap();
     for (i, &v) in d16.iter().enumerate() {
         assert_eq!(r.samples.raw(i), v as f64);
     }
-    assert_eq!(
-        r.get(1, 2, 1),
-        (d16[(w as usize + 2) * 3 + 1] as f64 / 65535.0) as f32
-    );
+    assert_eq!(r.get(1, 2, 1), (d16[(w as usize + 2) * 3 + 1] as f64 / 65535.0) as f32);
     // RGBA 8-bit: alpha dropped for an RGB dataset, values / 255.
-    write_transforms(
-        td.path(),
-        w,
-        h,
-        serde_json::json!({}),
-        vec![frame("b8.png", 0.0, "train")],
-    );
+    write_transforms(td.path(), w, h, serde_json::json!({}), vec![frame("b8.png", 0.0, "train")]);
     let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
     let r = ds.read_frame(0).unwrap();
     assert_eq!((r.bands, r.sample_type()), (3, SampleType::U8));
     assert_eq!(r.raw(2, 3, 2), d8[(2 * w as usize + 3) * 4 + 2] as f64);
-    assert_eq!(
-        r.get(2, 3, 0),
-        (d8[(2 * w as usize + 3) * 4] as f64 / 255.0) as f32
-    );
+    assert_eq!(r.get(2, 3, 0), (d8[(2 * w as usize + 3) * 4] as f64 / 255.0) as f32);
     // JPEG: lossy, so only shape and type.
     image::ImageBuffer::<image::Rgb<u8>, _>::from_pixel(16, 16, image::Rgb([200, 100, 50]))
         .save(td.path().join("c.jpg"))
         .unwrap();
-    write_transforms(
-        td.path(),
-        16,
-        16,
-        serde_json::json!({}),
-        vec![frame("c.jpg", 0.0, "train")],
-    );
+    write_transforms(td.path(), 16, 16, serde_json::json!({}), vec![frame("c.jpg", 0.0, "train")]);
     let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
     let r = ds.read_frame(0).unwrap();
     assert_eq!((r.bands, r.sample_type()), (3, SampleType::U8));
@@ -328,19 +271,11 @@ fn masks_depth_band_files_and_nan_masking() {
         }
         std::fs::write(td.path().join(format!("b{b}.tif")), bytes).unwrap();
     }
-    let mask: Vec<u8> = (0..w * h)
-        .map(|i| if i % 3 == 0 { 0 } else { 255 })
-        .collect();
-    image::GrayImage::from_raw(w, h, mask.clone())
-        .unwrap()
-        .save(td.path().join("m.png"))
-        .unwrap();
+    let mask: Vec<u8> = (0..w * h).map(|i| if i % 3 == 0 { 0 } else { 255 }).collect();
+    image::GrayImage::from_raw(w, h, mask.clone()).unwrap().save(td.path().join("m.png")).unwrap();
     let depth: Vec<u16> = (0..w * h).map(|i| (i * 100) as u16).collect();
     let f = std::fs::File::create(td.path().join("d.tif")).unwrap();
-    tiff::encoder::TiffEncoder::new(f)
-        .unwrap()
-        .write_image::<tiff::encoder::colortype::Gray16>(w, h, &depth)
-        .unwrap();
+    tiff::encoder::TiffEncoder::new(f).unwrap().write_image::<tiff::encoder::colortype::Gray16>(w, h, &depth).unwrap();
     let fr = serde_json::json!({"band_files": ["b0.tif", "b1.tif", "b2.tif"], "mask_path": "m.png",
         "depth_file_path": "d.tif", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]});
     let fr2 = serde_json::json!({"band_files": ["b0.tif", "b1.tif", "b2.tif"],
@@ -354,33 +289,18 @@ fn masks_depth_band_files_and_nan_masking() {
         vec![fr, fr2],
     );
     // The two frames share band files: duplicate file names are an error.
-    let e = load_dataset(td.path(), &LoadOptions::default())
-        .unwrap_err()
-        .to_string();
+    let e = load_dataset(td.path(), &LoadOptions::default()).unwrap_err().to_string();
     assert!(e.contains("duplicate") && e.contains("b0.tif"), "{e}");
     // One frame only.
     let j: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(td.path().join("transforms.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(td.path().join("transforms.json")).unwrap()).unwrap();
     let mut j = j;
     j["frames"].as_array_mut().unwrap().truncate(1);
     std::fs::write(td.path().join("transforms.json"), j.to_string()).unwrap();
-    let e = load_dataset(td.path(), &LoadOptions::default())
-        .unwrap()
-        .read_frame(0)
-        .unwrap_err();
-    assert!(
-        matches!(e, msnerf::data::DataError::NonFinite { count: 1, .. }),
-        "{e}"
-    );
+    let e = load_dataset(td.path(), &LoadOptions::default()).unwrap().read_frame(0).unwrap_err();
+    assert!(matches!(e, msnerf::data::DataError::NonFinite { count: 1, .. }), "{e}");
     assert!(e.to_string().contains("b0.tif"), "{e}");
-    let ds = load_dataset(
-        td.path(),
-        &LoadOptions {
-            mask_non_finite: true,
-        },
-    )
-    .unwrap();
+    let ds = load_dataset(td.path(), &LoadOptions { mask_non_finite: true }).unwrap();
     let r = ds.read_frame(0).unwrap();
     let m = r.mask.as_ref().unwrap();
     assert_eq!(m[0], 0); // masked by the mask file and by the NaN

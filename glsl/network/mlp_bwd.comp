@@ -22,7 +22,7 @@ layout(std430, binding = 4) writeonly buffer DX { float dxv[]; };
 layout(push_constant) uniform Push {
     uint64_t params; uint shift; uint w_offset; uint n;
     uint y_stride; uint y_col; uint dy_stride; uint dy_col; uint n_out;
-    uint dx_stride; uint dx_col; uint want_dx;
+    uint dx_stride; uint dx_col; uint want_dx; uint pad;
 } pc;
 
 float a[ROWS * MAXW];

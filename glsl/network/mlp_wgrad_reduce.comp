@@ -8,7 +8,7 @@
 #include "common/large_array.glsl"
 layout(local_size_x = WG_SIZE) in;
 layout(std430, binding = 0) readonly buffer Partial { float partial[]; };
-layout(push_constant) uniform Push { uint64_t grads; uint shift; uint g_offset; uint count; uint splits; uint pad; } pc;
+layout(push_constant) uniform Push { uint64_t grads; uint shift; uint g_offset; uint count; uint splits; uint pad; uint pad2; } pc;
 
 void main() {
     uint e = global_index();

@@ -50,11 +50,7 @@ pub fn run_cache_bench(
     );
     let ds = load_dataset(&tmp, &LoadOptions::default()).map_err(|e| e.to_string())?;
     let train = ds.split_indices(Split::Train);
-    let cfg = CacheConfig {
-        budget_bytes,
-        resample_every,
-        seed: 7,
-    };
+    let cfg = CacheConfig { budget_bytes, resample_every, seed: 7 };
     let t1 = Instant::now();
     let mut cache = ImageCache::new(&ds, train.clone(), cfg).map_err(|e| e.to_string())?;
     let mut rng = ChaCha8Rng::seed_from_u64(1);

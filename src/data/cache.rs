@@ -89,11 +89,7 @@ pub struct ImageCache<'a> {
 
 impl<'a> ImageCache<'a> {
     /// Builds the cache over `frames` (dataset indices, usually the train split) and loads the first set.
-    pub fn new(
-        ds: &'a Dataset,
-        frames: Vec<usize>,
-        cfg: CacheConfig,
-    ) -> Result<ImageCache<'a>, DataError> {
+    pub fn new(ds: &'a Dataset, frames: Vec<usize>, cfg: CacheConfig) -> Result<ImageCache<'a>, DataError> {
         let per = frames.iter().map(|&i| ds.frame_bytes(i)).max().unwrap_or(0);
         let plan = plan_cache(frames.len(), per, cfg.budget_bytes).ok_or_else(|| DataError::InvalidValue {
             path: ds.transforms_path.clone(),
@@ -155,10 +151,7 @@ impl<'a> ImageCache<'a> {
     /// Returns whether it resampled.
     pub fn step(&mut self) -> Result<bool, DataError> {
         self.step += 1;
-        if !self.plan.fits_all
-            && self.cfg.resample_every > 0
-            && self.step % self.cfg.resample_every == 0
-        {
+        if !self.plan.fits_all && self.cfg.resample_every > 0 && self.step % self.cfg.resample_every == 0 {
             self.resample()?;
             return Ok(true);
         }
@@ -247,13 +240,7 @@ impl<'a> ImageCache<'a> {
                     let valid = mask.iter().filter(|&&v| v != 0).count();
                     if valid > 0 {
                         let pick = rng.random_range(0..valid);
-                        let p = mask
-                            .iter()
-                            .enumerate()
-                            .filter(|(_, &v)| v != 0)
-                            .nth(pick)
-                            .map(|(p, _)| p)
-                            .unwrap_or(0);
+                        let p = mask.iter().enumerate().filter(|(_, &v)| v != 0).nth(pick).map(|(p, _)| p).unwrap_or(0);
                         row = p as u32 / w;
                         col = p as u32 % w;
                         m = 1;

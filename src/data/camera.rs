@@ -31,9 +31,7 @@ pub struct Distortion {
 
 impl Distortion {
     pub fn is_zero(&self) -> bool {
-        [self.k1, self.k2, self.k3, self.k4, self.p1, self.p2]
-            .iter()
-            .all(|&v| v == 0.0)
+        [self.k1, self.k2, self.k3, self.k4, self.p1, self.p2].iter().all(|&v| v == 0.0)
     }
     /// As `[k1, k2, k3, k4, p1, p2]` in `T`.
     pub fn params<T: Real>(&self) -> [T; 6] {
@@ -118,10 +116,7 @@ pub fn distort<T: Real>(x: T, y: T, p: &[T; 6]) -> (T, T) {
     let two = T::from_f64(2.0);
     let r = x * x + y * y;
     let d = one + r * (k1 + r * (k2 + r * (k3 + r * k4)));
-    (
-        x * d + two * p1 * x * y + p2 * (r + two * x * x),
-        y * d + two * p2 * x * y + p1 * (r + two * y * y),
-    )
+    (x * d + two * p1 * x * y + p2 * (r + two * x * x), y * d + two * p2 * x * y + p1 * (r + two * y * y))
 }
 
 /// Newton undistortion exactly as nerfstudio's `radial_and_tangential_undistort` (10 iterations, eps 1e-3).
@@ -187,22 +182,12 @@ impl Camera {
     /// World ray through the centre of pixel (row, col) in f64; `c2w` is the 3x4 (or 4x4) camera-to-world.
     pub fn ray_f64(&self, c2w: &[[f64; 4]; 4], row: u32, col: u32) -> Ray<f64> {
         let m = [c2w[0], c2w[1], c2w[2]];
-        generate_ray(
-            &self.intrinsics::<f64>(),
-            &m,
-            row as f64 + 0.5,
-            col as f64 + 0.5,
-        )
+        generate_ray(&self.intrinsics::<f64>(), &m, row as f64 + 0.5, col as f64 + 0.5)
     }
 
     /// World ray through the centre of pixel (row, col) in f32.
     pub fn ray_f32(&self, c2w: &[[f32; 4]; 3], row: u32, col: u32) -> Ray<f32> {
-        generate_ray(
-            &self.intrinsics::<f32>(),
-            c2w,
-            row as f32 + 0.5,
-            col as f32 + 0.5,
-        )
+        generate_ray(&self.intrinsics::<f32>(), c2w, row as f32 + 0.5, col as f32 + 0.5)
     }
 }
 
@@ -224,11 +209,7 @@ pub fn camera_direction<T: Real>(k: &Intrinsics<T>, v: T, u: T) -> [T; 3] {
             if theta > pi {
                 theta = pi;
             }
-            let s = if theta > T::from_f64(1e-12) {
-                theta.sin() / theta
-            } else {
-                T::from_f64(1.0)
-            };
+            let s = if theta > T::from_f64(1e-12) { theta.sin() / theta } else { T::from_f64(1.0) };
             [x * s, y * s, -theta.cos()]
         }
         _ => [x, y, T::from_f64(-1.0)],
@@ -245,9 +226,5 @@ pub fn generate_ray<T: Real>(k: &Intrinsics<T>, c2w: &[[T; 4]; 3], v: T, u: T) -
         *wi = c2w[i][0] * d[0] + c2w[i][1] * d[1] + c2w[i][2] * d[2];
     }
     let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
-    Ray {
-        origin: [c2w[0][3], c2w[1][3], c2w[2][3]],
-        direction: [w[0] / n, w[1] / n, w[2] / n],
-        direction_norm: n,
-    }
+    Ray { origin: [c2w[0][3], c2w[1][3], c2w[2][3]], direction: [w[0] / n, w[1] / n, w[2] / n], direction_norm: n }
 }

@@ -126,9 +126,7 @@ pub fn check_dataset(dir: &Path, budget_bytes: u64) -> CheckReport {
             path: ds.transforms_path.clone(),
             key: "cache budget".into(),
             frame: None,
-            reason: format!(
-                "{budget_bytes} bytes cannot hold one image of {per} bytes plus scratch"
-            ),
+            reason: format!("{budget_bytes} bytes cannot hold one image of {per} bytes plus scratch"),
         });
     }
     let mut ranges: Vec<Option<(f32, f32)>> = vec![None; ds.n_bands()];
@@ -191,13 +189,7 @@ impl fmt::Display for CheckReport {
                 (Some(l), Some(h)) => format!("[{l}, {h}]"),
                 _ => "-".into(),
             };
-            writeln!(
-                f,
-                "  band {:<10} centre {} nm  fwhm {} nm  values {r}",
-                b.name,
-                nm(b.center_nm),
-                nm(b.fwhm_nm)
-            )?;
+            writeln!(f, "  band {:<10} centre {} nm  fwhm {} nm  values {r}", b.name, nm(b.center_nm), nm(b.fwhm_nm))?;
         }
         if let Some((lo, hi)) = self.scene_bounds {
             writeln!(f, "  camera centres (world units) min {lo:?} max {hi:?}")?;
@@ -211,17 +203,9 @@ impl fmt::Display for CheckReport {
                 c.n_resident,
                 c.n_images,
                 gib(c.peak_bytes),
-                if c.fits_all {
-                    " (all fit)"
-                } else {
-                    " (resampled)"
-                }
+                if c.fits_all { " (all fit)" } else { " (resampled)" }
             )?,
-            None => writeln!(
-                f,
-                "  cache budget {}: no plan",
-                gib(self.cache_budget_bytes)
-            )?,
+            None => writeln!(f, "  cache budget {}: no plan", gib(self.cache_budget_bytes))?,
         }
         if self.errors.is_empty() {
             writeln!(f, "  OK")

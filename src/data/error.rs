@@ -38,88 +38,40 @@ fn fr(frame: &Option<FrameRef>) -> String {
 pub enum DataError {
     /// A file named by `key` does not exist or cannot be opened.
     #[error("{}: {}key `{key}`: file missing or unreadable: {reason}", path.display(), fr(frame))]
-    MissingFile {
-        path: PathBuf,
-        key: String,
-        frame: Option<FrameRef>,
-        reason: String,
-    },
+    MissingFile { path: PathBuf, key: String, frame: Option<FrameRef>, reason: String },
     /// A file exists but cannot be decoded (corrupt, truncated, unsupported variant).
     #[error("{}: {}cannot decode: {reason}", path.display(), fr(frame))]
-    Decode {
-        path: PathBuf,
-        frame: Option<FrameRef>,
-        reason: String,
-    },
+    Decode { path: PathBuf, frame: Option<FrameRef>, reason: String },
     /// `transforms.json` is not valid JSON.
     #[error("{}: invalid JSON: {reason}", path.display())]
     Json { path: PathBuf, reason: String },
     /// A required key is absent.
     #[error("{}: {}missing key `{key}`", path.display(), fr(frame))]
-    MissingKey {
-        path: PathBuf,
-        key: String,
-        frame: Option<FrameRef>,
-    },
+    MissingKey { path: PathBuf, key: String, frame: Option<FrameRef> },
     /// A key holds a value of the wrong type or outside its domain.
     #[error("{}: {}key `{key}`: {reason}", path.display(), fr(frame))]
-    InvalidValue {
-        path: PathBuf,
-        key: String,
-        frame: Option<FrameRef>,
-        reason: String,
-    },
+    InvalidValue { path: PathBuf, key: String, frame: Option<FrameRef>, reason: String },
     /// `fl_x` / `fl_y` is zero or negative.
     #[error("{}: {}key `{key}`: focal length must be positive, got {value}", path.display(), fr(frame))]
-    NonPositiveFocal {
-        path: PathBuf,
-        key: String,
-        frame: Option<FrameRef>,
-        value: f64,
-    },
+    NonPositiveFocal { path: PathBuf, key: String, frame: Option<FrameRef>, value: f64 },
     /// The rotation part of `transform_matrix` is not orthonormal (max |RᵀR − I| or det ≠ +1).
     #[error("{}: {}key `transform_matrix`: rotation part is not orthonormal (max deviation {deviation:.3e})", path.display(), fr(frame))]
-    NotOrthonormal {
-        path: PathBuf,
-        frame: Option<FrameRef>,
-        deviation: f64,
-    },
+    NotOrthonormal { path: PathBuf, frame: Option<FrameRef>, deviation: f64 },
     /// An image holds a different number of bands than the header declares.
     #[error("{}: {}band count {found} does not match the {expected} bands of the header (key `{key}`)", path.display(), fr(frame))]
-    BandCount {
-        path: PathBuf,
-        key: String,
-        frame: Option<FrameRef>,
-        expected: usize,
-        found: usize,
-    },
+    BandCount { path: PathBuf, key: String, frame: Option<FrameRef>, expected: usize, found: usize },
     /// An image's size differs from `w` x `h` of the header.
     #[error("{}: {}image size {}x{} does not match the header's {}x{} (key `{key}`)", path.display(), fr(frame), found.0, found.1, expected.0, expected.1)]
-    ImageSize {
-        path: PathBuf,
-        key: String,
-        frame: Option<FrameRef>,
-        expected: (u32, u32),
-        found: (u32, u32),
-    },
+    ImageSize { path: PathBuf, key: String, frame: Option<FrameRef>, expected: (u32, u32), found: (u32, u32) },
     /// Float pixels that are NaN or infinite (pass `mask_non_finite` to mask them out instead).
     #[error("{}: {}{count} NaN/Inf pixel values", path.display(), fr(frame))]
-    NonFinite {
-        path: PathBuf,
-        frame: Option<FrameRef>,
-        count: u64,
-    },
+    NonFinite { path: PathBuf, frame: Option<FrameRef>, count: u64 },
     /// No frame ends up in the train split.
     #[error("{}: key `{key}`: the train split is empty", path.display())]
     EmptyTrainSplit { path: PathBuf, key: String },
     /// Two frames name the same image file.
     #[error("{}: {}key `{key}`: duplicate file name `{name}`", path.display(), fr(frame))]
-    DuplicateFileName {
-        path: PathBuf,
-        key: String,
-        frame: Option<FrameRef>,
-        name: String,
-    },
+    DuplicateFileName { path: PathBuf, key: String, frame: Option<FrameRef>, name: String },
     /// Several problems at once, in the order they were found.
     #[error("{} problems:\n{}", .0.len(), .0.iter().map(|e| format!("  - {e}")).collect::<Vec<_>>().join("\n"))]
     Many(Vec<DataError>),

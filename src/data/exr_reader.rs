@@ -17,22 +17,13 @@ pub fn read_exr(path: &Path, max_bytes: usize) -> std::result::Result<DecodedIma
     read_exr_from(BufReader::new(f), max_bytes)
 }
 
-pub fn read_exr_from<R: Read + Seek>(
-    reader: R,
-    max_bytes: usize,
-) -> std::result::Result<DecodedImage, String> {
+pub fn read_exr_from<R: Read + Seek>(reader: R, max_bytes: usize) -> std::result::Result<DecodedImage, String> {
     // Check the header's size before the pixel data is allocated.
     let mut reader = reader;
-    let meta =
-        exr::meta::MetaData::read_from_buffered(&mut reader, false).map_err(|e| e.to_string())?;
+    let meta = exr::meta::MetaData::read_from_buffered(&mut reader, false).map_err(|e| e.to_string())?;
     for h in &meta.headers {
         let px = h.layer_size.area() as u128;
-        let bytes: u128 = h
-            .channels
-            .list
-            .iter()
-            .map(|c| px * c.sample_type.bytes_per_sample() as u128)
-            .sum();
+        let bytes: u128 = h.channels.list.iter().map(|c| px * c.sample_type.bytes_per_sample() as u128).sum();
         if bytes > max_bytes as u128 {
             return Err(format!(
                 "EXR layer of {}x{} exceeds the allowed {max_bytes} bytes",
@@ -60,12 +51,8 @@ pub fn read_exr_from<R: Read + Seek>(
         return Err("EXR has no channels".into());
     }
     let names: Vec<String> = chans.iter().map(|c| c.name.to_string()).collect();
-    let all_f16 = chans
-        .iter()
-        .all(|c| matches!(c.sample_data, FlatSamples::F16(_)));
-    let all_u32 = chans
-        .iter()
-        .all(|c| matches!(c.sample_data, FlatSamples::U32(_)));
+    let all_f16 = chans.iter().all(|c| matches!(c.sample_data, FlatSamples::F16(_)));
+    let all_u32 = chans.iter().all(|c| matches!(c.sample_data, FlatSamples::U32(_)));
     for c in chans {
         if c.sample_data.len() != pixels {
             return Err(format!("channel `{}` is subsampled (unsupported)", c.name));
@@ -104,13 +91,6 @@ pub fn read_exr_from<R: Read + Seek>(
         }
         Samples::F32(v)
     };
-    let raster = Raster::new(w as u32, h as u32, bands, samples)
-        .ok_or("EXR sample count does not match its size")?;
-    Ok(DecodedImage {
-        raster,
-        meta: FileMeta {
-            channel_names: names,
-            ..FileMeta::default()
-        },
-    })
+    let raster = Raster::new(w as u32, h as u32, bands, samples).ok_or("EXR sample count does not match its size")?;
+    Ok(DecodedImage { raster, meta: FileMeta { channel_names: names, ..FileMeta::default() } })
 }

@@ -52,10 +52,7 @@ pub struct Frame {
 
 impl Frame {
     pub fn frame_ref(&self) -> FrameRef {
-        FrameRef {
-            index: self.index_in_file,
-            name: self.name.clone(),
-        }
+        FrameRef { index: self.index_in_file, name: self.name.clone() }
     }
 }
 
@@ -86,11 +83,7 @@ fn frame_of(f: &Frame) -> FrameRef {
 
 /// Loads `dir/transforms.json` (or `dir` itself when it is a file). All errors are collected.
 pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataError> {
-    let tpath = if dir.is_file() {
-        dir.to_path_buf()
-    } else {
-        dir.join("transforms.json")
-    };
+    let tpath = if dir.is_file() { dir.to_path_buf() } else { dir.join("transforms.json") };
     let root = tpath.parent().unwrap_or(Path::new(".")).to_path_buf();
     let raw = parse_transforms(&tpath)?;
     let mut errors = Vec::new();
@@ -109,16 +102,8 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
             if let Some(prev) = seen.insert(n.clone(), f.index) {
                 errors.push(DataError::DuplicateFileName {
                     path: tpath.clone(),
-                    key: if f.file_path.is_some() {
-                        "file_path"
-                    } else {
-                        "band_files"
-                    }
-                    .into(),
-                    frame: Some(FrameRef {
-                        index: f.index,
-                        name: f.name.clone(),
-                    }),
+                    key: if f.file_path.is_some() { "file_path" } else { "band_files" }.into(),
+                    frame: Some(FrameRef { index: f.index, name: f.name.clone() }),
                     name: format!("{n} (also in frame {prev})"),
                 });
             }
@@ -141,10 +126,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
 
     let mut frames = Vec::with_capacity(raw_frames.len());
     for (f, split) in raw_frames.into_iter().zip(splits) {
-        let fr = FrameRef {
-            index: f.index,
-            name: f.name.clone(),
-        };
+        let fr = FrameRef { index: f.index, name: f.name.clone() };
         let image = match (f.file_path, f.band_files) {
             (Some(p), _) => ImageSource::File(p),
             (None, Some(b)) => ImageSource::BandFiles(b),
@@ -257,36 +239,21 @@ fn infer_bands(ds: &Dataset, probe: &[DecodedImage]) -> Result<Vec<Band>, DataEr
         ImageSource::File(p) => {
             let d = &probe[0];
             if !d.meta.channel_names.is_empty() && d.raster.bands != 3 {
-                return Ok(d
-                    .meta
-                    .channel_names
-                    .iter()
-                    .map(|n| band(n.clone(), None, None))
-                    .collect());
+                return Ok(d.meta.channel_names.iter().map(|n| band(n.clone(), None, None)).collect());
             }
             let n = d.raster.bands;
             if n == 3 || n == 4 {
-                return Ok(["red", "green", "blue"]
-                    .iter()
-                    .map(|s| band(s.to_string(), None, None))
-                    .collect());
+                return Ok(["red", "green", "blue"].iter().map(|s| band(s.to_string(), None, None)).collect());
             }
             if n == 1 {
                 if let Some(x) = d.meta.xmp.clone().filter(|x| x.name.is_some()) {
-                    return Ok(vec![band(
-                        x.name.unwrap_or_default(),
-                        x.center_nm,
-                        x.fwhm_nm,
-                    )]);
+                    return Ok(vec![band(x.name.unwrap_or_default(), x.center_nm, x.fwhm_nm)]);
                 }
             }
             Err(DataError::MissingKey {
                 path: ds.transforms_path.clone(),
                 key: "bands".into(),
-                frame: Some(FrameRef {
-                    index: f0.index_in_file,
-                    name: format!("{} has {n} channels", p.display()),
-                }),
+                frame: Some(FrameRef { index: f0.index_in_file, name: format!("{} has {n} channels", p.display()) }),
             })
         }
     }
@@ -294,11 +261,7 @@ fn infer_bands(ds: &Dataset, probe: &[DecodedImage]) -> Result<Vec<Band>, DataEr
 
 /// Whether an EXR channel name matches a band name (case-insensitive; `layer.R` matches `R`; `red`/`r`).
 fn channel_matches(channel: &str, band: &str) -> bool {
-    let c = channel
-        .rsplit('.')
-        .next()
-        .unwrap_or(channel)
-        .to_ascii_lowercase();
+    let c = channel.rsplit('.').next().unwrap_or(channel).to_ascii_lowercase();
     let b = band.to_ascii_lowercase();
     if c == b || channel.eq_ignore_ascii_case(band) {
         return true;
@@ -319,27 +282,18 @@ impl Dataset {
 
     /// Bytes one image takes in memory (samples only).
     pub fn image_bytes(&self) -> u64 {
-        self.width as u64
-            * self.height as u64
-            * self.bands.len() as u64
-            * self.sample_type.bytes() as u64
+        self.width as u64 * self.height as u64 * self.bands.len() as u64 * self.sample_type.bytes() as u64
     }
 
     /// Bytes one image takes in memory including its mask plane, if the frame has one.
     pub fn frame_bytes(&self, i: usize) -> u64 {
-        let mask = if self.frames[i].mask.is_some() {
-            self.width as u64 * self.height as u64
-        } else {
-            0
-        };
+        let mask = if self.frames[i].mask.is_some() { self.width as u64 * self.height as u64 } else { 0 };
         self.image_bytes() + mask
     }
 
     /// Indices of the frames in a split.
     pub fn split_indices(&self, split: Split) -> Vec<usize> {
-        (0..self.frames.len())
-            .filter(|&i| self.frames[i].split == split)
-            .collect()
+        (0..self.frames.len()).filter(|&i| self.frames[i].split == split).collect()
     }
 
     /// The pose normalisation over all frames (nerfstudio normalises before splitting).
@@ -351,9 +305,7 @@ impl Dataset {
     fn max_decode_bytes(&self) -> usize {
         // The expected image at 4 bytes a sample plus slack; bounds what a corrupt header can allocate.
         let px = self.width as usize * self.height as usize;
-        (px * self.bands.len().max(4) * 4)
-            .saturating_mul(2)
-            .max(1 << 24)
+        (px * self.bands.len().max(4) * 4).saturating_mul(2).max(1 << 24)
     }
 
     fn decode_sources(&self, i: usize) -> Result<Vec<DecodedImage>, DataError> {
@@ -408,9 +360,7 @@ impl Dataset {
                 ),
             });
         }
-        raster.scaling = (0..nb)
-            .map(|b| self.band_scale(b, file_black.get(b).copied().flatten()))
-            .collect();
+        raster.scaling = (0..nb).map(|b| self.band_scale(b, file_black.get(b).copied().flatten())).collect();
         if let Some(mp) = &f.mask {
             raster.mask = Some(self.read_mask(mp, f)?);
         }
@@ -450,15 +400,8 @@ impl Dataset {
         }
         let band = &self.bands[b];
         BandScale {
-            black: band
-                .black_level
-                .or(self.black_level)
-                .or(file_black)
-                .unwrap_or(0.0),
-            scale: band
-                .pixel_scale
-                .or(self.pixel_scale)
-                .unwrap_or(self.sample_type.default_scale()),
+            black: band.black_level.or(self.black_level).or(file_black).unwrap_or(0.0),
+            scale: band.pixel_scale.or(self.pixel_scale).unwrap_or(self.sample_type.default_scale()),
         }
     }
 
@@ -468,11 +411,8 @@ impl Dataset {
         let names = &d.meta.channel_names;
         // EXR: match channels to bands by name when every band finds one.
         if !names.is_empty() {
-            let idx: Option<Vec<usize>> = self
-                .bands
-                .iter()
-                .map(|b| names.iter().position(|c| channel_matches(c, &b.name)))
-                .collect();
+            let idx: Option<Vec<usize>> =
+                self.bands.iter().map(|b| names.iter().position(|c| channel_matches(c, &b.name))).collect();
             let order: Vec<usize> = match idx {
                 Some(v) => v,
                 None if r.bands == nb => (0..nb).collect(),
@@ -493,12 +433,7 @@ impl Dataset {
     fn band_count_err(&self, p: &Path, f: &Frame, found: usize) -> DataError {
         DataError::BandCount {
             path: p.to_path_buf(),
-            key: if matches!(f.image, ImageSource::File(_)) {
-                "file_path"
-            } else {
-                "band_files"
-            }
-            .into(),
+            key: if matches!(f.image, ImageSource::File(_)) { "file_path" } else { "band_files" }.into(),
             frame: Some(frame_of(f)),
             expected: self.bands.len(),
             found,
@@ -528,9 +463,7 @@ impl Dataset {
             .iter()
             .map(|d| {
                 let n = d.meta.xmp.as_ref()?.name.as_ref()?;
-                self.bands
-                    .iter()
-                    .position(|b| b.name.eq_ignore_ascii_case(n))
+                self.bands.iter().position(|b| b.name.eq_ignore_ascii_case(n))
             })
             .collect();
         let mut used = vec![false; nb];
@@ -559,11 +492,7 @@ impl Dataset {
                 return Err(DataError::Decode {
                     path: p.clone(),
                     frame: Some(frame_of(f)),
-                    reason: format!(
-                        "sample type {:?} differs from the other bands' {:?}",
-                        d.raster.sample_type(),
-                        ty
-                    ),
+                    reason: format!("sample type {:?} differs from the other bands' {:?}", d.raster.sample_type(), ty),
                 });
             }
             let b = slot[k];
@@ -577,12 +506,11 @@ impl Dataset {
     }
 
     fn read_mask(&self, p: &Path, f: &Frame) -> Result<Vec<u8>, DataError> {
-        let d =
-            read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
-                path: p.to_path_buf(),
-                frame: Some(frame_of(f)),
-                reason,
-            })?;
+        let d = read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
+            path: p.to_path_buf(),
+            frame: Some(frame_of(f)),
+            reason,
+        })?;
         let r = d.raster;
         if (r.width, r.height) != (self.width, self.height) {
             return Err(DataError::ImageSize {
@@ -594,21 +522,18 @@ impl Dataset {
             });
         }
         let px = (self.width * self.height) as usize;
-        Ok((0..px)
-            .map(|q| u8::from(r.samples.raw(q * r.bands) != 0.0))
-            .collect())
+        Ok((0..px).map(|q| u8::from(r.samples.raw(q * r.bands) != 0.0)).collect())
     }
 
     /// Reads frame `i`'s depth file in metres (× `depth_unit_scale_factor`), row-major; `None` without one.
     pub fn read_depth(&self, i: usize) -> Result<Option<Vec<f32>>, DataError> {
         let f = &self.frames[i];
         let Some(p) = &f.depth else { return Ok(None) };
-        let d =
-            read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
-                path: p.clone(),
-                frame: Some(frame_of(f)),
-                reason,
-            })?;
+        let d = read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
+            path: p.clone(),
+            frame: Some(frame_of(f)),
+            reason,
+        })?;
         let r = d.raster;
         if (r.width, r.height) != (self.width, self.height) {
             return Err(DataError::ImageSize {
@@ -621,11 +546,7 @@ impl Dataset {
         }
         let s = self.depth_unit_scale_factor;
         let px = (self.width * self.height) as usize;
-        Ok(Some(
-            (0..px)
-                .map(|q| (r.samples.raw(q * r.bands) * s) as f32)
-                .collect(),
-        ))
+        Ok(Some((0..px).map(|q| (r.samples.raw(q * r.bands) * s) as f32).collect()))
     }
 }
 

@@ -14,9 +14,8 @@ pub fn read_png_jpeg(path: &Path, max_bytes: usize) -> Result<DecodedImage, Stri
 }
 
 pub fn read_png_jpeg_bytes(bytes: &[u8], max_bytes: usize) -> Result<DecodedImage, String> {
-    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| e.to_string())?;
+    let mut reader =
+        image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string())?;
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(max_bytes as u64);
     reader.limits(limits);
@@ -36,8 +35,5 @@ pub fn read_png_jpeg_bytes(bytes: &[u8], max_bytes: usize) -> Result<DecodedImag
         _ => return Err("unsupported PNG/JPEG pixel layout".into()),
     };
     let raster = Raster::new(w, h, bands, samples).ok_or("decoded size mismatch")?;
-    Ok(DecodedImage {
-        raster,
-        meta: FileMeta::default(),
-    })
+    Ok(DecodedImage { raster, meta: FileMeta::default() })
 }

@@ -18,14 +18,8 @@ pub struct PoseTransform {
 }
 
 impl PoseTransform {
-    pub const IDENTITY: PoseTransform = PoseTransform {
-        transform: [
-            [1.0, 0.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, 0.0],
-        ],
-        scale: 1.0,
-    };
+    pub const IDENTITY: PoseTransform =
+        PoseTransform { transform: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]], scale: 1.0 };
 
     fn rot(&self, v: [f64; 3]) -> [f64; 3] {
         let m = &self.transform;
@@ -36,8 +30,7 @@ impl PoseTransform {
     /// to ~1e-8 and Rᵀ is not its inverse to the precision UTM coordinates need: use the true inverse.
     fn rot_t(&self, v: [f64; 3]) -> [f64; 3] {
         let m = &self.transform;
-        let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
             + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
         let c = |r: usize, k: usize| {
             let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
@@ -75,21 +68,13 @@ impl PoseTransform {
         out[3] = [0.0, 0.0, 0.0, 1.0];
         for c in 0..3 {
             let col = [c2w[0][c], c2w[1][c], c2w[2][c]];
-            let r = if forward {
-                self.rot(col)
-            } else {
-                self.rot_t(col)
-            };
+            let r = if forward { self.rot(col) } else { self.rot_t(col) };
             for i in 0..3 {
                 out[i][c] = r[i];
             }
         }
         let p = [c2w[0][3], c2w[1][3], c2w[2][3]];
-        let q = if forward {
-            self.to_normalized(p)
-        } else {
-            self.to_world(p)
-        };
+        let q = if forward { self.to_normalized(p) } else { self.to_world(p) };
         for i in 0..3 {
             out[i][3] = q[i];
         }
@@ -112,11 +97,7 @@ fn normalize(v: [f64; 3]) -> [f64; 3] {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
 /// Rotation taking direction `a` to direction `b` (nerfstudio `rotation_matrix`, Rodrigues). For
@@ -128,11 +109,7 @@ pub fn rotation_between(a: [f64; 3], b: [f64; 3]) -> [[f64; 3]; 3] {
     let v = cross(a, b);
     let c = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     if c < -1.0 + 1e-8 {
-        let helper = if a[0].abs() < 0.9 {
-            [1.0, 0.0, 0.0]
-        } else {
-            [0.0, 1.0, 0.0]
-        };
+        let helper = if a[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
         let k = normalize(cross(a, helper));
         // R = 2 k kᵀ − I (rotation by π about k).
         let mut r = [[0.0; 3]; 3];
@@ -173,10 +150,7 @@ pub fn normalize_poses(poses: &[Mat4]) -> PoseTransform {
     }
     let r = rotation_between(up, [0.0, 0.0, 1.0]);
     let rc = [0, 1, 2].map(|i| r[i][0] * centre[0] + r[i][1] * centre[1] + r[i][2] * centre[2]);
-    let mut t = PoseTransform {
-        transform: [0, 1, 2].map(|i| [r[i][0], r[i][1], r[i][2], -rc[i]]),
-        scale: 1.0,
-    };
+    let mut t = PoseTransform { transform: [0, 1, 2].map(|i| [r[i][0], r[i][1], r[i][2], -rc[i]]), scale: 1.0 };
     let mut max_abs: f64 = 0.0;
     for p in poses {
         let q = t.to_normalized([p[0][3], p[1][3], p[2][3]]);

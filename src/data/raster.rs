@@ -134,10 +134,7 @@ pub struct BandScale {
 }
 
 impl BandScale {
-    pub const IDENTITY: BandScale = BandScale {
-        black: 0.0,
-        scale: 1.0,
-    };
+    pub const IDENTITY: BandScale = BandScale { black: 0.0, scale: 1.0 };
 }
 
 /// One decoded image: `bands` samples per pixel, row 0 at the top, plus an optional validity mask.
@@ -159,14 +156,7 @@ impl Raster {
         if samples.len() != width as usize * height as usize * bands || bands == 0 {
             return None;
         }
-        Some(Raster {
-            width,
-            height,
-            bands,
-            samples,
-            scaling: vec![BandScale::IDENTITY; bands],
-            mask: None,
-        })
+        Some(Raster { width, height, bands, samples, scaling: vec![BandScale::IDENTITY; bands], mask: None })
     }
 
     pub fn sample_type(&self) -> SampleType {
@@ -175,15 +165,13 @@ impl Raster {
 
     /// Bytes held in memory (samples plus mask).
     pub fn bytes(&self) -> u64 {
-        (self.samples.len() * self.sample_type().bytes()) as u64
-            + self.mask.as_ref().map_or(0, |m| m.len() as u64)
+        (self.samples.len() * self.sample_type().bytes()) as u64 + self.mask.as_ref().map_or(0, |m| m.len() as u64)
     }
 
     /// Stored value of one sample, unscaled.
     #[inline]
     pub fn raw(&self, row: u32, col: u32, band: usize) -> f64 {
-        self.samples
-            .raw((row as usize * self.width as usize + col as usize) * self.bands + band)
+        self.samples.raw((row as usize * self.width as usize + col as usize) * self.bands + band)
     }
 
     /// Model value of one sample: `(raw − black) / scale` as f32.
@@ -216,9 +204,7 @@ impl Raster {
     pub fn band_f32(&self, band: usize) -> Vec<f32> {
         let n = self.width as usize * self.height as usize;
         let s = self.scaling[band];
-        (0..n)
-            .map(|p| ((self.samples.raw(p * self.bands + band) - s.black) / s.scale) as f32)
-            .collect()
+        (0..n).map(|p| ((self.samples.raw(p * self.bands + band) - s.black) / s.scale) as f32).collect()
     }
 
     /// Per-band (min, max) of the model values over finite samples; `None` for a band with none.

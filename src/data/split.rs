@@ -68,11 +68,7 @@ fn listed(list: &Option<Vec<String>>, name: &str) -> bool {
 }
 
 /// Assigns splits to frames given in file-name order. `per_frame[i]` is frame i's own `split` key.
-pub fn assign_splits(
-    names: &[String],
-    per_frame: &[Option<Split>],
-    lists: &SplitLists,
-) -> (Vec<Split>, SplitMethod) {
+pub fn assign_splits(names: &[String], per_frame: &[Option<Split>], lists: &SplitLists) -> (Vec<Split>, SplitMethod) {
     if lists.any() {
         let s = names
             .iter()
@@ -91,20 +87,9 @@ pub fn assign_splits(
         return (s, SplitMethod::Filenames);
     }
     if per_frame.iter().any(|s| s.is_some()) {
-        let s = per_frame
-            .iter()
-            .map(|s| s.unwrap_or(Split::Train))
-            .collect();
+        let s = per_frame.iter().map(|s| s.unwrap_or(Split::Train)).collect();
         return (s, SplitMethod::PerFrame);
     }
-    let s = (0..names.len())
-        .map(|i| {
-            if i % 8 == 0 {
-                Split::Eval
-            } else {
-                Split::Train
-            }
-        })
-        .collect();
+    let s = (0..names.len()).map(|i| if i % 8 == 0 { Split::Eval } else { Split::Train }).collect();
     (s, SplitMethod::Interval)
 }

@@ -29,12 +29,8 @@ pub fn synth_value(frame: usize, band: usize, row: u32, col: u32) -> u16 {
 pub fn write_synthetic_dataset(dir: &Path, spec: &SynthSpec) -> std::io::Result<()> {
     let img = dir.join("images");
     std::fs::create_dir_all(&img)?;
-    let names = [
-        "blue", "green", "red", "rededge1", "rededge2", "nir", "b7", "b8", "b9", "b10",
-    ];
-    let centres = [
-        450.0, 555.0, 660.0, 720.0, 750.0, 840.0, 900.0, 950.0, 1000.0, 1050.0,
-    ];
+    let names = ["blue", "green", "red", "rededge1", "rededge2", "nir", "b7", "b8", "b9", "b10"];
+    let centres = [450.0, 555.0, 660.0, 720.0, 750.0, 840.0, 900.0, 950.0, 1000.0, 1050.0];
     let bands: Vec<serde_json::Value> = (0..spec.bands)
         .map(|b| serde_json::json!({"name": names[b % 10], "center_nm": centres[b % 10], "fwhm_nm": 20.0}))
         .collect();
@@ -51,8 +47,7 @@ pub fn write_synthetic_dataset(dir: &Path, spec: &SynthSpec) -> std::io::Result<
             let name = format!("images/f{f:05}_b{b}.tif");
             let out = BufWriter::new(File::create(dir.join(&name))?);
             let mut enc = TiffEncoder::new(out).map_err(std::io::Error::other)?;
-            enc.write_image::<colortype::Gray16>(spec.width, spec.height, &buf)
-                .map_err(std::io::Error::other)?;
+            enc.write_image::<colortype::Gray16>(spec.width, spec.height, &buf).map_err(std::io::Error::other)?;
             files.push(name);
         }
         let a = f as f64 / spec.frames.max(1) as f64 * std::f64::consts::TAU;
@@ -72,8 +67,5 @@ pub fn write_synthetic_dataset(dir: &Path, spec: &SynthSpec) -> std::io::Result<
         "bands": bands,
         "frames": frames,
     });
-    std::fs::write(
-        dir.join("transforms.json"),
-        serde_json::to_string_pretty(&j)?,
-    )
+    std::fs::write(dir.join("transforms.json"), serde_json::to_string_pretty(&j)?)
 }

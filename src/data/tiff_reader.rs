@@ -40,9 +40,7 @@ pub fn read_tiff(path: &Path, max_bytes: usize) -> Result<DecodedImage, String> 
 /// Reads TIFF bytes in memory.
 pub fn read_tiff_bytes(bytes: &[u8], max_bytes: usize) -> Result<DecodedImage, String> {
     match read_tiff_from(std::io::Cursor::new(bytes), max_bytes) {
-        Err(e) if e == NEEDS_GRAY => {
-            read_tiff_from(std::io::Cursor::new(as_multiband(bytes)), max_bytes)
-        }
+        Err(e) if e == NEEDS_GRAY => read_tiff_from(std::io::Cursor::new(as_multiband(bytes)), max_bytes),
         r => r,
     }
 }
@@ -76,10 +74,7 @@ fn as_multiband(bytes: &[u8]) -> Vec<u8> {
         let Some(n) = rd(&b, ifd, cnt_sz) else { break };
         for e in 0..n.min(4096) as usize {
             let o = ifd + cnt_sz + e * ent_sz;
-            if rd(&b, o, 2) == Some(262)
-                && rd(&b, o + 2, 2) == Some(3)
-                && o + val_off + 2 <= b.len()
-            {
+            if rd(&b, o, 2) == Some(262) && rd(&b, o + 2, 2) == Some(3) && o + val_off + 2 <= b.len() {
                 let v: [u8; 2] = if le { [1, 0] } else { [0, 1] };
                 b[o + val_off..o + val_off + 2].copy_from_slice(&v);
             }
@@ -94,10 +89,7 @@ fn as_multiband(bytes: &[u8]) -> Vec<u8> {
 }
 
 /// Same as [`read_tiff`] for any seekable reader (used by the mutation tests on in-memory bytes).
-pub fn read_tiff_from<R: std::io::Read + std::io::Seek>(
-    reader: R,
-    max_bytes: usize,
-) -> Result<DecodedImage, String> {
+pub fn read_tiff_from<R: std::io::Read + std::io::Seek>(reader: R, max_bytes: usize) -> Result<DecodedImage, String> {
     let mut limits = Limits::default();
     limits.decoding_buffer_size = max_bytes.max(1 << 20);
     limits.intermediate_buffer_size = max_bytes.max(1 << 20);
@@ -107,10 +99,7 @@ pub fn read_tiff_from<R: std::io::Read + std::io::Seek>(
     let mut pages: Vec<(u32, u32, usize, Samples)> = Vec::new();
     let mut page_index = 0usize;
     loop {
-        let subfile = dec
-            .find_tag_unsigned::<u32>(Tag::NewSubfileType)
-            .map_err(err)?
-            .unwrap_or(0);
+        let subfile = dec.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(err)?.unwrap_or(0);
         if subfile & 1 == 0 {
             if pages.is_empty() {
                 if let Ok(Some(v)) = dec.find_tag(Tag::Unknown(TAG_XMP)) {
@@ -139,10 +128,7 @@ pub fn read_tiff_from<R: std::io::Read + std::io::Seek>(
     }
     // Keep only pages of the first page's size (a band stack); others (thumbnails, masks) are ignored.
     let (w, h, b0, _) = (pages[0].0, pages[0].1, pages[0].2, ());
-    let same: Vec<_> = pages
-        .into_iter()
-        .filter(|p| p.0 == w && p.1 == h && p.2 == b0)
-        .collect();
+    let same: Vec<_> = pages.into_iter().filter(|p| p.0 == w && p.1 == h && p.2 == b0).collect();
     let raster = if same.len() == 1 {
         let (w, h, b, s) = same.into_iter().next().expect("one page");
         Raster::new(w, h, b, s).ok_or("sample count does not match the image size")?
@@ -160,37 +146,26 @@ fn read_page<R: std::io::Read + std::io::Seek>(
     let color = dec.colortype().map_err(err)?;
     // SamplesPerPixel, not the colour type: an RGB image with extra samples (e.g. a 5-band GeoTIFF written
     // as RGB + 2 extra) reports 3 colour samples but stores 5.
-    let samples = dec
-        .find_tag_unsigned::<u16>(Tag::SamplesPerPixel)
-        .map_err(err)?
-        .unwrap_or(color.num_samples()) as usize;
+    let samples =
+        dec.find_tag_unsigned::<u16>(Tag::SamplesPerPixel).map_err(err)?.unwrap_or(color.num_samples()) as usize;
     if samples == 0 {
         return Err("SamplesPerPixel is 0".into());
     }
-    let photometric = dec
-        .find_tag_unsigned::<u16>(Tag::PhotometricInterpretation)
-        .map_err(err)?
-        .unwrap_or(1);
+    let photometric = dec.find_tag_unsigned::<u16>(Tag::PhotometricInterpretation).map_err(err)?.unwrap_or(1);
     if samples > color.num_samples() as usize && matches!(photometric, 2 | 5) {
         return Err(NEEDS_GRAY.into());
     }
     let bits = color.bit_depth();
     if !matches!(bits, 8 | 16 | 32) {
-        return Err(format!(
-            "unsupported bit depth {bits} (only 8/16/32-bit samples)"
-        ));
+        return Err(format!("unsupported bit depth {bits} (only 8/16/32-bit samples)"));
     }
     let total = (w as u128) * (h as u128) * samples as u128 * (bits as u128 / 8);
     if total > max_bytes as u128 {
-        return Err(format!(
-            "image {w}x{h}x{samples} at {bits} bits exceeds the allowed {max_bytes} bytes"
-        ));
+        return Err(format!("image {w}x{h}x{samples} at {bits} bits exceeds the allowed {max_bytes} bytes"));
     }
-    let planar = dec
-        .find_tag_unsigned::<u16>(Tag::PlanarConfiguration)
-        .map_err(err)?
-        .and_then(PlanarConfiguration::from_u16)
-        == Some(PlanarConfiguration::Planar);
+    let planar =
+        dec.find_tag_unsigned::<u16>(Tag::PlanarConfiguration).map_err(err)?.and_then(PlanarConfiguration::from_u16)
+            == Some(PlanarConfiguration::Planar);
     if dec.get_chunk_type() == tiff::decoder::ChunkType::Tile {
         let s = read_tiles(dec, w, h, samples, planar)?;
         return Ok((w, h, samples, s));
@@ -207,16 +182,9 @@ fn read_page<R: std::io::Read + std::io::Seek>(
     };
     let n = w as usize * h as usize * samples;
     if s.len() < n {
-        return Err(format!(
-            "decoded {} samples, expected {n} (truncated planar data?)",
-            s.len()
-        ));
+        return Err(format!("decoded {} samples, expected {n} (truncated planar data?)", s.len()));
     }
-    let s = if planar && samples > 1 {
-        planar_to_chunky(&s, w as usize * h as usize, samples)
-    } else {
-        truncate(s, n)
-    };
+    let s = if planar && samples > 1 { planar_to_chunky(&s, w as usize * h as usize, samples) } else { truncate(s, n) };
     Ok((w, h, samples, s))
 }
 
@@ -257,20 +225,12 @@ fn read_tiles<R: std::io::Read + std::io::Seek>(
             let dh = th.min(h - ty * th) as usize;
             let chunk = to_samples(dec.read_chunk(p as u32 * per_plane + t).map_err(err)?)?;
             if chunk.len() < dw * dh * spp {
-                return Err(format!(
-                    "tile {t} decoded {} samples, expected {}",
-                    chunk.len(),
-                    dw * dh * spp
-                ));
+                return Err(format!("tile {t} decoded {} samples, expected {}", chunk.len(), dw * dh * spp));
             }
-            let o = out.get_or_insert_with(|| {
-                Samples::zeros(chunk.sample_type(), w as usize * h as usize * samples)
-            });
+            let o = out.get_or_insert_with(|| Samples::zeros(chunk.sample_type(), w as usize * h as usize * samples));
             for r in 0..dh {
                 for c in 0..dw {
-                    let px = (ty as usize * th as usize + r) * w as usize
-                        + tx as usize * tw as usize
-                        + c;
+                    let px = (ty as usize * th as usize + r) * w as usize + tx as usize * tw as usize + c;
                     for k in 0..spp {
                         let src = (r * dw + c) * spp + k;
                         if !o.copy_from(px * samples + p + k, &chunk, src) {
@@ -320,11 +280,7 @@ fn planar_to_chunky(s: &Samples, pixels: usize, bands: usize) -> Samples {
     out
 }
 
-fn interleave_pages(
-    w: u32,
-    h: u32,
-    pages: Vec<(u32, u32, usize, Samples)>,
-) -> Result<Raster, String> {
+fn interleave_pages(w: u32, h: u32, pages: Vec<(u32, u32, usize, Samples)>) -> Result<Raster, String> {
     let bands = pages.len();
     let pixels = w as usize * h as usize;
     let ty = pages[0].3.sample_type();

@@ -74,12 +74,7 @@ impl Ctx<'_> {
             frame: frame.cloned(),
         });
     }
-    fn num(
-        &mut self,
-        obj: &Map<String, Value>,
-        key: &str,
-        frame: Option<&FrameRef>,
-    ) -> Option<f64> {
+    fn num(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<f64> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::Number(n)) => n.as_f64().filter(|v| v.is_finite()).or_else(|| {
@@ -92,12 +87,7 @@ impl Ctx<'_> {
             }
         }
     }
-    fn string(
-        &mut self,
-        obj: &Map<String, Value>,
-        key: &str,
-        frame: Option<&FrameRef>,
-    ) -> Option<String> {
+    fn string(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<String> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::String(s)) if !s.is_empty() => Some(s.clone()),
@@ -107,17 +97,11 @@ impl Ctx<'_> {
             }
         }
     }
-    fn string_list(
-        &mut self,
-        obj: &Map<String, Value>,
-        key: &str,
-        frame: Option<&FrameRef>,
-    ) -> Option<Vec<String>> {
+    fn string_list(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<Vec<String>> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::Array(a)) => {
-                let v: Option<Vec<String>> =
-                    a.iter().map(|x| x.as_str().map(str::to_string)).collect();
+                let v: Option<Vec<String>> = a.iter().map(|x| x.as_str().map(str::to_string)).collect();
                 if v.is_none() {
                     self.invalid(key, frame, "expected a list of strings");
                 }
@@ -141,25 +125,17 @@ pub fn parse_transforms(path: &Path) -> Result<RawTransforms, DataError> {
         frame: None,
         reason: e.to_string(),
     })?;
-    let root: Value = serde_json::from_slice(&text).map_err(|e| DataError::Json {
-        path: path.to_path_buf(),
-        reason: e.to_string(),
-    })?;
+    let root: Value = serde_json::from_slice(&text)
+        .map_err(|e| DataError::Json { path: path.to_path_buf(), reason: e.to_string() })?;
     parse_value(path, &root)
 }
 
 /// Parses an already-read JSON value.
 pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError> {
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let mut cx = Ctx {
-        path,
-        errors: Vec::new(),
-    };
+    let mut cx = Ctx { path, errors: Vec::new() };
     let Some(top) = root.as_object() else {
-        return Err(DataError::Json {
-            path: path.to_path_buf(),
-            reason: "top level is not an object".into(),
-        });
+        return Err(DataError::Json { path: path.to_path_buf(), reason: "top level is not an object".into() });
     };
     let pixel_scale = cx.num(top, "pixel_scale", None);
     let black_level = cx.num(top, "black_level", None);
@@ -173,11 +149,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
         None | Some("z") => true,
         Some("ray_distance") => false,
         Some(o) => {
-            cx.invalid(
-                "depth_type",
-                None,
-                format!("`{o}` is neither `z` nor `ray_distance`"),
-            );
+            cx.invalid("depth_type", None, format!("`{o}` is neither `z` nor `ray_distance`"));
             true
         }
     };
@@ -204,14 +176,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
     let mut frames = Vec::new();
     for (i, fv) in frames_v.iter().enumerate() {
         let Some(f) = fv.as_object() else {
-            cx.invalid(
-                "frames",
-                Some(&FrameRef {
-                    index: i,
-                    name: String::new(),
-                }),
-                "frame is not an object",
-            );
+            cx.invalid("frames", Some(&FrameRef { index: i, name: String::new() }), "frame is not an object");
             continue;
         };
         if let Some(fr) = parse_frame(&mut cx, top, f, i, &dir) {
@@ -221,15 +186,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
     if let Some(e) = DataError::from_list(cx.errors) {
         return Err(e);
     }
-    Ok(RawTransforms {
-        frames,
-        bands,
-        pixel_scale,
-        black_level,
-        depth_unit_scale_factor,
-        depth_is_z,
-        lists,
-    })
+    Ok(RawTransforms { frames, bands, pixel_scale, black_level, depth_unit_scale_factor, depth_is_z, lists })
 }
 
 fn parse_bands(cx: &mut Ctx, top: &Map<String, Value>) -> Option<Vec<Band>> {
@@ -237,11 +194,7 @@ fn parse_bands(cx: &mut Ctx, top: &Map<String, Value>) -> Option<Vec<Band>> {
         None | Some(Value::Null) => return None,
         Some(Value::Array(a)) => a,
         Some(_) => {
-            cx.invalid(
-                "bands",
-                None,
-                "expected a list of {name, center_nm, fwhm_nm?}",
-            );
+            cx.invalid("bands", None, "expected a list of {name, center_nm, fwhm_nm?}");
             return None;
         }
     };
@@ -274,15 +227,8 @@ fn parse_bands(cx: &mut Ctx, top: &Map<String, Value>) -> Option<Vec<Band>> {
         if band.pixel_scale.is_some_and(|v| v <= 0.0) {
             cx.invalid(&format!("{key}.pixel_scale"), None, "must be positive");
         }
-        if out
-            .iter()
-            .any(|o: &Band| o.name.eq_ignore_ascii_case(&band.name))
-        {
-            cx.invalid(
-                &format!("{key}.name"),
-                None,
-                format!("duplicate band name `{}`", band.name),
-            );
+        if out.iter().any(|o: &Band| o.name.eq_ignore_ascii_case(&band.name)) {
+            cx.invalid(&format!("{key}.name"), None, format!("duplicate band name `{}`", band.name));
         }
         out.push(band);
     }
@@ -296,35 +242,15 @@ fn parse_frame(
     index: usize,
     dir: &Path,
 ) -> Option<RawFrame> {
-    let file_path = cx.string(
-        f,
-        "file_path",
-        Some(&FrameRef {
-            index,
-            name: String::new(),
-        }),
-    );
-    let fr0 = FrameRef {
-        index,
-        name: String::new(),
-    };
+    let file_path = cx.string(f, "file_path", Some(&FrameRef { index, name: String::new() }));
+    let fr0 = FrameRef { index, name: String::new() };
     let band_files = cx.string_list(f, "band_files", Some(&fr0));
-    let name = file_path
-        .clone()
-        .or_else(|| band_files.as_ref().and_then(|b| b.first().cloned()))
-        .unwrap_or_default();
-    let fr = FrameRef {
-        index,
-        name: name.clone(),
-    };
+    let name = file_path.clone().or_else(|| band_files.as_ref().and_then(|b| b.first().cloned())).unwrap_or_default();
+    let fr = FrameRef { index, name: name.clone() };
     let before = cx.errors.len();
     match (&file_path, &band_files) {
         (None, None) => cx.missing("file_path", Some(&fr)),
-        (Some(_), Some(_)) => cx.invalid(
-            "band_files",
-            Some(&fr),
-            "give either `file_path` or `band_files`, not both",
-        ),
+        (Some(_), Some(_)) => cx.invalid("band_files", Some(&fr), "give either `file_path` or `band_files`, not both"),
         (None, Some(b)) if b.is_empty() => cx.invalid("band_files", Some(&fr), "empty list"),
         _ => {}
     }
@@ -332,11 +258,7 @@ fn parse_frame(
     // Intrinsics: the frame's value, else the top level's.
     let mut vals = [0.0f64; 6];
     for (k, key) in INTRINSIC_KEYS.iter().enumerate() {
-        let v = if f.contains_key(*key) {
-            cx.num(f, key, Some(&fr))
-        } else {
-            cx.num(top, key, None)
-        };
+        let v = if f.contains_key(*key) { cx.num(f, key, Some(&fr)) } else { cx.num(top, key, None) };
         vals[k] = match (v, *key) {
             (Some(v), _) => v,
             // SIMPLE_PINHOLE datasets sometimes carry only fl_x.
@@ -398,11 +320,7 @@ fn parse_frame(
             }
         }
         Some(o) => {
-            cx.invalid(
-                "camera_model",
-                Some(&fr),
-                format!("unsupported camera model `{o}`"),
-            );
+            cx.invalid("camera_model", Some(&fr), format!("unsupported camera model `{o}`"));
             CameraModel::Pinhole
         }
     };
@@ -414,9 +332,7 @@ fn parse_frame(
         }),
     };
     let mask_path = cx.string(f, "mask_path", Some(&fr)).map(|p| dir.join(p));
-    let depth_path = cx
-        .string(f, "depth_file_path", Some(&fr))
-        .map(|p| dir.join(p));
+    let depth_path = cx.string(f, "depth_file_path", Some(&fr)).map(|p| dir.join(p));
     if cx.errors.len() > before {
         return None;
     }
@@ -449,12 +365,7 @@ fn parse_matrix(cx: &mut Ctx, f: &Map<String, Value>, fr: &FrameRef) -> Option<M
         return None;
     };
     let rows: Option<Vec<Vec<f64>>> = v.as_array().and_then(|rows| {
-        rows.iter()
-            .map(|r| {
-                r.as_array()
-                    .and_then(|r| r.iter().map(|x| x.as_f64()).collect())
-            })
-            .collect()
+        rows.iter().map(|r| r.as_array().and_then(|r| r.iter().map(|x| x.as_f64()).collect())).collect()
     });
     let Some(rows) = rows else {
         cx.invalid(key, Some(fr), "expected a 4x4 list of numbers");
@@ -478,8 +389,7 @@ fn parse_matrix(cx: &mut Ctx, f: &Map<String, Value>, fr: &FrameRef) -> Option<M
             dev = dev.max((d - if i == j { 1.0 } else { 0.0 }).abs());
         }
     }
-    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
     dev = dev.max((det - 1.0).abs());
     if dev > 1e-3 {

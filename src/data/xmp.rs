@@ -46,15 +46,10 @@ pub fn parse_xmp_band(bytes: &[u8]) -> Option<XmpBand> {
 
 /// Text of an element, or of its first `rdf:li` when the value is a sequence.
 fn element_value(node: roxmltree::Node) -> Option<String> {
-    if let Some(li) = node
-        .descendants()
-        .find(|n| n.is_element() && n.tag_name().name() == "li")
-    {
+    if let Some(li) = node.descendants().find(|n| n.is_element() && n.tag_name().name() == "li") {
         return li.text().map(|t| t.trim().to_string());
     }
-    node.text()
-        .map(|t| t.trim().to_string())
-        .filter(|t| !t.is_empty())
+    node.text().map(|t| t.trim().to_string()).filter(|t| !t.is_empty())
 }
 
 fn set_field(out: &mut XmpBand, local: &str, value: &str) {
@@ -71,8 +66,5 @@ fn set_field(out: &mut XmpBand, local: &str, value: &str) {
 
 /// First number in a value like "475", "475.0" or "475,560" (attribute lists).
 fn first_number(v: &str) -> Option<f64> {
-    v.split([',', ' '])
-        .find(|s| !s.is_empty())
-        .and_then(|s| s.parse::<f64>().ok())
-        .filter(|x| x.is_finite())
+    v.split([',', ' ']).find(|s| !s.is_empty()).and_then(|s| s.parse::<f64>().ok()).filter(|x| x.is_finite())
 }

@@ -234,7 +234,14 @@ impl Mlp {
     }
 
     /// Inference: output rows from input rows (`in_pad` columns read, `n_output` written); stores nothing.
-    pub fn infer(&self, rec: &mut Recorder, params: ParamSlice, input: RowSlice, n: usize, output: RowSlice) -> GpuResult<()> {
+    pub fn infer(
+        &self,
+        rec: &mut Recorder,
+        params: ParamSlice,
+        input: RowSlice,
+        n: usize,
+        output: RowSlice,
+    ) -> GpuResult<()> {
         let push = self.fwd_push(&params, &input, n, &output)?;
         // The acts binding is unused by the inference variant; bind the output to satisfy the layout.
         let bindings = [input.buf.binding(), output.buf.binding(), output.buf.binding()];
@@ -303,7 +310,8 @@ impl Mlp {
         let mut g_offset = grads.offset;
         let hidden = c.hidden_floats(n);
         for (m, &(out_w, in_w)) in c.matrices().iter().enumerate() {
-            let (d_buf_col, d_stride) = if m == c.n_hidden_layers { (hidden, c.out_pad()) } else { (m * n * c.width, c.width) };
+            let (d_buf_col, d_stride) =
+                if m == c.n_hidden_layers { (hidden, c.out_pad()) } else { (m * n * c.width, c.width) };
             let (a_buf, a_stride, a_col) =
                 if m == 0 { (input.buf, input.stride, input.col) } else { (bufs.acts, c.width, (m - 1) * n * c.width) };
             let push = WgradPush {
@@ -330,7 +338,14 @@ impl Mlp {
                 pad2: 0,
             };
             let bindings = [bufs.scratch.binding()];
-            rec.dispatch_named("mlp_wgrad_reduce", &self.reduce, &bindings, &grads.array.deps(), &push, (out_w * in_w) as u64)?;
+            rec.dispatch_named(
+                "mlp_wgrad_reduce",
+                &self.reduce,
+                &bindings,
+                &grads.array.deps(),
+                &push,
+                (out_w * in_w) as u64,
+            )?;
             g_offset += out_w * in_w;
         }
         Ok(())
@@ -339,7 +354,10 @@ impl Mlp {
 
 fn need(buf: &GpuBuffer<f32>, floats: usize) -> GpuResult<()> {
     if buf.len() < floats {
-        return Err(GpuError::Buffer { name: buf.name().into(), msg: format!("needs {floats} floats, has {}", buf.len()) });
+        return Err(GpuError::Buffer {
+            name: buf.name().into(),
+            msg: format!("needs {floats} floats, has {}", buf.len()),
+        });
     }
     Ok(())
 }

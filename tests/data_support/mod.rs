@@ -118,11 +118,7 @@ fn predict_row(row: &mut [u8], kind: Kind, spp: usize, predictor: u16) {
                 }
                 v
             };
-            let mask = if bs == 8 {
-                u64::MAX
-            } else {
-                (1u64 << (8 * bs)) - 1
-            };
+            let mask = if bs == 8 { u64::MAX } else { (1u64 << (8 * bs)) - 1 };
             for i in (spp..n).rev() {
                 let d = get(row, i).wrapping_sub(get(row, i - spp)) & mask;
                 for k in 0..bs {
@@ -150,38 +146,23 @@ fn predict_row(row: &mut [u8], kind: Kind, spp: usize, predictor: u16) {
 /// Encodes one image (page) as chunks; returns the chunk byte blobs.
 fn chunks(s: &TiffSpec, bands: &[usize]) -> Vec<Vec<u8>> {
     let spp_chunk = if s.planar { 1 } else { bands.len() };
-    let planes: Vec<Vec<usize>> = if s.planar {
-        bands.iter().map(|&b| vec![b]).collect()
-    } else {
-        vec![bands.to_vec()]
-    };
+    let planes: Vec<Vec<usize>> =
+        if s.planar { bands.iter().map(|&b| vec![b]).collect() } else { vec![bands.to_vec()] };
     let (cw, ch) = s.tiles.unwrap_or((s.width, s.rows_per_strip));
-    let across = if s.tiles.is_some() {
-        s.width.div_ceil(cw)
-    } else {
-        1
-    };
+    let across = if s.tiles.is_some() { s.width.div_ceil(cw) } else { 1 };
     let down = s.height.div_ceil(ch);
     let mut out = Vec::new();
     for plane in &planes {
         for ty in 0..down {
             for tx in 0..across {
                 let mut blob = Vec::new();
-                let rows = if s.tiles.is_some() {
-                    ch
-                } else {
-                    ch.min(s.height - ty * ch)
-                };
+                let rows = if s.tiles.is_some() { ch } else { ch.min(s.height - ty * ch) };
                 for rr in 0..rows {
                     let mut row = Vec::new();
                     for cc in 0..cw {
                         let (r, c) = (ty * ch + rr, tx * cw + cc);
                         for &b in plane {
-                            let v = if r < s.height && c < s.width {
-                                value(s.kind, b, r, c)
-                            } else {
-                                0.0
-                            };
+                            let v = if r < s.height && c < s.width { value(s.kind, b, r, c) } else { 0.0 };
                             push_sample(&mut row, s.kind, v);
                         }
                     }
@@ -189,9 +170,8 @@ fn chunks(s: &TiffSpec, bands: &[usize]) -> Vec<Vec<u8>> {
                     blob.extend_from_slice(&row);
                 }
                 if s.lzw {
-                    blob = weezl::encode::Encoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8)
-                        .encode(&blob)
-                        .unwrap();
+                    blob =
+                        weezl::encode::Encoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8).encode(&blob).unwrap();
                 }
                 out.push(blob);
             }
@@ -202,11 +182,8 @@ fn chunks(s: &TiffSpec, bands: &[usize]) -> Vec<Vec<u8>> {
 
 /// Hand-assembles a little-endian classic TIFF following `s`.
 pub fn tiff_bytes(s: &TiffSpec) -> Vec<u8> {
-    let pages: Vec<Vec<usize>> = if s.pages {
-        (0..s.bands).map(|b| vec![b]).collect()
-    } else {
-        vec![(0..s.bands).collect()]
-    };
+    let pages: Vec<Vec<usize>> =
+        if s.pages { (0..s.bands).map(|b| vec![b]).collect() } else { vec![(0..s.bands).collect()] };
     let mut out: Vec<u8> = b"II*\0\0\0\0\0".to_vec();
     let mut prev_next_ptr = 4usize;
     for bands in pages {
@@ -285,13 +262,7 @@ pub fn tiff_bytes(s: &TiffSpec) -> Vec<u8> {
 }
 
 /// Writes `transforms.json` with `frames` (each a JSON object) and extra top-level keys.
-pub fn write_transforms(
-    dir: &Path,
-    w: u32,
-    h: u32,
-    extra: serde_json::Value,
-    frames: Vec<serde_json::Value>,
-) {
+pub fn write_transforms(dir: &Path, w: u32, h: u32, extra: serde_json::Value, frames: Vec<serde_json::Value>) {
     let mut j = serde_json::json!({
         "camera_model": "PINHOLE", "fl_x": 100.0, "fl_y": 100.0, "cx": w as f64 / 2.0, "cy": h as f64 / 2.0,
         "w": w, "h": h, "frames": frames,
@@ -301,11 +272,7 @@ pub fn write_transforms(
             o.insert(k.clone(), v.clone());
         }
     }
-    std::fs::write(
-        dir.join("transforms.json"),
-        serde_json::to_string_pretty(&j).unwrap(),
-    )
-    .unwrap();
+    std::fs::write(dir.join("transforms.json"), serde_json::to_string_pretty(&j).unwrap()).unwrap();
 }
 
 /// A frame object with an identity-rotation pose at `x` and a split.
