@@ -4,6 +4,7 @@
 //! modules: hash grid, MLP), [`data`] (datasets, image readers, poses, cameras, the host image cache),
 //! [`reference`] (CPU twins of every kernel), [`cli`] (the `msnerf` subcommands).
 
+pub mod bench;
 pub mod cli;
 pub mod data;
 pub mod gpu;

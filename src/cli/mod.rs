@@ -1,5 +1,6 @@
 //! The `msnerf` command line: one module per subcommand; `main.rs` only parses and dispatches.
 
+pub mod bench;
 pub mod devices;
 
 use clap::{Parser, Subcommand};
@@ -24,6 +25,8 @@ pub struct Cli {
 pub enum Command {
     /// List Vulkan devices and their capabilities
     Devices(devices::DevicesArgs),
+    /// Benchmarks that print numbers (kernels)
+    Bench(bench::BenchArgs),
 }
 
 impl Cli {
@@ -43,5 +46,6 @@ impl Cli {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match &cli.command {
         Command::Devices(a) => devices::run(&cli, a),
+        Command::Bench(a) => bench::run(&cli, a),
     }
 }

@@ -1,0 +1,330 @@
+//! `msnerf bench kernels`: hash grid forward/backward in points/s and fused MLP forward+backward in GFLOP/s, at
+//! nerfacto's and Multispectral-NeRF Table 1's sizes, on the selected device. On a CPU device (lavapipe) the same
+//! MLP layer shapes also run through `matrixmultiply`'s threaded sgemm on the same cores, so the table shows how
+//! close the Vulkan kernels get to what the CPU can do.
+//!
+//! Timing: wall clock of whole submissions (one warm-up, then the median of `repeats`), since lavapipe's
+//! timestamps measure CPU time anyway; the per-kernel GPU timestamps are reported alongside.
+
+use crate::gpu::{Context, GpuBuffer, GpuResult, LargeArray, MemoryCategory, Recorder};
+use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
+use crate::nn::mlp::{Activation, Mlp, MlpConfig, MlpTrainBuffers};
+use crate::nn::{ParamSlice, RowSlice};
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+use std::time::Instant;
+
+#[derive(Clone, Debug, Serialize)]
+pub struct HashResult {
+    pub name: String,
+    pub points: usize,
+    pub params: usize,
+    pub forward_mpts_per_s: f64,
+    pub backward_mpts_per_s: f64,
+    /// Hash-gradient atomic updates per second (8 corners x F features per point and level).
+    pub backward_matomics_per_s: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct MlpResult {
+    pub name: String,
+    pub shape: String,
+    pub rows: usize,
+    pub rows_per_invocation: u32,
+    pub forward_gflops: f64,
+    pub train_gflops: f64,
+    /// The same layers through the CPU sgemm (forward + both backward products), when the device is a CPU.
+    pub cpu_sgemm_gflops: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct KernelBench {
+    pub device: String,
+    pub driver: String,
+    pub host_threads: usize,
+    pub hash: Vec<HashResult>,
+    pub mlp: Vec<MlpResult>,
+}
+
+fn time_ms(repeats: usize, mut f: impl FnMut() -> GpuResult<()>) -> GpuResult<f64> {
+    f()?; // warm-up: pipeline compilation, staging growth
+    let mut t: Vec<f64> = Vec::with_capacity(repeats);
+    for _ in 0..repeats.max(1) {
+        let s = Instant::now();
+        f()?;
+        t.push(s.elapsed().as_secs_f64() * 1e3);
+    }
+    t.sort_by(f64::total_cmp);
+    Ok(t[t.len() / 2])
+}
+
+fn random(n: usize, lo: f32, hi: f32, seed: u64) -> Vec<f32> {
+    let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..n).map(|_| r.random_range(lo..hi)).collect()
+}
+
+fn zeros(ctx: &Context, name: &str, len: usize) -> GpuResult<GpuBuffer<f32>> {
+    GpuBuffer::from_slice(ctx, name, MemoryCategory::Activations, &vec![0.0f32; len])
+}
+
+fn run_recorded(ctx: &Context, f: &dyn Fn(&mut Recorder) -> GpuResult<()>) -> GpuResult<()> {
+    let mut rec = ctx.recorder("bench")?;
+    f(&mut rec)?;
+    rec.submit_and_wait().map(|_| ())
+}
+
+pub fn bench_hash(
+    ctx: &Context,
+    name: &str,
+    cfg: &HashGridConfig,
+    points: usize,
+    repeats: usize,
+) -> GpuResult<HashResult> {
+    let grid = HashGrid::new(ctx, cfg)?;
+    let n_params = cfg.n_params();
+    let params = LargeArray::<f32>::new(ctx, "bench grid", n_params, MemoryCategory::Parameters)?;
+    params.upload(ctx, 0, &random(n_params, -1e-4, 1e-4, 1))?;
+    let grads = LargeArray::<f32>::new(ctx, "bench grads", n_params, MemoryCategory::Gradients)?;
+    let pos = GpuBuffer::from_slice(ctx, "bench pos", MemoryCategory::Activations, &random(points * 3, 0.0, 1.0, 2))?;
+    let w = cfg.n_output();
+    let out = zeros(ctx, "bench enc", points * w)?;
+    let dy = GpuBuffer::from_slice(ctx, "bench dy", MemoryCategory::Activations, &random(points * w, -1.0, 1.0, 3))?;
+    let p = ParamSlice { array: &params, offset: 0 };
+    let slot = OutputSlot { stride: w, col: 0, pad_to: w, pad_value: 0.0 };
+    let fwd = time_ms(repeats, || run_recorded(ctx, &|rec| grid.forward(rec, p, &pos, points, &out, slot)))?;
+    let g = ParamSlice { array: &grads, offset: 0 };
+    let dys = RowSlice { buf: &dy, stride: w, col: 0 };
+    let bwd = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &pos, points, dys)))?;
+    let atomics = (points * cfg.n_levels as usize * 8 * cfg.features_per_level as usize) as f64;
+    Ok(HashResult {
+        name: name.into(),
+        points,
+        params: n_params,
+        forward_mpts_per_s: points as f64 / fwd / 1e3,
+        backward_mpts_per_s: points as f64 / bwd / 1e3,
+        backward_matomics_per_s: atomics / bwd / 1e3,
+    })
+}
+
+pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeats: usize) -> GpuResult<MlpResult> {
+    let mlp = Mlp::new(ctx, cfg)?;
+    let n_params = cfg.n_params();
+    let params = LargeArray::<f32>::new(ctx, "bench mlp", n_params, MemoryCategory::Parameters)?;
+    params.upload(ctx, 0, &random(n_params, -0.1, 0.1, 4))?;
+    let grads = LargeArray::<f32>::new(ctx, "bench mlp grads", n_params, MemoryCategory::Gradients)?;
+    let x =
+        GpuBuffer::from_slice(ctx, "bench x", MemoryCategory::Activations, &random(rows * cfg.in_pad(), -1.0, 1.0, 5))?;
+    let y = zeros(ctx, "bench y", rows * cfg.n_output)?;
+    let dy = GpuBuffer::from_slice(
+        ctx,
+        "bench dy",
+        MemoryCategory::Activations,
+        &random(rows * cfg.n_output, -1.0, 1.0, 6),
+    )?;
+    let acts = zeros(ctx, "bench acts", cfg.hidden_floats(rows))?;
+    let deltas = zeros(ctx, "bench deltas", cfg.delta_floats(rows))?;
+    let scratch = zeros(ctx, "bench scratch", mlp.wgrad_scratch_floats(rows))?;
+    let dx = zeros(ctx, "bench dx", rows * cfg.in_pad())?;
+    let p = ParamSlice { array: &params, offset: 0 };
+    let g = ParamSlice { array: &grads, offset: 0 };
+    let xs = RowSlice { buf: &x, stride: cfg.in_pad(), col: 0 };
+    let ys = RowSlice { buf: &y, stride: cfg.n_output, col: 0 };
+    let dys = RowSlice { buf: &dy, stride: cfg.n_output, col: 0 };
+    let dxs = RowSlice { buf: &dx, stride: cfg.in_pad(), col: 0 };
+    let bufs = MlpTrainBuffers { acts: &acts, deltas: &deltas, scratch: &scratch };
+    let fwd = time_ms(repeats, || run_recorded(ctx, &|rec| mlp.infer(rec, p, xs, rows, ys)))?;
+    let train = time_ms(repeats, || {
+        run_recorded(ctx, &|rec| {
+            mlp.forward(rec, p, xs, rows, ys, &acts)?;
+            mlp.backward(rec, p, g, (xs, ys, dys), rows, &bufs, Some(dxs))
+        })
+    })?;
+    let flop = 2.0 * rows as f64 * cfg.macs_per_row() as f64;
+    let cpu_sgemm_gflops = ctx.caps().is_cpu.then(|| cpu_sgemm_gflops(cfg, rows, repeats));
+    Ok(MlpResult {
+        name: name.into(),
+        shape: shape(cfg),
+        rows,
+        rows_per_invocation: if ctx.caps().is_cpu { 4 } else { 1 },
+        forward_gflops: flop / fwd / 1e6,
+        train_gflops: 3.0 * flop / train / 1e6,
+        cpu_sgemm_gflops,
+    })
+}
+
+fn shape(c: &MlpConfig) -> String {
+    let mut s = format!("{}", c.in_pad());
+    for (r, _) in c.matrices() {
+        s += &format!("-{r}");
+    }
+    s
+}
+
+/// Forward (Y = X W^T per layer) plus the two backward products (dX = dY W, dW = dY^T X) through
+/// `matrixmultiply::sgemm`, on the same shapes; GFLOP/s of the whole.
+pub fn cpu_sgemm_gflops(cfg: &MlpConfig, rows: usize, repeats: usize) -> f64 {
+    let mats = cfg.matrices();
+    let widest = mats.iter().map(|(r, c)| (*r).max(*c)).max().unwrap_or(16);
+    let w: Vec<Vec<f32>> = mats.iter().enumerate().map(|(i, (r, c))| random(r * c, -0.1, 0.1, 10 + i as u64)).collect();
+    let mut acts: Vec<Vec<f32>> = vec![random(rows * cfg.in_pad(), -1.0, 1.0, 7)];
+    acts.extend(mats.iter().map(|(r, _)| vec![0.0f32; rows * r]));
+    let mut d_a = vec![0.0f32; rows * widest];
+    let mut d_b = vec![0.0f32; rows * widest];
+    let mut dw = vec![0.0f32; widest * widest];
+    let mut run = || {
+        for (m, &(r, c)) in mats.iter().enumerate() {
+            let (head, tail) = acts.split_at_mut(m + 1);
+            // Y (rows x r) = X (rows x c) * W^T (c x r): W is r x c row-major, so W^T has strides (1, c).
+            unsafe {
+                matrixmultiply::sgemm(
+                    rows,
+                    c,
+                    r,
+                    1.0,
+                    head[m].as_ptr(),
+                    c as isize,
+                    1,
+                    w[m].as_ptr(),
+                    1,
+                    c as isize,
+                    0.0,
+                    tail[0].as_mut_ptr(),
+                    r as isize,
+                    1,
+                );
+            }
+        }
+        for (m, &(r, c)) in mats.iter().enumerate().rev() {
+            unsafe {
+                // dX (rows x c) = dY (rows x r) * W (r x c)
+                matrixmultiply::sgemm(
+                    rows,
+                    r,
+                    c,
+                    1.0,
+                    d_a.as_ptr(),
+                    r as isize,
+                    1,
+                    w[m].as_ptr(),
+                    c as isize,
+                    1,
+                    0.0,
+                    d_b.as_mut_ptr(),
+                    c as isize,
+                    1,
+                );
+                // dW (r x c) = dY^T (r x rows) * X (rows x c)
+                matrixmultiply::sgemm(
+                    r,
+                    rows,
+                    c,
+                    1.0,
+                    d_a.as_ptr(),
+                    1,
+                    r as isize,
+                    acts[m].as_ptr(),
+                    c as isize,
+                    1,
+                    0.0,
+                    dw.as_mut_ptr(),
+                    c as isize,
+                    1,
+                );
+            }
+            std::mem::swap(&mut d_a, &mut d_b);
+        }
+    };
+    run();
+    let mut t: Vec<f64> = (0..repeats.max(1))
+        .map(|_| {
+            let s = Instant::now();
+            run();
+            s.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    3.0 * 2.0 * rows as f64 * cfg.macs_per_row() as f64 / t[t.len() / 2] / 1e9
+}
+
+/// Hash grids of both model profiles (nerfacto defaults; Multispectral-NeRF Table 1).
+pub fn grid_profiles() -> Vec<(&'static str, HashGridConfig)> {
+    let grid = |levels, log2, max| HashGridConfig {
+        n_levels: levels,
+        features_per_level: 2,
+        log2_hashmap_size: log2,
+        base_resolution: 16,
+        max_resolution: max,
+    };
+    vec![
+        ("nerfacto field grid", grid(16, 19, 2048)),
+        ("nerfacto proposal grid", grid(5, 17, 128)),
+        ("table1 field grid", grid(16, 21, 4096)),
+    ]
+}
+
+/// MLPs of both model profiles, with 6 bands.
+pub fn mlp_profiles() -> Vec<(&'static str, MlpConfig)> {
+    let mlp = |n_input, n_output, width, n_hidden_layers, act| MlpConfig {
+        n_input,
+        n_output,
+        width,
+        n_hidden_layers,
+        output_activation: act,
+    };
+    vec![
+        ("nerfacto density", mlp(32, 16, 64, 1, Activation::None)),
+        ("nerfacto colour (6 bands)", mlp(63, 6, 64, 2, Activation::Sigmoid)),
+        ("nerfacto proposal", mlp(10, 1, 16, 1, Activation::None)),
+        ("table1 density", mlp(32, 32, 128, 1, Activation::None)),
+        ("table1 colour (6 bands)", mlp(79, 6, 128, 2, Activation::Sigmoid)),
+    ]
+}
+
+pub fn run(ctx: &Context, points: usize, rows: usize, repeats: usize) -> GpuResult<KernelBench> {
+    let mut hash = Vec::new();
+    for (name, cfg) in &grid_profiles() {
+        hash.push(bench_hash(ctx, name, cfg, points, repeats)?);
+    }
+    let mut mlp = Vec::new();
+    for (name, cfg) in &mlp_profiles() {
+        mlp.push(bench_mlp(ctx, name, cfg, rows, repeats)?);
+    }
+    Ok(KernelBench {
+        device: ctx.caps().name.clone(),
+        driver: format!("{} {}", ctx.caps().driver_name, ctx.caps().driver_info),
+        host_threads: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+        hash,
+        mlp,
+    })
+}
+
+impl KernelBench {
+    pub fn table(&self) -> String {
+        let mut s = format!("device: {} ({}), host threads: {}\n\n", self.device, self.driver, self.host_threads);
+        s += &format!(
+            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14}\n",
+            "hash grid", "points", "params", "fwd Mpt/s", "bwd Mpt/s", "bwd Matomic/s"
+        );
+        for h in &self.hash {
+            s += &format!(
+                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1}\n",
+                h.name, h.points, h.params, h.forward_mpts_per_s, h.backward_mpts_per_s, h.backward_matomics_per_s
+            );
+        }
+        s += &format!(
+            "\n{:<26} {:<18} {:>8} {:>11} {:>13} {:>12} {:>7}\n",
+            "MLP", "shape", "rows", "fwd GFLOP/s", "train GFLOP/s", "CPU sgemm", "ratio"
+        );
+        for m in &self.mlp {
+            let (cpu, ratio) = match m.cpu_sgemm_gflops {
+                Some(c) => (format!("{c:.1}"), format!("{:.0}%", 100.0 * m.train_gflops / c)),
+                None => ("-".into(), "-".into()),
+            };
+            s += &format!(
+                "{:<26} {:<18} {:>8} {:>11.2} {:>13.2} {:>12} {:>7}\n",
+                m.name, m.shape, m.rows, m.forward_gflops, m.train_gflops, cpu, ratio
+            );
+        }
+        s
+    }
+}

@@ -1,0 +1,3 @@
+//! Benchmarks that print numbers (`msnerf bench ...`). Speed goals are measured here, never in timed tests.
+
+pub mod kernels;
