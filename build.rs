@@ -43,6 +43,10 @@ const VARIANTS: &[Variant] = &[
     vd("scan_segmented_f32", "util/scan_segmented.comp", &[("VALUE_F32", "1")]),
     vd("scan_segmented_u32", "util/scan_segmented.comp", &[("VALUE_U32", "1")]),
     v("large_array_iota", "util/large_array_iota.comp"),
+    // nn: direction encoding and optimiser (src/nn)
+    v("sh_fwd", "encoding/sh_fwd.comp"),
+    v("sh_bwd", "encoding/sh_bwd.comp"),
+    v("adam_step", "optim/adam_step.comp"),
 ];
 
 fn main() {

@@ -1,4 +1,7 @@
 //! CPU twins of the GLSL kernels: the same arithmetic in plain Rust, used by the tests to check the kernels
 //! (and usable as a slow fallback). One file per kernel family.
 
+pub mod adam;
+pub mod real;
+pub mod sh;
 pub mod util;
