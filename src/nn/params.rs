@@ -74,7 +74,12 @@ impl ParamGroup {
             return 0.0;
         }
         let tau = if self.max_steps == 0 { 1.0 } else { (schedule_step as f64 / self.max_steps as f64).min(1.0) };
-        ((1.0 - tau) * self.lr0.ln() + tau * self.lr_final.ln()).exp()
+        match tau {
+            // The end points exactly (exp(ln x) is not always x).
+            0.0 => self.lr0,
+            1.0 => self.lr_final,
+            _ => ((1.0 - tau) * self.lr0.ln() + tau * self.lr_final.ln()).exp(),
+        }
     }
 
     fn validate(&self) -> Result<(), String> {
