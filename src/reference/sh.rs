@@ -6,6 +6,9 @@
 //! The backward is the gradient of the polynomials as written (x, y, z independent), not projected onto the
 //! sphere: a caller that normalised the direction applies that chain rule itself.
 
+// The coefficients are written digit for digit as in nerfacto.md §2.16 (and tcnn), to be checked against it.
+#![allow(clippy::excessive_precision)]
+
 use super::real::Real;
 
 /// Number of SH values per direction (degree 4 = bands l = 0..3).
