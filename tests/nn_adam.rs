@@ -271,3 +271,33 @@ fn zero_lr_and_skipped_groups_change_nothing() {
     assert!(adam::step(&mut rec, &mut s, &[true], 1.0).is_err());
     assert_eq!(s.schedule_step(), 4);
 }
+
+#[test]
+fn a_slot_larger_than_one_binding_is_stepped_chunk_by_chunk() {
+    // Default chunks (as large as one binding: 128 MiB on lavapipe): a hash table a little longer than one chunk
+    // starts on a chunk boundary and spans two; Adam dispatches once per chunk piece with ordinary bindings.
+    let g = gpu();
+    // Capped at 2^25 elements (128 MiB) so that a device with 4 GiB bindings does not allocate 16 GiB here.
+    let shift = msnerf::nn::params::default_chunk_shift(&g).min(25);
+    let chunk = 1usize << shift;
+    let len = chunk + 4_099;
+    let slots = vec![
+        SlotDesc::new("mlp", SlotKind::Zeros { len: 100 }, "fields"),
+        SlotDesc::new("grid", SlotKind::HashTable { len }, "fields"),
+    ];
+    let mut s = store(&g, vec![ParamGroup::new("fields", 1e-2, 1e-4, 100)], slots, Some(shift));
+    let grid = s.slot("grid").expect("slot").clone();
+    assert_eq!(grid.offset, chunk, "a slot longer than a chunk starts on a chunk boundary");
+    assert_eq!(s.params().chunks().len(), 3);
+    let p0 = s.download_slot(s.params(), &grid).expect("p0");
+    let grads: Vec<f32> = (0..len).map(|i| ((i % 7) as f32 - 3.0) * 1e-3).collect();
+    s.upload_slot(s.grads(), &grid, &grads).expect("grads");
+    step(&g, &mut s, &[true], 1.0);
+    let got = s.download_slot(s.params(), &grid).expect("p1");
+    let mut want = p0.clone();
+    let (mut m, mut v) = (vec![0.0f32; len], vec![0.0f32; len]);
+    let sc = AdamScalars::<f32>::new(&s.groups()[0].adam, 1e-2, 1, 1.0);
+    adam_step(&mut want, &grads, &mut m, &mut v, &sc);
+    assert_all_close_f32(&got, &want, "params across two chunks");
+    assert_all_close_f32(&s.download_slot(s.v(), &grid).expect("v"), &v, "v across two chunks");
+}
