@@ -288,6 +288,9 @@ fn corrupted_truncated_and_mismatched_files_are_errors() {
     for len in [0, 5, 30, bytes.len() / 3, bytes.len() - 1] {
         assert_format_error(s.load(&write("short.params", &bytes[..len])), &format!("truncated to {len}"));
     }
+    // Not a parameter file at all.
+    let text = b"this is a text file that happens to be longer than the header of a parameter file";
+    assert_format_error(s.load(&write("foreign.params", text)), "foreign file");
     // Well-formed checksums over bad content: bad magic, unknown version.
     let resum = |mut b: Vec<u8>| {
         let n = b.len() - 8;

@@ -96,7 +96,7 @@ impl ParamGroup {
     }
 }
 
-/// One matrix of an MLP slot: `fan_in * fan_out` consecutive elements.
+/// One matrix of an MLP slot: `fan_in * fan_out` consecutive elements (their order is the MLP's business).
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct MatrixShape {
     pub fan_in: usize,
@@ -218,10 +218,8 @@ impl ParamLayout {
                 out.push(ParamSlot { name: s.name.clone(), offset, len, group: gi, kind: s.kind.clone() });
                 cursor = offset + len;
             }
-            group_ranges.push(match (out.get(first), out.last()) {
-                (Some(a), Some(b)) if out.len() > first => a.offset..b.offset + b.len,
-                _ => cursor..cursor,
-            });
+            let start = out.get(first).map_or(cursor, |s: &ParamSlot| s.offset);
+            group_ranges.push(start..cursor);
         }
         Ok(Self { slots: out, group_ranges, len: cursor, chunk_shift })
     }

@@ -92,10 +92,21 @@ impl ParamStore {
         if file_len < 8 + 4 + 8 + 4 + 4 + 8 {
             return Err(fmt(format!("{file_len} bytes is too short")));
         }
-        // Pass 1: checksum of everything before the last 8 bytes.
-        let mut r = std::io::BufReader::with_capacity(1 << 20, std::fs::File::open(path).map_err(io)?);
+        // Pass 1: magic and version (so a foreign file is named as such), then the checksum of everything before
+        // the last 8 bytes.
+        let mut r = std::fs::File::open(path).map_err(io)?;
+        let mut head = [0u8; 12];
+        r.read_exact(&mut head).map_err(io)?;
+        if &head[..8] != MAGIC {
+            return Err(fmt("bad magic".into()));
+        }
+        let version = u32::from_le_bytes([head[8], head[9], head[10], head[11]]);
+        if version != VERSION {
+            return Err(fmt(format!("version {version}, this build reads version {VERSION}")));
+        }
         let mut sum = Checksum::new();
-        let mut left = file_len - 8;
+        sum.update(&head);
+        let mut left = file_len - 8 - head.len() as u64;
         let mut buf = vec![0u8; 1 << 20];
         while left > 0 {
             let n = left.min(buf.len() as u64) as usize;
@@ -118,13 +129,7 @@ impl ParamStore {
             ReadError::Io(source) => ParamError::Io { path: path.to_owned(), source },
             ReadError::Bad(msg) => fmt(msg),
         };
-        if &r.bytes(8).map_err(rd)?[..] != MAGIC {
-            return Err(fmt("bad magic".into()));
-        }
-        let version = r.u32().map_err(rd)?;
-        if version != VERSION {
-            return Err(fmt(format!("version {version}, this build reads version {VERSION}")));
-        }
+        r.bytes(head.len()).map_err(rd)?; // magic and version, checked above
         let schedule_step = r.u64().map_err(rd)?;
         let n_groups = r.u32().map_err(rd)? as usize;
         let mut steps = Vec::new();
