@@ -52,6 +52,10 @@ const VARIANTS: &[Variant] = &[
     v("mlp_bwd", "network/mlp_bwd.comp"),
     v("mlp_wgrad", "network/mlp_wgrad.comp"),
     v("mlp_wgrad_reduce", "network/mlp_wgrad_reduce.comp"),
+    // nn: direction encoding and optimiser (src/nn)
+    v("sh_fwd", "encoding/sh_fwd.comp"),
+    v("sh_bwd", "encoding/sh_bwd.comp"),
+    v("adam_step", "optim/adam_step.comp"),
 ];
 
 fn main() {

@@ -1,7 +1,7 @@
 //! msnerf: multispectral neural radiance fields (nerfacto for B spectral bands) on Vulkan compute.
 //!
 //! Layers, one folder each: [`gpu`] (the Vulkan runtime), [`ops`] (generic compute operations), [`nn`] (neural
-//! modules: hash grid, MLP), [`data`] (datasets, image readers, poses, cameras, the host image cache),
+//! modules: hash grid, MLP, SH, Adam, parameter store), [`data`] (datasets, image readers, poses, cameras, the host image cache),
 //! [`reference`] (CPU twins of every kernel), [`cli`] (the `msnerf` subcommands).
 
 pub mod bench;

@@ -280,13 +280,14 @@ pub fn mlp_profiles() -> Vec<(&'static str, MlpConfig)> {
     ]
 }
 
-pub fn run(ctx: &Context, points: usize, rows: usize, repeats: usize) -> GpuResult<KernelBench> {
+pub fn run(ctx: &Context, points: usize, rows: usize, repeats: usize, filter: Option<&str>) -> GpuResult<KernelBench> {
+    let keep = |name: &str| filter.is_none_or(|f| name.contains(f));
     let mut hash = Vec::new();
-    for (name, cfg) in &grid_profiles() {
+    for (name, cfg) in grid_profiles().iter().filter(|(n, _)| keep(n)) {
         hash.push(bench_hash(ctx, name, cfg, points, repeats)?);
     }
     let mut mlp = Vec::new();
-    for (name, cfg) in &mlp_profiles() {
+    for (name, cfg) in mlp_profiles().iter().filter(|(n, _)| keep(n)) {
         mlp.push(bench_mlp(ctx, name, cfg, rows, repeats)?);
     }
     Ok(KernelBench {

@@ -25,14 +25,17 @@ pub enum BenchWhat {
         /// Print JSON instead of a table
         #[arg(long)]
         json: bool,
+        /// Only the measurements whose name contains this
+        #[arg(long)]
+        filter: Option<String>,
     },
 }
 
 pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
     let ctx = Context::new(&cli.context_desc())?;
     match args.what {
-        BenchWhat::Kernels { points, rows, repeats, json } => {
-            let r = crate::bench::kernels::run(&ctx, points, rows, repeats)?;
+        BenchWhat::Kernels { points, rows, repeats, json, ref filter } => {
+            let r = crate::bench::kernels::run(&ctx, points, rows, repeats, filter.as_deref())?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             } else {

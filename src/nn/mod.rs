@@ -1,8 +1,12 @@
 //! Neural modules as Vulkan kernels, each with a CPU twin in `crate::reference`: the multiresolution hash grid
-//! ([`hashgrid`]) and the fully fused MLP ([`mlp`]).
+//! ([`hashgrid`]), the fully fused MLP ([`mlp`]), the spherical-harmonics direction encoding ([`sh`]), Adam
+//! ([`adam`]) and the one parameter store per model ([`params`]).
 
+pub mod adam;
 pub mod hashgrid;
 pub mod mlp;
+pub mod params;
+pub mod sh;
 
 use crate::gpu::{GpuBuffer, LargeArray};
 
