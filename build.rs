@@ -43,6 +43,7 @@ const VARIANTS: &[Variant] = &[
     vd("scan_segmented_f32", "util/scan_segmented.comp", &[("VALUE_F32", "1")]),
     vd("scan_segmented_u32", "util/scan_segmented.comp", &[("VALUE_U32", "1")]),
     v("large_array_iota", "util/large_array_iota.comp"),
+    v("copy_cols", "util/copy_cols.comp"),
     // encoding: multiresolution hash grid (src/nn/hashgrid.rs)
     v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
@@ -56,6 +57,14 @@ const VARIANTS: &[Variant] = &[
     v("sh_fwd", "encoding/sh_fwd.comp"),
     v("sh_bwd", "encoding/sh_bwd.comp"),
     v("adam_step", "optim/adam_step.comp"),
+    // render: rays, sampling, compositing and losses (src/nerf)
+    v("ray_gen", "render/ray_gen.comp"),
+    v("sample_initial", "render/sample_initial.comp"),
+    v("density_weights", "render/density_weights.comp"),
+    v("pdf_resample", "render/pdf_resample.comp"),
+    v("colour_input", "render/colour_input.comp"),
+    v("composite", "render/composite.comp"),
+    v("interlevel", "render/interlevel.comp"),
 ];
 
 fn main() {

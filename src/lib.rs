@@ -8,6 +8,7 @@ pub mod bench;
 pub mod cli;
 pub mod data;
 pub mod gpu;
+pub mod nerf;
 pub mod nn;
 pub mod ops;
 pub mod reference;

@@ -18,3 +18,26 @@ const float SH_3C9 = 1.7701307697799304;    // 3 * C9
 const float SH_6C9 = 3.540261539559861;     // 6 * C9
 const float SH_10C11 = 4.5704579946446575;  // 10 * C11
 const float SH_2C14 = 2.890611442640554;    // 2 * C14
+
+// The 16 basis values at unit direction d (tiny-cuda-nn order and signs).
+void sh_eval(vec3 d, out float sh[16]) {
+    float x = d.x, y = d.y, z = d.z;
+    float xy = x * y, xz = x * z, yz = y * z;
+    float x2 = x * x, y2 = y * y, z2 = z * z;
+    sh[0] = SH_C0;
+    sh[1] = -SH_C1 * y;
+    sh[2] = SH_C1 * z;
+    sh[3] = -SH_C1 * x;
+    sh[4] = SH_C4 * xy;
+    sh[5] = -SH_C4 * yz;
+    sh[6] = SH_C6 * z2 - SH_C6B;
+    sh[7] = -SH_C4 * xz;
+    sh[8] = SH_C8 * (x2 - y2);
+    sh[9] = SH_C9 * y * (y2 - 3.0 * x2);
+    sh[10] = SH_C10 * xy * z;
+    sh[11] = SH_C11 * y * (1.0 - 5.0 * z2);
+    sh[12] = SH_C12 * z * (5.0 * z2 - 3.0);
+    sh[13] = SH_C11 * x * (1.0 - 5.0 * z2);
+    sh[14] = SH_C14 * z * (x2 - y2);
+    sh[15] = SH_C9 * x * (3.0 * y2 - x2);
+}

@@ -16,24 +16,8 @@ layout(push_constant) uniform Push { uint n; uint row_stride; uint col; } pc;
 void main() {
     uint i = global_index();
     if (i >= pc.n) return;
-    float x = dirs[3u * i], y = dirs[3u * i + 1u], z = dirs[3u * i + 2u];
-    float xy = x * y, xz = x * z, yz = y * z;
-    float x2 = x * x, y2 = y * y, z2 = z * z;
+    float sh[16];
+    sh_eval(vec3(dirs[3u * i], dirs[3u * i + 1u], dirs[3u * i + 2u]), sh);
     uint o = i * pc.row_stride + pc.col;
-    out_values[o + 0u] = SH_C0;
-    out_values[o + 1u] = -SH_C1 * y;
-    out_values[o + 2u] = SH_C1 * z;
-    out_values[o + 3u] = -SH_C1 * x;
-    out_values[o + 4u] = SH_C4 * xy;
-    out_values[o + 5u] = -SH_C4 * yz;
-    out_values[o + 6u] = SH_C6 * z2 - SH_C6B;
-    out_values[o + 7u] = -SH_C4 * xz;
-    out_values[o + 8u] = SH_C8 * (x2 - y2);
-    out_values[o + 9u] = SH_C9 * y * (y2 - 3.0 * x2);
-    out_values[o + 10u] = SH_C10 * xy * z;
-    out_values[o + 11u] = SH_C11 * y * (1.0 - 5.0 * z2);
-    out_values[o + 12u] = SH_C12 * z * (5.0 * z2 - 3.0);
-    out_values[o + 13u] = SH_C11 * x * (1.0 - 5.0 * z2);
-    out_values[o + 14u] = SH_C14 * z * (x2 - y2);
-    out_values[o + 15u] = SH_C9 * x * (3.0 * y2 - x2);
+    for (uint k = 0u; k < 16u; ++k) out_values[o + k] = sh[k];
 }

@@ -5,5 +5,6 @@ pub mod adam;
 pub mod hashgrid;
 pub mod mlp;
 pub mod real;
+pub mod render;
 pub mod sh;
 pub mod util;

@@ -1,0 +1,148 @@
+// composite: NeRF-level volume rendering for B bands, the per-band MSE (eq. 3.1) and the distortion loss, and in
+// training their backward in closed form (spec/nerfacto.md §2.10-2.12; twin: src/reference/render.rs).
+// Forward per ray: sigma_i = scale exp(raw_i), w_i = T_i (1 - exp(-sigma_i delta_i)), A = sum w,
+//   C = sum w_i c_i + bg (1 - A) with bg = c_{N-1} (last_sample), 0 (black), 1 (white) or a given constant.
+// Loss (training): ray_weight * sum_b band_w_b (C_b - y_b)^2 * rgb_norm  (rgb_norm = 1/(rays * B));
+//   distortion in s-space, O(N): dist_norm * [2 sum w_i (m_i W_i - M_i) + 1/3 sum w_i^2 ds_i].
+// Backward: g_i = <G, c_i - bg> + dLd/dw_i; dL/dsigma_k = delta_k (g_k T_{k+1} - sum_{i>k} g_i w_i);
+//   dL/draw_k = dL/dsigma_k * scale exp(clamp(raw_k, -15, 15)); dL/dc_i = w_i G (+ (1 - A) G for the last sample with
+//   last_sample background). The exclusive prefix of sigma delta is parked in dy_density during the forward pass.
+// Outputs per ray (ray_out, stride 6 + B): loss_rgb, loss_dist, accumulation, median depth, expected depth,
+//   squared error (unweighted, summed over bands), C_0..C_{B-1} (clamped to [0,1] in evaluation).
+// Bindings: 0 edges (float[R][N+1]), 1 density rows (raw at column 0 of density_stride), 2 colours (float[R*N][B]),
+//           3 targets (float[R][B+1]: B values then the ray weight), 4 band weights (float[B]),
+//           5 dy_density (rows of density_stride: column 0 written), 6 dy_colour (float[R*N][B], written),
+//           7 weights (float[R][N], written), 8 ray_out (float[R][6+B], written), 9 origins, 10 directions.
+// Push:     n_rays, n, bands, near, far, density_stride, density_scale, background (0 last_sample, 1 constant),
+//           bg_value, rgb_norm, dist_norm, train, contraction.
+// Threads:  one invocation per ray, serial over its samples (forward, then a reverse pass), 64 per group.
+#version 460
+#define WG_SIZE 64
+#include "common/index.glsl"
+#include "render/render_common.glsl"
+layout(local_size_x = WG_SIZE) in;
+layout(std430, binding = 0) readonly buffer Edges { float edges[]; };
+layout(std430, binding = 1) readonly buffer Density { float density[]; };
+layout(std430, binding = 2) readonly buffer Colours { float colours[]; };
+layout(std430, binding = 3) readonly buffer Targets { float targets[]; };
+layout(std430, binding = 4) readonly buffer BandWeights { float band_w[]; };
+layout(std430, binding = 5) buffer DyDensity { float dy_density[]; };
+layout(std430, binding = 6) writeonly buffer DyColour { float dy_colour[]; };
+layout(std430, binding = 7) buffer Weights { float weights[]; };
+layout(std430, binding = 8) writeonly buffer RayOut { float ray_out[]; };
+layout(std430, binding = 9) readonly buffer Origins { float origins[]; };
+layout(std430, binding = 10) readonly buffer Dirs { float dirs[]; };
+layout(push_constant) uniform Push {
+    uint n_rays; uint n; uint bands; float near; float far; uint density_stride; float density_scale;
+    uint background; float bg_value; float rgb_norm; float dist_norm; uint train; uint contraction;
+} pc;
+
+const uint MAX_BANDS = 128u;
+
+float sigma_of(uint r, uint i, vec3 o, vec3 d, float tmid) {
+    float s = density_from_raw(density[(r * pc.n + i) * pc.density_stride], pc.density_scale);
+    if (pc.contraction == 0u) {
+        bool inside;
+        hash_input(o + d * tmid, false, inside);
+        if (!inside) s = 0.0;
+    }
+    return s;
+}
+
+float bg_of(uint r, uint b) {
+    return pc.background == 0u ? colours[(r * pc.n + pc.n - 1u) * pc.bands + b] : pc.bg_value;
+}
+
+void main() {
+    uint r = global_index();
+    if (r >= pc.n_rays) return;
+    uint e0 = r * (pc.n + 1u);
+    uint B = pc.bands;
+    vec3 o = vec3(origins[3u * r], origins[3u * r + 1u], origins[3u * r + 2u]);
+    vec3 d = vec3(dirs[3u * r], dirs[3u * r + 1u], dirs[3u * r + 2u]);
+    float C[MAX_BANDS];
+    for (uint b = 0u; b < B; ++b) C[b] = 0.0;
+
+    // Forward.
+    float acc = 0.0, A = 0.0, W = 0.0, M = 0.0, dist = 0.0, depth_sum = 0.0;
+    float median = -1.0;
+    float t0 = edge_to_t(edges[e0], pc.near, pc.far);
+    float tmid_last = t0;
+    for (uint i = 0u; i < pc.n; ++i) {
+        float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
+        float tmid = 0.5 * (t0 + t1);
+        float tau = sigma_of(r, i, o, d, tmid) * (t1 - t0);
+        float w = exp(-acc) * (1.0 - exp(-tau));
+        w = isnan(w) ? 0.0 : w;
+        if (pc.train != 0u) dy_density[(r * pc.n + i) * pc.density_stride] = acc; // exclusive prefix, reused below
+        acc += tau;
+        weights[r * pc.n + i] = w;
+        for (uint b = 0u; b < B; ++b) C[b] += w * colours[(r * pc.n + i) * B + b];
+        float s0 = edges[e0 + i], s1 = edges[e0 + i + 1u];
+        float m = 0.5 * (s0 + s1);
+        dist += 2.0 * w * (m * W - M) + w * w * (s1 - s0) / 3.0;
+        W += w;
+        M += w * m;
+        A += w;
+        depth_sum += w * tmid;
+        if (median < 0.0 && A >= 0.5) median = tmid;
+        tmid_last = tmid;
+        t0 = t1;
+    }
+    if (median < 0.0) median = tmid_last;
+    float ray_w = targets[r * (B + 1u) + B];
+    float loss = 0.0, sq = 0.0;
+    uint ro = r * (6u + B);
+    for (uint b = 0u; b < B; ++b) {
+        float c = C[b] + bg_of(r, b) * (1.0 - A);
+        float e = c - targets[r * (B + 1u) + b];
+        loss += band_w[b] * e * e;
+        sq += e * e;
+        ray_out[ro + 6u + b] = pc.train != 0u ? c : clamp(isnan(c) ? 0.0 : c, 0.0, 1.0);
+        C[b] = 2.0 * band_w[b] * e * pc.rgb_norm * ray_w; // from here on C holds G = dL/dC
+    }
+    ray_out[ro] = loss * pc.rgb_norm * ray_w;
+    ray_out[ro + 1u] = dist * pc.dist_norm * ray_w;
+    ray_out[ro + 2u] = A;
+    ray_out[ro + 3u] = median;
+    ray_out[ro + 4u] = depth_sum / (A + 1e-10);
+    ray_out[ro + 5u] = sq * ray_w;
+    if (pc.train == 0u) return;
+
+    // Backward: reverse pass with suffix sums S = sum_{i>k} g_i w_i, Sw = sum_{i>k} w_i, Swm = sum_{i>k} w_i m_i.
+    float S = 0.0, Sw = 0.0, Swm = 0.0;
+    float Gbg = 0.0;
+    for (uint b = 0u; b < B; ++b) Gbg += C[b] * bg_of(r, b);
+    float t1 = edge_to_t(edges[e0 + pc.n], pc.near, pc.far);
+    for (uint kk = 0u; kk < pc.n; ++kk) {
+        uint k = pc.n - 1u - kk;
+        float t0k = edge_to_t(edges[e0 + k], pc.near, pc.far);
+        float delta = t1 - t0k;
+        uint di = (r * pc.n + k) * pc.density_stride;
+        float raw = density[di];
+        float sigma = sigma_of(r, k, o, d, 0.5 * (t0k + t1));
+        float t_next = exp(-(dy_density[di] + sigma * delta)); // T_{k+1}
+        float w = weights[r * pc.n + k];
+        float g = -Gbg;
+        for (uint b = 0u; b < B; ++b) {
+            float gb = C[b];
+            g += gb * colours[(r * pc.n + k) * B + b];
+            float dc = w * gb;
+            if (k == pc.n - 1u && pc.background == 0u) dc += (1.0 - A) * gb;
+            dy_colour[(r * pc.n + k) * B + b] = dc;
+        }
+        // Distortion gradient (edges detached): W_k = W - w - Sw, M_k = M - w m - Swm.
+        float s0 = edges[e0 + k], s1 = edges[e0 + k + 1u];
+        float m = 0.5 * (s0 + s1);
+        float Wk = W - w - Sw, Mk = M - w * m - Swm;
+        float gd = 2.0 * (m * Wk - Mk + (M - Mk - w * m) - m * (W - Wk - w)) + (2.0 / 3.0) * w * (s1 - s0);
+        g += gd * pc.dist_norm * ray_w;
+        float dsigma = delta * (g * t_next - S);
+        bool live = pc.contraction != 0u || sigma > 0.0;
+        dy_density[di] = live ? dsigma * density_grad_scale(raw, pc.density_scale) : 0.0;
+        S += g * w;
+        Sw += w;
+        Swm += w * m;
+        t1 = t0k;
+    }
+}

@@ -1,0 +1,44 @@
+// density_weights: volume-rendering weights of one sampling level from its raw densities (§2.10):
+// sigma_i = scale * exp(raw_i), delta_i = t_{i+1} - t_i, T_i = exp(-sum_{j<i} sigma_j delta_j), w_i = T_i (1 - exp(-sigma_i delta_i)).
+// Used for the proposal levels (their weights drive PDF resampling and the interlevel loss).
+// Bindings: 0 edges (float[R][n+1]), 1 raw (rows of raw_stride, density at column 0), 2 weights (float[R][n], written),
+//           3 origins, 4 directions (only read without contraction, to zero density outside the box).
+// Push:     n_rays, n, near, far, raw_stride, density_scale, contraction.
+// Threads:  one invocation per ray (serial over its samples), 64 per group, folded into 2D past 65535 groups.
+#version 460
+#define WG_SIZE 64
+#include "common/index.glsl"
+#include "render/render_common.glsl"
+layout(local_size_x = WG_SIZE) in;
+layout(std430, binding = 0) readonly buffer Edges { float edges[]; };
+layout(std430, binding = 1) readonly buffer Raw { float raw[]; };
+layout(std430, binding = 2) writeonly buffer Weights { float weights[]; };
+layout(std430, binding = 3) readonly buffer Origins { float origins[]; };
+layout(std430, binding = 4) readonly buffer Dirs { float dirs[]; };
+layout(push_constant) uniform Push {
+    uint n_rays; uint n; float near; float far; uint raw_stride; float density_scale; uint contraction;
+} pc;
+
+void main() {
+    uint r = global_index();
+    if (r >= pc.n_rays) return;
+    uint e0 = r * (pc.n + 1u);
+    vec3 o = vec3(origins[3u * r], origins[3u * r + 1u], origins[3u * r + 2u]);
+    vec3 d = vec3(dirs[3u * r], dirs[3u * r + 1u], dirs[3u * r + 2u]);
+    float t0 = edge_to_t(edges[e0], pc.near, pc.far);
+    float acc = 0.0; // sum of sigma delta so far
+    for (uint i = 0u; i < pc.n; ++i) {
+        float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
+        float sigma = density_from_raw(raw[(r * pc.n + i) * pc.raw_stride], pc.density_scale);
+        if (pc.contraction == 0u) {
+            bool inside;
+            hash_input(o + d * (0.5 * (t0 + t1)), false, inside);
+            if (!inside) sigma = 0.0;
+        }
+        float tau = sigma * (t1 - t0);
+        float w = exp(-acc) * (1.0 - exp(-tau));
+        weights[r * pc.n + i] = isnan(w) ? 0.0 : w;
+        acc += tau;
+        t0 = t1;
+    }
+}

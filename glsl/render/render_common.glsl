@@ -1,0 +1,74 @@
+// render_common.glsl: the nerfacto sampling geometry shared by the render kernels (spec/nerfacto.md §2.6-2.8, §2.10)
+// and mirrored in src/reference/render.rs.
+// - Spacing: UniformLinDispPiecewise g(t) = t/2 (t < 1), 1 - 1/(2t) (t >= 1); an edge s in [0,1] maps to
+//   t = g^-1(s g(far) + (1 - s) g(near)), t along the unit ray direction.
+// - Contraction (L-infinity): x if |x|_inf < 1, else (2 - 1/|x|_inf) x / |x|_inf; hash input p = (contract(x) + 2)/4.
+//   Without contraction p = (x + 1)/2 for the box [-1,1]^3 and points outside it get no density.
+// - Random numbers: PCG hash of (seed, step, ray, level) -> one uniform per ray and level (single jitter).
+
+float spacing_g(float t) {
+    return t < 1.0 ? 0.5 * t : 1.0 - 0.5 / t;
+}
+
+float spacing_g_inv(float s) {
+    return s < 0.5 ? 2.0 * s : 1.0 / (2.0 - 2.0 * s);
+}
+
+// Euclidean distance of a normalised edge s.
+float edge_to_t(float s, float near, float far) {
+    return spacing_g_inv(s * spacing_g(far) + (1.0 - s) * spacing_g(near));
+}
+
+vec3 contract_point(vec3 x) {
+    float m = max(max(abs(x.x), abs(x.y)), abs(x.z));
+    if (m < 1.0) return x; // branch-wise: no x / |x| at the origin (nerfacto.md §8.7)
+    return (2.0 - 1.0 / m) * (x / m);
+}
+
+// Hash-grid input in [0,1]^3, and whether the point carries density (always with contraction).
+vec3 hash_input(vec3 x, bool contraction, out bool inside) {
+    if (contraction) {
+        inside = true;
+        return (contract_point(x) + 2.0) * 0.25;
+    }
+    vec3 p = (x + 1.0) * 0.5;
+    inside = all(greaterThan(p, vec3(0.0))) && all(lessThan(p, vec3(1.0)));
+    return inside ? p : vec3(0.0);
+}
+
+uint pcg_hash(uint v) {
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// Uniform in [0, 1) from (seed, step, ray, level).
+float ray_uniform(uint seed, uint step, uint ray, uint level) {
+    uint h = pcg_hash(seed ^ pcg_hash(step ^ pcg_hash(ray ^ pcg_hash(level))));
+    return float(h >> 8u) * (1.0 / 16777216.0);
+}
+
+// Density activation: sigma = scale * exp(raw) in fp32 (trunc_exp forward).
+float density_from_raw(float raw, float scale) {
+    return scale * exp(raw);
+}
+
+// d sigma / d raw with trunc_exp's clamped derivative: scale * exp(clamp(raw, -15, 15)).
+float density_grad_scale(float raw, float scale) {
+    return scale * exp(clamp(raw, -15.0, 15.0));
+}
+
+// Writes the hash inputs of the n intervals of a ray, from its n + 1 edges (s-space) in `edges[e0 ..]`.
+#define WRITE_POSITIONS(EDGES, E0, N, ORIGIN, DIR, NEAR, FAR, CONTRACT, POS, P0)                        \
+    {                                                                                                      \
+        float t0_ = edge_to_t(EDGES[E0], NEAR, FAR);                                                     \
+        for (uint i_ = 0u; i_ < (N); ++i_) {                                                             \
+            float t1_ = edge_to_t(EDGES[(E0) + i_ + 1u], NEAR, FAR);                                      \
+            bool in_;                                                                                    \
+            vec3 p_ = hash_input((ORIGIN) + (DIR) * (0.5 * (t0_ + t1_)), CONTRACT, in_);                  \
+            POS[3u * ((P0) + i_)] = p_.x;                                                                  \
+            POS[3u * ((P0) + i_) + 1u] = p_.y;                                                             \
+            POS[3u * ((P0) + i_) + 2u] = p_.z;                                                             \
+            t0_ = t1_;                                                                                     \
+        }                                                                                                  \
+    }

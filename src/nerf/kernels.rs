@@ -1,0 +1,444 @@
+//! Rust side of the render kernels in `glsl/render/`: one push-constant struct and one recording function per kernel.
+//! Buffers follow the layouts documented in each kernel's header; per-ray data is row-major (ray, sample).
+
+use crate::gpu::{Binding, Context, GpuBuffer, GpuResult, Kernel, Recorder};
+use crate::shaders;
+use bytemuck::{Pod, Zeroable};
+
+/// Sampling geometry shared by the kernels.
+#[derive(Copy, Clone, Debug)]
+pub struct Geometry {
+    pub near: f32,
+    pub far: f32,
+    pub contraction: bool,
+}
+
+/// The per-ray buffers every render kernel reads.
+#[derive(Copy, Clone)]
+pub struct RayBuffers<'a> {
+    pub origins: &'a GpuBuffer<f32>,
+    pub dirs: &'a GpuBuffer<f32>,
+    pub n_rays: usize,
+    /// Global index of the first ray (the random stream is keyed on it).
+    pub ray_offset: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct RayGenPush {
+    n_rays: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct SampleInitialPush {
+    n_rays: u32,
+    n: u32,
+    near: f32,
+    far: f32,
+    seed: u32,
+    step: u32,
+    level: u32,
+    jitter: u32,
+    contraction: u32,
+    ray_offset: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct WeightsPush {
+    n_rays: u32,
+    n: u32,
+    near: f32,
+    far: f32,
+    raw_stride: u32,
+    density_scale: f32,
+    contraction: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct PdfPush {
+    n_rays: u32,
+    n: u32,
+    m: u32,
+    near: f32,
+    far: f32,
+    anneal: f32,
+    seed: u32,
+    step: u32,
+    level: u32,
+    jitter: u32,
+    contraction: u32,
+    ray_offset: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct ColourInputPush {
+    n_samples: u32,
+    n: u32,
+    geo_dim: u32,
+    app_dim: u32,
+    in_pad: u32,
+    density_stride: u32,
+    app_mode: u32,
+    mean_row: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct CompositePush {
+    n_rays: u32,
+    n: u32,
+    bands: u32,
+    near: f32,
+    far: f32,
+    density_stride: u32,
+    density_scale: f32,
+    background: u32,
+    bg_value: f32,
+    rgb_norm: f32,
+    dist_norm: f32,
+    train: u32,
+    contraction: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct InterlevelPush {
+    n_rays: u32,
+    n_nerf: u32,
+    n_prop: u32,
+    near: f32,
+    far: f32,
+    raw_stride: u32,
+    density_scale: f32,
+    norm: f32,
+    contraction: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct CopyColsPush {
+    n: u32,
+    cols: u32,
+    src_stride: u32,
+    src_col: u32,
+    dst_stride: u32,
+    dst_col: u32,
+}
+
+/// Random-stream and jitter settings of one sampling level.
+#[derive(Copy, Clone, Debug)]
+pub struct Jitter {
+    pub seed: u32,
+    pub step: u32,
+    pub level: u32,
+    pub enabled: bool,
+}
+
+/// Composite settings.
+#[derive(Copy, Clone, Debug)]
+pub struct CompositeParams {
+    pub bands: usize,
+    pub density_stride: usize,
+    pub density_scale: f32,
+    /// None: last_sample; Some(v): constant background v in every band.
+    pub background: Option<f32>,
+    pub rgb_norm: f32,
+    pub dist_norm: f32,
+    pub train: bool,
+}
+
+/// Buffers of the composite kernel.
+pub struct CompositeBuffers<'a> {
+    pub edges: &'a GpuBuffer<f32>,
+    pub density: &'a GpuBuffer<f32>,
+    pub colours: &'a GpuBuffer<f32>,
+    pub targets: &'a GpuBuffer<f32>,
+    pub band_weights: &'a GpuBuffer<f32>,
+    pub dy_density: &'a GpuBuffer<f32>,
+    pub dy_colour: &'a GpuBuffer<f32>,
+    pub weights: &'a GpuBuffer<f32>,
+    pub ray_out: &'a GpuBuffer<f32>,
+}
+
+/// Buffers of the interlevel kernel for one proposal level.
+pub struct InterlevelBuffers<'a> {
+    pub nerf_edges: &'a GpuBuffer<f32>,
+    pub nerf_weights: &'a GpuBuffer<f32>,
+    pub prop_edges: &'a GpuBuffer<f32>,
+    pub prop_raw: &'a GpuBuffer<f32>,
+    pub prop_weights: &'a GpuBuffer<f32>,
+    pub prop_dy: &'a GpuBuffer<f32>,
+    pub losses: &'a GpuBuffer<f32>,
+}
+
+/// Every render kernel, created once per context.
+pub struct RenderKernels {
+    ray_gen: Kernel<RayGenPush>,
+    sample_initial: Kernel<SampleInitialPush>,
+    weights: Kernel<WeightsPush>,
+    pdf: Kernel<PdfPush>,
+    colour_input: Kernel<ColourInputPush>,
+    composite: Kernel<CompositePush>,
+    interlevel: Kernel<InterlevelPush>,
+    copy_cols: Kernel<CopyColsPush>,
+}
+
+fn b(x: bool) -> u32 {
+    u32::from(x)
+}
+
+impl RenderKernels {
+    pub fn new(ctx: &Context) -> GpuResult<Self> {
+        Ok(Self {
+            ray_gen: Kernel::new(ctx, &shaders::RAY_GEN)?,
+            sample_initial: Kernel::new(ctx, &shaders::SAMPLE_INITIAL)?,
+            weights: Kernel::new(ctx, &shaders::DENSITY_WEIGHTS)?,
+            pdf: Kernel::new(ctx, &shaders::PDF_RESAMPLE)?,
+            colour_input: Kernel::new(ctx, &shaders::COLOUR_INPUT)?,
+            composite: Kernel::new(ctx, &shaders::COMPOSITE)?,
+            interlevel: Kernel::new(ctx, &shaders::INTERLEVEL)?,
+            copy_cols: Kernel::new(ctx, &shaders::COPY_COLS)?,
+        })
+    }
+
+    /// Rays through the pixels `pixels` (uint[3R]: camera, row, col).
+    pub fn ray_gen(
+        &self,
+        rec: &mut Recorder,
+        cameras: &GpuBuffer<crate::nerf::rays::GpuCamera>,
+        pixels: &GpuBuffer<u32>,
+        rays: RayBuffers,
+        norms: &GpuBuffer<f32>,
+    ) -> GpuResult<()> {
+        let bindings =
+            [cameras.binding(), pixels.binding(), rays.origins.binding(), rays.dirs.binding(), norms.binding()];
+        let push = RayGenPush { n_rays: rays.n_rays as u32 };
+        rec.dispatch(&self.ray_gen, &bindings, &push, rays.n_rays as u64)
+    }
+
+    /// Initial piecewise sampler: edges (R x (n+1)) and hash inputs (R*n x 3).
+    pub fn sample_initial(
+        &self,
+        rec: &mut Recorder,
+        rays: RayBuffers,
+        geo: Geometry,
+        n: usize,
+        jitter: Jitter,
+        edges: &GpuBuffer<f32>,
+        positions: &GpuBuffer<f32>,
+    ) -> GpuResult<()> {
+        let push = SampleInitialPush {
+            n_rays: rays.n_rays as u32,
+            n: n as u32,
+            near: geo.near,
+            far: geo.far,
+            seed: jitter.seed,
+            step: jitter.step,
+            level: jitter.level,
+            jitter: b(jitter.enabled),
+            contraction: b(geo.contraction),
+            ray_offset: rays.ray_offset,
+        };
+        let bindings = [rays.origins.binding(), rays.dirs.binding(), edges.binding(), positions.binding()];
+        rec.dispatch(&self.sample_initial, &bindings, &push, rays.n_rays as u64)
+    }
+
+    /// Weights of a level from its raw densities (column 0 of rows of `raw_stride`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn weights(
+        &self,
+        rec: &mut Recorder,
+        rays: RayBuffers,
+        geo: Geometry,
+        n: usize,
+        edges: &GpuBuffer<f32>,
+        raw: (&GpuBuffer<f32>, usize),
+        density_scale: f32,
+        weights: &GpuBuffer<f32>,
+    ) -> GpuResult<()> {
+        let push = WeightsPush {
+            n_rays: rays.n_rays as u32,
+            n: n as u32,
+            near: geo.near,
+            far: geo.far,
+            raw_stride: raw.1 as u32,
+            density_scale,
+            contraction: b(geo.contraction),
+        };
+        let bindings =
+            [edges.binding(), raw.0.binding(), weights.binding(), rays.origins.binding(), rays.dirs.binding()];
+        rec.dispatch(&self.weights, &bindings, &push, rays.n_rays as u64)
+    }
+
+    /// PDF resampling from n bins to m samples (m + 1 edges), and their hash inputs.
+    #[allow(clippy::too_many_arguments)]
+    pub fn pdf_resample(
+        &self,
+        rec: &mut Recorder,
+        rays: RayBuffers,
+        geo: Geometry,
+        (n, m): (usize, usize),
+        anneal: f32,
+        jitter: Jitter,
+        (edges_in, weights): (&GpuBuffer<f32>, &GpuBuffer<f32>),
+        (edges_out, positions): (&GpuBuffer<f32>, &GpuBuffer<f32>),
+    ) -> GpuResult<()> {
+        let push = PdfPush {
+            n_rays: rays.n_rays as u32,
+            n: n as u32,
+            m: m as u32,
+            near: geo.near,
+            far: geo.far,
+            anneal,
+            seed: jitter.seed,
+            step: jitter.step,
+            level: jitter.level,
+            jitter: b(jitter.enabled),
+            contraction: b(geo.contraction),
+            ray_offset: rays.ray_offset,
+        };
+        let bindings = [
+            edges_in.binding(),
+            weights.binding(),
+            edges_out.binding(),
+            positions.binding(),
+            rays.origins.binding(),
+            rays.dirs.binding(),
+        ];
+        rec.dispatch(&self.pdf, &bindings, &push, rays.n_rays as u64)
+    }
+
+    /// Colour MLP input rows; `appearance` = (embeddings, camera index per ray, dim, Some(row) for a fixed row).
+    #[allow(clippy::too_many_arguments)]
+    pub fn colour_input(
+        &self,
+        rec: &mut Recorder,
+        rays: RayBuffers,
+        n: usize,
+        density: (&GpuBuffer<f32>, usize),
+        geo_dim: usize,
+        appearance: Option<(Binding, &GpuBuffer<u32>, usize, Option<u32>)>,
+        rows: (&GpuBuffer<f32>, usize),
+    ) -> GpuResult<()> {
+        let n_samples = rays.n_rays * n;
+        let (emb, cams, app_dim, fixed) = match appearance {
+            Some((e, c, d, f)) => (e, c.binding(), d, f),
+            None => (density.0.binding(), density.0.binding(), 0, None),
+        };
+        let push = ColourInputPush {
+            n_samples: n_samples as u32,
+            n: n as u32,
+            geo_dim: geo_dim as u32,
+            app_dim: app_dim as u32,
+            in_pad: rows.1 as u32,
+            density_stride: density.1 as u32,
+            app_mode: b(fixed.is_some()),
+            mean_row: fixed.unwrap_or(0),
+        };
+        let bindings = [rays.dirs.binding(), density.0.binding(), cams, emb, rows.0.binding()];
+        rec.dispatch(&self.colour_input, &bindings, &push, n_samples as u64)
+    }
+
+    /// NeRF-level compositing, losses and (in training) their backward.
+    pub fn composite(
+        &self,
+        rec: &mut Recorder,
+        rays: RayBuffers,
+        geo: Geometry,
+        n: usize,
+        p: &CompositeParams,
+        bufs: &CompositeBuffers,
+    ) -> GpuResult<()> {
+        let push = CompositePush {
+            n_rays: rays.n_rays as u32,
+            n: n as u32,
+            bands: p.bands as u32,
+            near: geo.near,
+            far: geo.far,
+            density_stride: p.density_stride as u32,
+            density_scale: p.density_scale,
+            background: b(p.background.is_some()),
+            bg_value: p.background.unwrap_or(0.0),
+            rgb_norm: p.rgb_norm,
+            dist_norm: p.dist_norm,
+            train: b(p.train),
+            contraction: b(geo.contraction),
+        };
+        let bindings = [
+            bufs.edges.binding(),
+            bufs.density.binding(),
+            bufs.colours.binding(),
+            bufs.targets.binding(),
+            bufs.band_weights.binding(),
+            bufs.dy_density.binding(),
+            bufs.dy_colour.binding(),
+            bufs.weights.binding(),
+            bufs.ray_out.binding(),
+            rays.origins.binding(),
+            rays.dirs.binding(),
+        ];
+        rec.dispatch(&self.composite, &bindings, &push, rays.n_rays as u64)
+    }
+
+    /// Interlevel loss of one proposal level and its backward into `prop_dy` (column 0 of rows of `raw_stride`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn interlevel(
+        &self,
+        rec: &mut Recorder,
+        rays: RayBuffers,
+        geo: Geometry,
+        (n_nerf, n_prop): (usize, usize),
+        raw_stride: usize,
+        density_scale: f32,
+        norm: f32,
+        bufs: &InterlevelBuffers,
+    ) -> GpuResult<()> {
+        let push = InterlevelPush {
+            n_rays: rays.n_rays as u32,
+            n_nerf: n_nerf as u32,
+            n_prop: n_prop as u32,
+            near: geo.near,
+            far: geo.far,
+            raw_stride: raw_stride as u32,
+            density_scale,
+            norm,
+            contraction: b(geo.contraction),
+        };
+        let bindings = [
+            bufs.nerf_edges.binding(),
+            bufs.nerf_weights.binding(),
+            bufs.prop_edges.binding(),
+            bufs.prop_raw.binding(),
+            bufs.prop_weights.binding(),
+            bufs.prop_dy.binding(),
+            bufs.losses.binding(),
+            rays.origins.binding(),
+            rays.dirs.binding(),
+        ];
+        rec.dispatch(&self.interlevel, &bindings, &push, rays.n_rays as u64)
+    }
+
+    /// Copies `cols` columns of `n` rows between row-major matrices: (buffer, stride, first column).
+    pub fn copy_cols(
+        &self,
+        rec: &mut Recorder,
+        n: usize,
+        cols: usize,
+        src: (&GpuBuffer<f32>, usize, usize),
+        dst: (&GpuBuffer<f32>, usize, usize),
+    ) -> GpuResult<()> {
+        let push = CopyColsPush {
+            n: n as u32,
+            cols: cols as u32,
+            src_stride: src.1 as u32,
+            src_col: src.2 as u32,
+            dst_stride: dst.1 as u32,
+            dst_col: dst.2 as u32,
+        };
+        rec.dispatch(&self.copy_cols, &[src.0.binding(), dst.0.binding()], &push, (n * cols) as u64)
+    }
+}

@@ -1,0 +1,5 @@
+//! The nerfacto pipeline for B spectral bands: ray generation, proposal sampling, the fields, volume rendering,
+//! losses and training (spec/nerfacto.md §2; Multispectral-NeRF §3).
+
+pub mod kernels;
+pub mod rays;
