@@ -154,7 +154,7 @@ fn sampling_weights_and_resampling_match_twin() {
         let (e1, p1) = (zeros(&g, "e1", nr * (n1 + 1)), zeros(&g, "p1", nr * n1 * 3));
         let jit = |level| Jitter { seed: 7, step: 3, level, enabled: true };
         let mut rec = g.recorder("sampling").expect("rec");
-        k.sample_initial(&mut rec, rb, geo, n0, jit(0), &e0, &p0).expect("sample");
+        k.sample_initial(&mut rec, rb, geo, n0, jit(0), (&e0, &p0)).expect("sample");
         k.weights(&mut rec, rb, geo, n0, &e0, (&raw_b, 1), 0.01, &w0).expect("weights");
         k.pdf_resample(&mut rec, rb, geo, (n0, n1), 0.6, jit(1), (&e0, &w0), (&e1, &p1)).expect("pdf");
         rec.submit_and_wait().expect("submit");
@@ -233,6 +233,7 @@ fn composite_case(r: &mut ChaCha8Rng, nr: usize, n: usize, bands: usize) -> Comp
     CompositeCase { nr, n, bands, rays, edges, raw, colours, targets, band_w }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn composite_in<'a>(
     cc: &'a CompositeCase,
     i: usize,

@@ -228,8 +228,7 @@ impl RenderKernels {
         geo: Geometry,
         n: usize,
         jitter: Jitter,
-        edges: &GpuBuffer<f32>,
-        positions: &GpuBuffer<f32>,
+        (edges, positions): (&GpuBuffer<f32>, &GpuBuffer<f32>),
     ) -> GpuResult<()> {
         let push = SampleInitialPush {
             n_rays: rays.n_rays as u32,

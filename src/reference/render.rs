@@ -241,8 +241,7 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         (T::zero(), T::zero(), T::zero(), T::zero(), T::zero());
     let mut colour = vec![T::zero(); b_n];
     let mut median = None;
-    for i in 0..n {
-        let (sigma, delta, tmid) = s[i];
+    for (i, &(sigma, delta, tmid)) in s.iter().enumerate() {
         let tau = sigma * delta;
         let wi = nan0((-acc).exp() * (T::one() - (-tau).exp()));
         excl.push(acc);
