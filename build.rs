@@ -65,6 +65,7 @@ const VARIANTS: &[Variant] = &[
     v("colour_input", "render/colour_input.comp"),
     v("composite", "render/composite.comp"),
     v("interlevel", "render/interlevel.comp"),
+    v("appearance_grad", "render/appearance_grad.comp"),
 ];
 
 fn main() {

@@ -85,7 +85,7 @@ impl<P: Pod> Kernel<P> {
         let info = reflect(&words, &merged).map_err(shader_err)?;
         let caps = ctx.caps();
         let p_size = std::mem::size_of::<P>() as u32;
-        if p_size != info.push_constant_bytes {
+        if !push_sizes_match(p_size, std::mem::align_of::<P>() as u32, info.push_constant_bytes) {
             return Err(shader_err(format!(
                 "push constants: Rust type is {p_size} bytes, the shader's block is {} bytes",
                 info.push_constant_bytes
@@ -158,6 +158,13 @@ impl<P: Pod> Kernel<P> {
     }
 }
 
+/// The Rust push type matches the shader's block: same size, or the block's size rounded up to the Rust type's
+/// alignment (Rust pads a struct with a u64 to a multiple of 8; the padding bytes lie past the block's end and are
+/// never read).
+fn push_sizes_match(rust_bytes: u32, rust_align: u32, block_bytes: u32) -> bool {
+    rust_bytes == block_bytes || rust_bytes == block_bytes.next_multiple_of(rust_align.max(1))
+}
+
 /// Folds a 1D group count into a grid within `max` per dimension (kernels recover the linear index with
 /// `common/index.glsl`). Returns None if even the folded grid does not fit.
 pub fn fold_groups(groups: u64, max: [u32; 3]) -> Option<[u32; 3]> {
@@ -171,7 +178,16 @@ pub fn fold_groups(groups: u64, max: [u32; 3]) -> Option<[u32; 3]> {
 
 #[cfg(test)]
 mod tests {
-    use super::fold_groups;
+    use super::{fold_groups, push_sizes_match};
+
+    #[test]
+    fn push_sizes_allow_only_trailing_alignment_padding() {
+        assert!(push_sizes_match(12, 4, 12));
+        assert!(push_sizes_match(40, 8, 36), "u64-aligned struct padded from 36 to 40");
+        assert!(!push_sizes_match(40, 4, 36), "no padding without the alignment");
+        assert!(!push_sizes_match(48, 8, 36), "more than alignment padding is a mismatch");
+        assert!(!push_sizes_match(4, 4, 12));
+    }
 
     #[test]
     fn folding_covers_every_group_and_stays_in_limits() {

@@ -120,6 +120,20 @@ struct InterlevelPush {
 
 #[repr(C)]
 #[derive(Copy, Clone, Pod, Zeroable)]
+struct AppearanceGradPush {
+    grads: u64,
+    shift: u32,
+    emb_offset: u32,
+    n_samples: u32,
+    n: u32,
+    dim: u32,
+    dx_stride: u32,
+    dx_col: u32,
+    pad: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
 struct CopyColsPush {
     n: u32,
     cols: u32,
@@ -185,6 +199,7 @@ pub struct RenderKernels {
     composite: Kernel<CompositePush>,
     interlevel: Kernel<InterlevelPush>,
     copy_cols: Kernel<CopyColsPush>,
+    appearance_grad: Kernel<AppearanceGradPush>,
 }
 
 fn b(x: bool) -> u32 {
@@ -202,6 +217,7 @@ impl RenderKernels {
             composite: Kernel::new(ctx, &shaders::COMPOSITE)?,
             interlevel: Kernel::new(ctx, &shaders::INTERLEVEL)?,
             copy_cols: Kernel::new(ctx, &shaders::COPY_COLS)?,
+            appearance_grad: Kernel::new(ctx, &shaders::APPEARANCE_GRAD)?,
         })
     }
 
@@ -439,5 +455,39 @@ impl RenderKernels {
             dst_col: dst.2 as u32,
         };
         rec.dispatch(&self.copy_cols, &[src.0.binding(), dst.0.binding()], &push, (n * cols) as u64)
+    }
+
+    /// Scatters the appearance columns of the colour MLP's input gradient into the embedding gradients.
+    #[allow(clippy::too_many_arguments)]
+    pub fn appearance_grad(
+        &self,
+        rec: &mut Recorder,
+        grads: &crate::gpu::LargeArray<f32>,
+        emb_offset: usize,
+        (n_rays, n): (usize, usize),
+        dim: usize,
+        dx: (&GpuBuffer<f32>, usize, usize),
+        cam_idx: &GpuBuffer<u32>,
+    ) -> GpuResult<()> {
+        let push = AppearanceGradPush {
+            grads: grads.table_address()?,
+            shift: grads.chunk_shift(),
+            emb_offset: emb_offset as u32,
+            n_samples: (n_rays * n) as u32,
+            n: n as u32,
+            dim: dim as u32,
+            dx_stride: dx.1 as u32,
+            dx_col: dx.2 as u32,
+            pad: 0,
+        };
+        let work = (n_rays * n * dim) as u64;
+        rec.dispatch_named(
+            "appearance_grad",
+            &self.appearance_grad,
+            &[dx.0.binding(), cam_idx.binding()],
+            &grads.deps(),
+            &push,
+            work,
+        )
     }
 }

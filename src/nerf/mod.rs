@@ -1,5 +1,10 @@
 //! The nerfacto pipeline for B spectral bands: ray generation, proposal sampling, the fields, volume rendering,
 //! losses and training (spec/nerfacto.md §2; Multispectral-NeRF §3).
 
+pub mod buffers;
+pub mod config;
 pub mod kernels;
+pub mod model;
+pub mod pipeline;
 pub mod rays;
+pub mod schedule;

@@ -89,6 +89,12 @@ impl MlpConfig {
         self.hidden_floats(n) + n * self.out_pad()
     }
 
+    /// Floats of the split-K scratch of the weight gradients for `n` rows.
+    pub fn wgrad_scratch_floats(&self, n: usize) -> usize {
+        let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
+        splits * self.matrices().iter().map(|(r, c)| r * c).max().unwrap_or(0)
+    }
+
     /// Multiply-adds per row of a forward pass (x2 for FLOPs; the backward costs twice the forward).
     pub fn macs_per_row(&self) -> usize {
         self.n_params()
@@ -174,7 +180,7 @@ pub struct Mlp {
 }
 
 /// Rows per split of the weight-gradient reduction.
-const ROWS_PER_SPLIT: usize = 256;
+pub const ROWS_PER_SPLIT: usize = 256;
 
 impl Mlp {
     pub fn new(ctx: &Context, config: &MlpConfig) -> GpuResult<Self> {
@@ -210,8 +216,7 @@ impl Mlp {
 
     /// Floats of the split-K scratch for `n` rows.
     pub fn wgrad_scratch_floats(&self, n: usize) -> usize {
-        let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
-        splits * self.config.matrices().iter().map(|(r, c)| r * c).max().unwrap_or(0)
+        self.config.wgrad_scratch_floats(n)
     }
 
     fn check_params(&self, p: &ParamSlice) -> GpuResult<()> {

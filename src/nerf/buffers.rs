@@ -1,0 +1,202 @@
+//! The GPU buffers one chunk of rays needs, written once and generic over an allocator: [`GpuAlloc`] creates them,
+//! [`PlanAlloc`] only records (name, category, bytes). The VRAM planner uses the second, so it cannot drift from what
+//! the trainer allocates.
+
+use super::model::Model;
+use crate::gpu::{BufferDesc, Context, GpuBuffer, GpuResult, MemoryCategory};
+
+/// Something that hands out buffers of f32 and u32 elements.
+pub trait Alloc {
+    type F;
+    type U;
+    fn f32(&mut self, name: &str, category: MemoryCategory, len: usize) -> GpuResult<Self::F>;
+    fn u32(&mut self, name: &str, category: MemoryCategory, len: usize) -> GpuResult<Self::U>;
+}
+
+/// Allocates real buffers on a context.
+pub struct GpuAlloc(pub Context);
+
+impl Alloc for GpuAlloc {
+    type F = GpuBuffer<f32>;
+    type U = GpuBuffer<u32>;
+    fn f32(&mut self, name: &str, category: MemoryCategory, len: usize) -> GpuResult<GpuBuffer<f32>> {
+        GpuBuffer::new(&self.0, &BufferDesc { name, len, category })
+    }
+    fn u32(&mut self, name: &str, category: MemoryCategory, len: usize) -> GpuResult<GpuBuffer<u32>> {
+        GpuBuffer::new(&self.0, &BufferDesc { name, len, category })
+    }
+}
+
+/// One planned buffer.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PlannedBuffer {
+    pub name: String,
+    pub category: MemoryCategory,
+    pub bytes: u64,
+}
+
+#[derive(Default)]
+pub struct PlanAlloc {
+    pub buffers: Vec<PlannedBuffer>,
+}
+
+impl Alloc for PlanAlloc {
+    type F = ();
+    type U = ();
+    fn f32(&mut self, name: &str, category: MemoryCategory, len: usize) -> GpuResult<()> {
+        self.buffers.push(PlannedBuffer { name: name.into(), category, bytes: (len * 4) as u64 });
+        Ok(())
+    }
+    fn u32(&mut self, name: &str, category: MemoryCategory, len: usize) -> GpuResult<()> {
+        self.f32(name, category, len)
+    }
+}
+
+/// Per sampling level (a proposal, or the NeRF density part).
+pub struct LevelBuffers<A: Alloc> {
+    pub n: usize,
+    pub edges: A::F,
+    pub positions: A::F,
+    /// Hash encoding rows = the density MLP's input (stride in_pad).
+    pub enc: A::F,
+    /// Density MLP output rows: raw density (+ geometric features for the NeRF field).
+    pub raw: A::F,
+    pub weights: A::F,
+    /// Training only: MLP activations, deltas, split-K scratch, dL/draw rows, dL/denc rows.
+    pub acts: Option<A::F>,
+    pub deltas: Option<A::F>,
+    pub scratch: Option<A::F>,
+    pub dy: Option<A::F>,
+    pub dx: Option<A::F>,
+    /// Interlevel loss per ray (training, proposal levels only).
+    pub losses: Option<A::F>,
+}
+
+/// The colour head's buffers (NeRF level).
+pub struct ColourBuffers<A: Alloc> {
+    pub input: A::F,
+    pub out: A::F,
+    pub acts: Option<A::F>,
+    pub deltas: Option<A::F>,
+    pub scratch: Option<A::F>,
+    pub dy: Option<A::F>,
+    pub dx: Option<A::F>,
+}
+
+pub struct ChunkBuffers<A: Alloc> {
+    pub rays: usize,
+    pub pixels: A::U,
+    pub cam_idx: A::U,
+    pub origins: A::F,
+    pub dirs: A::F,
+    pub norms: A::F,
+    /// B values and the ray weight per ray.
+    pub targets: A::F,
+    pub ray_out: A::F,
+    pub band_weights: A::F,
+    pub proposals: Vec<LevelBuffers<A>>,
+    pub nerf: LevelBuffers<A>,
+    pub colour: ColourBuffers<A>,
+    /// Bound where a kernel's optional input is absent (e.g. no appearance embedding).
+    pub dummy: A::F,
+}
+
+/// Per-ray output columns of the composite kernel besides the B colours.
+pub const RAY_OUT_FIXED: usize = 6;
+
+/// An MLP's training buffers (activations, deltas, weight-gradient scratch); all None for inference.
+struct MlpTrain<A: Alloc> {
+    acts: Option<A::F>,
+    deltas: Option<A::F>,
+    scratch: Option<A::F>,
+}
+
+fn mlp_train<A: Alloc>(
+    a: &mut A,
+    name: &str,
+    mlp: &crate::nn::mlp::MlpConfig,
+    rows: usize,
+    train: bool,
+) -> GpuResult<MlpTrain<A>> {
+    if !train {
+        return Ok(MlpTrain { acts: None, deltas: None, scratch: None });
+    }
+    let act = MemoryCategory::Activations;
+    Ok(MlpTrain {
+        acts: Some(a.f32(&format!("{name} activations"), act, mlp.hidden_floats(rows))?),
+        deltas: Some(a.f32(&format!("{name} deltas"), act, mlp.delta_floats(rows))?),
+        scratch: Some(a.f32(&format!("{name} weight-gradient scratch"), act, mlp.wgrad_scratch_floats(rows))?),
+    })
+}
+
+impl<A: Alloc> ChunkBuffers<A> {
+    /// Buffers for `rays` rays of `model`; `train` adds what the backward pass needs.
+    pub fn new(a: &mut A, model: &Model, rays: usize, train: bool) -> GpuResult<Self> {
+        let (act, ray) = (MemoryCategory::Activations, MemoryCategory::Rays);
+        let bands = model.bands;
+        let cfg = &model.cfg;
+        let level = |a: &mut A,
+                     name: &str,
+                     n: usize,
+                     enc_w: usize,
+                     raw_w: usize,
+                     mlp: &crate::nn::mlp::MlpConfig,
+                     prop: bool| {
+            let s = rays * n;
+            let MlpTrain { acts, deltas, scratch } = mlp_train(a, &format!("{name} MLP"), mlp, s, train)?;
+            GpuResult::Ok(LevelBuffers {
+                n,
+                edges: a.f32(&format!("{name} edges"), act, rays * (n + 1))?,
+                positions: a.f32(&format!("{name} positions"), act, s * 3)?,
+                enc: a.f32(&format!("{name} encoding"), act, s * enc_w)?,
+                raw: a.f32(&format!("{name} density"), act, s * raw_w)?,
+                weights: a.f32(&format!("{name} weights"), act, s)?,
+                acts,
+                deltas,
+                scratch,
+                dy: if train { Some(a.f32(&format!("{name} dL/ddensity"), act, s * raw_w)?) } else { None },
+                dx: if train { Some(a.f32(&format!("{name} dL/dencoding"), act, s * enc_w)?) } else { None },
+                losses: if train && prop {
+                    Some(a.f32(&format!("{name} interlevel losses"), ray, rays)?)
+                } else {
+                    None
+                },
+            })
+        };
+        let mut proposals = Vec::new();
+        for (i, (p, pc)) in model.proposals.iter().zip(&cfg.proposals).enumerate() {
+            let m = &p.mlp.config;
+            proposals.push(level(a, &format!("proposal {i}"), pc.samples, m.in_pad(), m.n_output, m, true)?);
+        }
+        let fm = &model.field.mlp.config;
+        let n = cfg.sampling.num_nerf_samples;
+        let nerf = level(a, "nerf", n, fm.in_pad(), fm.n_output, fm, false)?;
+        let cm = &model.colour.config;
+        let s = rays * n;
+        let MlpTrain { acts, deltas, scratch } = mlp_train(a, "colour MLP", cm, s, train)?;
+        let colour = ColourBuffers {
+            input: a.f32("colour input", act, s * cm.in_pad())?,
+            out: a.f32("colour output", act, s * bands)?,
+            acts,
+            deltas,
+            scratch,
+            dy: if train { Some(a.f32("colour dL/dc", act, s * bands)?) } else { None },
+            dx: if train { Some(a.f32("colour dL/dinput", act, s * cm.in_pad())?) } else { None },
+        };
+        Ok(Self {
+            rays,
+            pixels: a.u32("ray pixels", ray, rays * 3)?,
+            cam_idx: a.u32("ray cameras", ray, rays)?,
+            origins: a.f32("ray origins", ray, rays * 3)?,
+            dirs: a.f32("ray directions", ray, rays * 3)?,
+            norms: a.f32("ray direction norms", ray, rays)?,
+            targets: a.f32("ray targets", ray, rays * (bands + 1))?,
+            ray_out: a.f32("ray outputs", ray, rays * (RAY_OUT_FIXED + bands))?,
+            band_weights: a.f32("band weights", MemoryCategory::Other, bands)?,
+            proposals,
+            nerf,
+            colour,
+            dummy: a.f32("dummy binding", MemoryCategory::Other, 4)?,
+        })
+    }
+}

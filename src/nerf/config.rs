@@ -1,0 +1,206 @@
+//! Model configuration (`configs/models/*.yaml`): nerfacto's defaults (spec/nerfacto.md §1) as one profile,
+//! Multispectral-NeRF's Table 1 as another, and small ones for CI. Unknown keys are errors that name the key
+//! (`deny_unknown_fields`). The number of bands is not here: it comes from the dataset.
+
+use crate::nn::hashgrid::HashGridConfig;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    pub name: String,
+    pub field: FieldConfig,
+    /// One entry per proposal level, coarse to fine.
+    pub proposals: Vec<ProposalConfig>,
+    pub sampling: SamplingConfig,
+    #[serde(default)]
+    pub rendering: RenderingConfig,
+    #[serde(default)]
+    pub loss: LossConfig,
+    pub optimizer: OptimizerConfig,
+    pub trainer: TrainerConfig,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FieldConfig {
+    pub grid: HashGridConfig,
+    /// Density MLP: hidden width and number of linear layers (tcnn n_hidden_layers = num_layers - 1).
+    pub hidden_dim: usize,
+    pub num_layers: usize,
+    /// Geometric features passed from the density MLP to the colour MLP.
+    pub geo_feat_dim: usize,
+    pub hidden_dim_color: usize,
+    pub num_layers_color: usize,
+    /// Per-image appearance embedding width; 0 turns the module off (no memory, no dispatch).
+    #[serde(default)]
+    pub appearance_embed_dim: usize,
+    /// sigma = average_init_density * exp(raw).
+    pub average_init_density: f32,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProposalConfig {
+    pub grid: HashGridConfig,
+    pub hidden_dim: usize,
+    pub num_layers: usize,
+    /// Samples this level draws (256 and 96 in nerfacto).
+    pub samples: usize,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SamplingConfig {
+    pub num_nerf_samples: usize,
+    pub near: f32,
+    pub far: f32,
+    #[serde(default = "yes")]
+    pub scene_contraction: bool,
+    #[serde(default = "yes")]
+    pub single_jitter: bool,
+    pub proposal_update_every: u64,
+    pub proposal_warmup: u64,
+    #[serde(default = "yes")]
+    pub use_proposal_weight_anneal: bool,
+    pub proposal_weights_anneal_slope: f64,
+    pub proposal_weights_anneal_max_num_iters: u64,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Background {
+    #[default]
+    LastSample,
+    Black,
+    White,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct RenderingConfig {
+    #[serde(default)]
+    pub background: Background,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LossConfig {
+    pub interlevel_mult: f32,
+    pub distortion_mult: f32,
+    /// Optional weight per band in the MSE of eq. 3.1 (one per dataset band).
+    #[serde(default)]
+    pub band_weights: Option<Vec<f32>>,
+}
+
+impl Default for LossConfig {
+    fn default() -> Self {
+        Self { interlevel_mult: 1.0, distortion_mult: 0.002, band_weights: None }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroupConfig {
+    pub lr: f64,
+    pub lr_final: f64,
+    pub max_steps: u64,
+    #[serde(default = "eps")]
+    pub eps: f64,
+}
+
+fn eps() -> f64 {
+    1e-15
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimizerConfig {
+    pub fields: GroupConfig,
+    pub proposals: GroupConfig,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainerConfig {
+    pub max_steps: u64,
+    pub rays_per_batch: usize,
+    /// Rays per GPU pass; a batch is processed in chunks of this many rays (gradients add up), which bounds
+    /// activation memory independently of the batch size.
+    pub rays_per_chunk: usize,
+    pub eval_rays_per_chunk: usize,
+    pub steps_per_eval: u64,
+    pub steps_per_save: u64,
+    pub seed: u64,
+}
+
+impl ModelConfig {
+    /// Loads and validates a model file; errors name the file and, for YAML problems, the key and line.
+    pub fn load(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        Self::parse(&text).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let c: ModelConfig = serde_yaml::from_str(text).map_err(|e| e.to_string())?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// A built-in profile by name (`nerfacto`, `multispectral-nerf`, `tiny`), or a path to a YAML file.
+    pub fn resolve(name_or_path: &str) -> Result<Self, String> {
+        let builtin = match name_or_path {
+            "nerfacto" => Some(include_str!("../../configs/models/nerfacto.yaml")),
+            "multispectral-nerf" => Some(include_str!("../../configs/models/multispectral-nerf.yaml")),
+            "tiny" => Some(include_str!("../../configs/models/tiny.yaml")),
+            _ => None,
+        };
+        match builtin {
+            Some(t) => Self::parse(t).map_err(|e| format!("built-in model {name_or_path}: {e}")),
+            None => Self::load(Path::new(name_or_path)),
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        let f = &self.field;
+        f.grid.validate().map_err(|e| format!("field.grid: {e}"))?;
+        for (i, p) in self.proposals.iter().enumerate() {
+            p.grid.validate().map_err(|e| format!("proposals[{i}].grid: {e}"))?;
+            if p.samples == 0 || p.num_layers < 2 {
+                return Err(format!("proposals[{i}]: samples must be > 0 and num_layers >= 2"));
+            }
+        }
+        if f.num_layers < 2 || f.num_layers_color < 2 {
+            return Err("field.num_layers and field.num_layers_color must be >= 2 (tcnn needs a hidden layer)".into());
+        }
+        if f.geo_feat_dim == 0 || f.geo_feat_dim + 1 > 128 {
+            return Err(format!("field.geo_feat_dim must be 1..=127, got {}", f.geo_feat_dim));
+        }
+        let s = &self.sampling;
+        if !(s.near >= 0.0 && s.far > s.near) {
+            return Err(format!("sampling: need 0 <= near < far, got {} and {}", s.near, s.far));
+        }
+        if s.num_nerf_samples == 0 {
+            return Err("sampling.num_nerf_samples must be > 0".into());
+        }
+        let t = &self.trainer;
+        if t.rays_per_batch == 0 || t.rays_per_chunk == 0 || t.eval_rays_per_chunk == 0 {
+            return Err("trainer: rays_per_batch, rays_per_chunk and eval_rays_per_chunk must be > 0".into());
+        }
+        Ok(())
+    }
+
+    /// The band-weight vector for `bands` bands (ones unless configured); an error names a length mismatch.
+    pub fn band_weights(&self, bands: usize) -> Result<Vec<f32>, String> {
+        match &self.loss.band_weights {
+            None => Ok(vec![1.0; bands]),
+            Some(w) if w.len() == bands => Ok(w.clone()),
+            Some(w) => Err(format!("loss.band_weights has {} entries, the dataset has {bands} bands", w.len())),
+        }
+    }
+}

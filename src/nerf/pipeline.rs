@@ -1,0 +1,543 @@
+//! One nerfacto training step and the evaluation render, on the GPU (spec/nerfacto.md §2.14, §2.17).
+//! A batch of rays is processed in chunks of `rays_per_chunk` (each its own submission); gradients of all chunks add up
+//! in the parameter store, then Adam steps the groups that received gradients (proposals only on update steps).
+//!
+//! Per chunk: upload pixels and targets -> `ray_gen` -> for each proposal level: sample (initial or PDF) -> hash grid ->
+//! MLP -> weights -> NeRF level: PDF sample -> hash grid -> density MLP -> colour input -> colour MLP -> `composite`
+//! (loss and dL/draw, dL/dc) -> colour MLP backward -> geometric-feature and appearance gradients -> density MLP
+//! backward -> hash grid backward; on proposal-update steps `interlevel` -> proposal MLP and hash grid backward.
+
+use super::buffers::{ChunkBuffers, GpuAlloc, RAY_OUT_FIXED};
+use super::config::Background;
+use super::kernels::{
+    CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
+};
+use super::model::Model;
+use super::rays::GpuCamera;
+use super::schedule::{anneal_at, ProposalSchedule};
+use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, MemoryCategory, Recorder, TimingReport};
+use crate::nn::{ParamSlice, RowSlice};
+
+/// A training batch: per ray (camera, row, col) and B target values plus a ray weight (0 masks the ray out).
+#[derive(Clone, Debug, Default)]
+pub struct Batch {
+    pub pixels: Vec<u32>,
+    pub targets: Vec<f32>,
+}
+
+impl Batch {
+    pub fn rays(&self) -> usize {
+        self.pixels.len() / 3
+    }
+}
+
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StepStats {
+    pub step: u64,
+    pub loss: f64,
+    pub loss_rgb: f64,
+    pub loss_distortion: f64,
+    pub loss_interlevel: f64,
+    /// PSNR of the batch (data range 1) from the unweighted squared error.
+    pub psnr: f64,
+    pub proposals_updated: bool,
+    /// The step was skipped by the NaN/Inf guard; `poisoned` names the first non-finite buffer.
+    pub skipped: bool,
+    pub poisoned: Option<String>,
+    #[serde(skip)]
+    pub timing: TimingReport,
+}
+
+/// Rendered rays (evaluation).
+#[derive(Clone, Debug, Default)]
+pub struct RenderOut {
+    /// R x B
+    pub colour: Vec<f32>,
+    pub accumulation: Vec<f32>,
+    pub median_depth: Vec<f32>,
+    pub expected_depth: Vec<f32>,
+    /// |direction| before normalisation, for z-depth conversion
+    pub direction_norm: Vec<f32>,
+    pub timing: TimingReport,
+}
+
+pub struct Pipeline {
+    pub ctx: Context,
+    pub model: Model,
+    kernels: RenderKernels,
+    cameras: GpuBuffer<GpuCamera>,
+    train_bufs: Option<ChunkBuffers<GpuAlloc>>,
+    eval_bufs: Option<ChunkBuffers<GpuAlloc>>,
+    pub schedule: ProposalSchedule,
+    pub step: u64,
+}
+
+fn need<T>(o: &Option<T>) -> &T {
+    o.as_ref().expect("training buffers are allocated with train = true")
+}
+
+impl Pipeline {
+    /// `cameras`: one entry per dataset frame, in the normalised frame.
+    pub fn new(ctx: &Context, model: Model, cameras: &[GpuCamera]) -> GpuResult<Self> {
+        let kernels = RenderKernels::new(ctx)?;
+        let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;
+        Ok(Self {
+            ctx: ctx.clone(),
+            model,
+            kernels,
+            cameras,
+            train_bufs: None,
+            eval_bufs: None,
+            schedule: ProposalSchedule::default(),
+            step: 0,
+        })
+    }
+
+    fn geometry(&self, eval: bool) -> Geometry {
+        let s = &self.model.cfg.sampling;
+        Geometry { near: if eval { 0.0 } else { s.near }, far: s.far, contraction: s.scene_contraction }
+    }
+
+    fn background(&self) -> Option<f32> {
+        match self.model.cfg.rendering.background {
+            Background::LastSample => None,
+            Background::Black => Some(0.0),
+            Background::White => Some(1.0),
+        }
+    }
+
+    fn ensure_buffers(&mut self, train: bool) -> GpuResult<()> {
+        let t = &self.model.cfg.trainer;
+        let (slot, rays) =
+            if train { (&mut self.train_bufs, t.rays_per_chunk) } else { (&mut self.eval_bufs, t.eval_rays_per_chunk) };
+        if slot.is_none() {
+            let b = ChunkBuffers::new(&mut GpuAlloc(self.ctx.clone()), &self.model, rays, train)?;
+            let bw = self
+                .model
+                .cfg
+                .band_weights(self.model.bands)
+                .map_err(|msg| GpuError::Buffer { name: "band weights".into(), msg })?;
+            self.ctx.upload(&b.band_weights, 0, &bw)?;
+            *slot = Some(b);
+        }
+        Ok(())
+    }
+
+    /// Records the forward pass of one chunk (all levels, up to the colour MLP). `train` stores activations.
+    fn record_forward(
+        &self,
+        rec: &mut Recorder,
+        b: &ChunkBuffers<GpuAlloc>,
+        (r, ray_offset): (usize, usize),
+        train: bool,
+        update_props: bool,
+    ) -> GpuResult<()> {
+        let m = &self.model;
+        let k = &self.kernels;
+        let store = &m.store;
+        let params = store.params();
+        let eval = !train;
+        let geo = self.geometry(eval);
+        let rb = RayBuffers { origins: &b.origins, dirs: &b.dirs, n_rays: r, ray_offset: ray_offset as u32 };
+        let seed = m.cfg.trainer.seed as u32;
+        let jit =
+            |level: u32| Jitter { seed, step: self.step as u32, level, enabled: train && m.cfg.sampling.single_jitter };
+        let anneal = if train { anneal_at(&m.cfg.sampling, self.step) } else { 1.0 };
+        let scale = m.cfg.field.average_init_density;
+        k.ray_gen(rec, &self.cameras, &b.pixels, rb, &b.norms)?;
+        // Proposal levels.
+        let mut prev: Option<(&GpuBuffer<f32>, &GpuBuffer<f32>, usize)> = None;
+        for (p, (lv, field)) in b.proposals.iter().zip(&m.proposals).enumerate() {
+            match prev {
+                None => k.sample_initial(rec, rb, geo, lv.n, jit(0), (&lv.edges, &lv.positions))?,
+                Some((e, w, n)) => {
+                    k.pdf_resample(rec, rb, geo, (n, lv.n), anneal, jit(p as u32), (e, w), (&lv.edges, &lv.positions))?
+                }
+            }
+            let s = r * lv.n;
+            let gp = ParamSlice { array: params, offset: m.offset(&field.grid_slot) };
+            field.grid.forward(rec, gp, &lv.positions, s, &lv.enc, field.enc_slot)?;
+            let mp = ParamSlice { array: params, offset: m.offset(&field.mlp_slot) };
+            let input = RowSlice { buf: &lv.enc, stride: field.enc_slot.stride, col: 0 };
+            let out = RowSlice { buf: &lv.raw, stride: 1, col: 0 };
+            if train && update_props {
+                field.mlp.forward(rec, mp, input, s, out, need(&lv.acts))?;
+            } else {
+                field.mlp.infer(rec, mp, input, s, out)?;
+            }
+            k.weights(rec, rb, geo, lv.n, &lv.edges, (&lv.raw, 1), scale, &lv.weights)?;
+            prev = Some((&lv.edges, &lv.weights, lv.n));
+        }
+        // NeRF level.
+        let lv = &b.nerf;
+        let level = m.proposals.len() as u32;
+        match prev {
+            None => k.sample_initial(rec, rb, geo, lv.n, jit(0), (&lv.edges, &lv.positions))?,
+            Some((e, w, n)) => {
+                k.pdf_resample(rec, rb, geo, (n, lv.n), anneal, jit(level), (e, w), (&lv.edges, &lv.positions))?
+            }
+        }
+        let s = r * lv.n;
+        let f = &m.field;
+        f.grid.forward(
+            rec,
+            ParamSlice { array: params, offset: m.offset(&f.grid_slot) },
+            &lv.positions,
+            s,
+            &lv.enc,
+            f.enc_slot,
+        )?;
+        let fm = &f.mlp.config;
+        let mp = ParamSlice { array: params, offset: m.offset(&f.mlp_slot) };
+        let input = RowSlice { buf: &lv.enc, stride: fm.in_pad(), col: 0 };
+        let out = RowSlice { buf: &lv.raw, stride: fm.n_output, col: 0 };
+        if train {
+            f.mlp.forward(rec, mp, input, s, out, need(&lv.acts))?;
+        } else {
+            f.mlp.infer(rec, mp, input, s, out)?;
+        }
+        let geo_dim = m.cfg.field.geo_feat_dim;
+        let app_dim = m.cfg.field.appearance_embed_dim;
+        let cm = &m.colour.config;
+        let app = if app_dim > 0 {
+            let slot = store.slot("field.appearance").expect("appearance slot exists when the module is on");
+            let binding = store.slot_binding(params, slot)?;
+            Some((binding, &b.cam_idx, app_dim, if train { None } else { Some(m.n_cameras as u32) }))
+        } else {
+            None
+        };
+        k.colour_input(rec, rb, lv.n, (&lv.raw, fm.n_output), geo_dim, app, (&b.colour.input, cm.in_pad()))?;
+        let cp = ParamSlice { array: params, offset: m.offset("field.colour_mlp") };
+        let cin = RowSlice { buf: &b.colour.input, stride: cm.in_pad(), col: 0 };
+        let cout = RowSlice { buf: &b.colour.out, stride: m.bands, col: 0 };
+        if train {
+            m.colour.forward(rec, cp, cin, s, cout, need(&b.colour.acts))
+        } else {
+            m.colour.infer(rec, cp, cin, s, cout)
+        }
+    }
+
+    /// Records composite + backward of one training chunk.
+    fn record_backward(
+        &self,
+        rec: &mut Recorder,
+        b: &ChunkBuffers<GpuAlloc>,
+        r: usize,
+        norms: (f32, f32, f32),
+        update_props: bool,
+    ) -> GpuResult<()> {
+        let m = &self.model;
+        let k = &self.kernels;
+        let store = &m.store;
+        let (params, grads) = (store.params(), store.grads());
+        let geo = self.geometry(false);
+        let rb = RayBuffers { origins: &b.origins, dirs: &b.dirs, n_rays: r, ray_offset: 0 };
+        let scale = m.cfg.field.average_init_density;
+        let lv = &b.nerf;
+        let f = &m.field;
+        let fm = &f.mlp.config;
+        let (rgb_norm, dist_norm, inter_norm) = norms;
+        let p = CompositeParams {
+            bands: m.bands,
+            density_stride: fm.n_output,
+            density_scale: scale,
+            background: self.background(),
+            rgb_norm,
+            dist_norm,
+            train: true,
+        };
+        let cb = CompositeBuffers {
+            edges: &lv.edges,
+            density: &lv.raw,
+            colours: &b.colour.out,
+            targets: &b.targets,
+            band_weights: &b.band_weights,
+            dy_density: need(&lv.dy),
+            dy_colour: need(&b.colour.dy),
+            weights: &lv.weights,
+            ray_out: &b.ray_out,
+        };
+        k.composite(rec, rb, geo, lv.n, &p, &cb)?;
+        let s = r * lv.n;
+        let cm = &m.colour.config;
+        let cp = ParamSlice { array: params, offset: m.offset("field.colour_mlp") };
+        let cg = ParamSlice { array: grads, offset: m.offset("field.colour_mlp") };
+        let cin = RowSlice { buf: &b.colour.input, stride: cm.in_pad(), col: 0 };
+        let cout = RowSlice { buf: &b.colour.out, stride: m.bands, col: 0 };
+        let cdy = RowSlice { buf: need(&b.colour.dy), stride: m.bands, col: 0 };
+        let cdx = RowSlice { buf: need(&b.colour.dx), stride: cm.in_pad(), col: 0 };
+        let cbufs = crate::nn::mlp::MlpTrainBuffers {
+            acts: need(&b.colour.acts),
+            deltas: need(&b.colour.deltas),
+            scratch: need(&b.colour.scratch),
+        };
+        m.colour.backward(rec, cp, cg, (cin, cout, cdy), s, &cbufs, Some(cdx))?;
+        let geo_dim = m.cfg.field.geo_feat_dim;
+        k.copy_cols(rec, s, geo_dim, (need(&b.colour.dx), cm.in_pad(), 16), (need(&lv.dy), fm.n_output, 1))?;
+        let app_dim = m.cfg.field.appearance_embed_dim;
+        if app_dim > 0 {
+            let off = m.offset("field.appearance");
+            k.appearance_grad(
+                rec,
+                grads,
+                off,
+                (r, lv.n),
+                app_dim,
+                (need(&b.colour.dx), cm.in_pad(), 16 + geo_dim),
+                &b.cam_idx,
+            )?;
+        }
+        let mp = ParamSlice { array: params, offset: m.offset(&f.mlp_slot) };
+        let mg = ParamSlice { array: grads, offset: m.offset(&f.mlp_slot) };
+        let fin = RowSlice { buf: &lv.enc, stride: fm.in_pad(), col: 0 };
+        let fout = RowSlice { buf: &lv.raw, stride: fm.n_output, col: 0 };
+        let fdy = RowSlice { buf: need(&lv.dy), stride: fm.n_output, col: 0 };
+        let fdx = RowSlice { buf: need(&lv.dx), stride: fm.in_pad(), col: 0 };
+        let fbufs = crate::nn::mlp::MlpTrainBuffers {
+            acts: need(&lv.acts),
+            deltas: need(&lv.deltas),
+            scratch: need(&lv.scratch),
+        };
+        f.mlp.backward(rec, mp, mg, (fin, fout, fdy), s, &fbufs, Some(fdx))?;
+        f.grid.backward_params(
+            rec,
+            ParamSlice { array: grads, offset: m.offset(&f.grid_slot) },
+            &lv.positions,
+            s,
+            fdx,
+        )?;
+        if !update_props {
+            return Ok(());
+        }
+        for (pl, field) in b.proposals.iter().zip(&m.proposals) {
+            let ib = InterlevelBuffers {
+                nerf_edges: &lv.edges,
+                nerf_weights: &lv.weights,
+                prop_edges: &pl.edges,
+                prop_raw: &pl.raw,
+                prop_weights: &pl.weights,
+                prop_dy: need(&pl.dy),
+                losses: need(&pl.losses),
+            };
+            k.interlevel(rec, rb, geo, (lv.n, pl.n), 1, scale, inter_norm, &ib)?;
+            let ps = r * pl.n;
+            let pm = &field.mlp.config;
+            let mp = ParamSlice { array: params, offset: m.offset(&field.mlp_slot) };
+            let mg = ParamSlice { array: grads, offset: m.offset(&field.mlp_slot) };
+            let pin = RowSlice { buf: &pl.enc, stride: pm.in_pad(), col: 0 };
+            let pout = RowSlice { buf: &pl.raw, stride: 1, col: 0 };
+            let pdy = RowSlice { buf: need(&pl.dy), stride: 1, col: 0 };
+            let pdx = RowSlice { buf: need(&pl.dx), stride: pm.in_pad(), col: 0 };
+            let pbufs = crate::nn::mlp::MlpTrainBuffers {
+                acts: need(&pl.acts),
+                deltas: need(&pl.deltas),
+                scratch: need(&pl.scratch),
+            };
+            field.mlp.backward(rec, mp, mg, (pin, pout, pdy), ps, &pbufs, Some(pdx))?;
+            field.grid.backward_params(
+                rec,
+                ParamSlice { array: grads, offset: m.offset(&field.grid_slot) },
+                &pl.positions,
+                ps,
+                pdx,
+            )?;
+        }
+        Ok(())
+    }
+
+    fn upload_rays(&self, b: &ChunkBuffers<GpuAlloc>, pixels: &[u32], targets: Option<&[f32]>) -> GpuResult<()> {
+        let bands = self.model.bands;
+        self.ctx.upload(&b.pixels, 0, pixels)?;
+        let cams: Vec<u32> = pixels.chunks(3).map(|p| p[0]).collect();
+        self.ctx.upload(&b.cam_idx, 0, &cams)?;
+        match targets {
+            Some(t) => self.ctx.upload(&b.targets, 0, t),
+            None => self.ctx.upload(&b.targets, 0, &vec![0.0f32; cams.len() * (bands + 1)]),
+        }
+    }
+
+    /// One training step on `batch`.
+    pub fn train_step(&mut self, batch: &Batch) -> Result<StepStats, GpuError> {
+        self.ensure_buffers(true)?;
+        let bands = self.model.bands;
+        let n_rays = batch.rays();
+        let total_w: f64 = (0..n_rays).map(|i| batch.targets[i * (bands + 1) + bands] as f64).sum();
+        let cfg = &self.model.cfg;
+        let norms = (
+            (1.0 / (total_w.max(1.0) * bands as f64)) as f32,
+            (cfg.loss.distortion_mult as f64 / total_w.max(1.0)) as f32,
+            (cfg.loss.interlevel_mult as f64 / (n_rays * cfg.sampling.num_nerf_samples) as f64) as f32,
+        );
+        let update_props = self.schedule.decide(&cfg.sampling, self.step) && !self.model.proposals.is_empty();
+        let mut stats = StepStats { step: self.step, proposals_updated: update_props, ..Default::default() };
+        let mut rec = self.ctx.recorder("zero grads")?;
+        self.model.store.zero_grads(&mut rec)?;
+        stats.timing.accumulate(&rec.submit_and_wait()?);
+        let b = self.train_bufs.take().expect("ensured above");
+        let chunk = b.rays;
+        let mut sq = 0.0f64;
+        let mut result = Ok(());
+        for c0 in (0..n_rays).step_by(chunk) {
+            let r = chunk.min(n_rays - c0);
+            let run = || -> GpuResult<TimingReport> {
+                self.upload_rays(
+                    &b,
+                    &batch.pixels[3 * c0..3 * (c0 + r)],
+                    Some(&batch.targets[c0 * (bands + 1)..(c0 + r) * (bands + 1)]),
+                )?;
+                let mut rec = self.ctx.recorder("train chunk")?;
+                self.record_forward(&mut rec, &b, (r, c0), true, update_props)?;
+                self.record_backward(&mut rec, &b, r, norms, update_props)?;
+                rec.submit_and_wait()
+            };
+            match run() {
+                Ok(t) => stats.timing.accumulate(&t),
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+            let out = self.ctx.download_range(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?;
+            for row in out.chunks(RAY_OUT_FIXED + bands) {
+                stats.loss_rgb += row[0] as f64;
+                stats.loss_distortion += row[1] as f64;
+                sq += row[5] as f64;
+            }
+            if update_props {
+                for pl in &b.proposals {
+                    let l = self.ctx.download_range(need(&pl.losses), 0, r)?;
+                    stats.loss_interlevel += l.iter().map(|&v| v as f64).sum::<f64>();
+                }
+            }
+        }
+        // NaN/Inf guard: a non-finite loss or gradient skips the step and names the first poisoned buffer.
+        let finite = result.is_ok()
+            && stats.loss_rgb.is_finite()
+            && stats.loss_distortion.is_finite()
+            && stats.loss_interlevel.is_finite();
+        let grads_finite = finite && self.grads_finite()?;
+        if result.is_ok() && !grads_finite {
+            stats.skipped = true;
+            stats.poisoned = Some(self.first_poisoned(&b)?);
+        }
+        self.train_bufs = Some(b);
+        result?;
+        stats.loss = stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel;
+        stats.psnr = -10.0 * (sq / (total_w.max(1.0) * bands as f64)).max(1e-20).log10();
+        if !stats.skipped {
+            let mut rec = self.ctx.recorder("adam")?;
+            crate::nn::adam::step(&mut rec, &mut self.model.store, &[true, update_props], 1.0)?;
+            stats.timing.accumulate(&rec.submit_and_wait()?);
+        }
+        self.step += 1;
+        Ok(stats)
+    }
+
+    /// Sum of the gradients of each chunk is finite (a NaN or Inf anywhere makes it non-finite).
+    fn grads_finite(&self) -> GpuResult<bool> {
+        for c in self.model.store.grads().chunks() {
+            if !crate::ops::sum(&self.ctx, c, c.len())?.is_finite() {
+                return Ok(false);
+            }
+        }
+        Ok(true)
+    }
+
+    /// Name of the first buffer, in pipeline order, that holds a NaN or Inf.
+    fn first_poisoned(&self, b: &ChunkBuffers<GpuAlloc>) -> GpuResult<String> {
+        let mut named: Vec<(String, &GpuBuffer<f32>)> = vec![("ray directions".into(), &b.dirs)];
+        for (i, pl) in b.proposals.iter().enumerate() {
+            named.push((format!("proposal {i} encoding"), &pl.enc));
+            named.push((format!("proposal {i} density"), &pl.raw));
+            named.push((format!("proposal {i} weights"), &pl.weights));
+        }
+        named.push(("nerf encoding".into(), &b.nerf.enc));
+        named.push(("nerf density".into(), &b.nerf.raw));
+        named.push(("colour output".into(), &b.colour.out));
+        named.push(("nerf weights".into(), &b.nerf.weights));
+        named.push(("ray outputs".into(), &b.ray_out));
+        for (name, buf) in named {
+            if self.ctx.download(buf)?.iter().any(|v| !v.is_finite()) {
+                return Ok(name);
+            }
+        }
+        for (i, c) in self.model.store.grads().chunks().iter().enumerate() {
+            if self.ctx.download(c)?.iter().any(|v| !v.is_finite()) {
+                return Ok(format!("parameter gradients (chunk {i})"));
+            }
+        }
+        Ok("parameter gradients".into())
+    }
+
+    /// Renders rays (pixels as (camera, row, col) triples) in evaluation mode.
+    pub fn render(&mut self, pixels: &[u32]) -> GpuResult<RenderOut> {
+        self.ensure_buffers(false)?;
+        let bands = self.model.bands;
+        let n = pixels.len() / 3;
+        let b = self.eval_bufs.take().expect("ensured above");
+        let mut out = RenderOut::default();
+        let res = (|| {
+            self.update_mean_appearance()?;
+            for c0 in (0..n).step_by(b.rays) {
+                let r = b.rays.min(n - c0);
+                self.upload_rays(&b, &pixels[3 * c0..3 * (c0 + r)], None)?;
+                let mut rec = self.ctx.recorder("render chunk")?;
+                self.record_forward(&mut rec, &b, (r, c0), false, false)?;
+                let geo = self.geometry(true);
+                let rb = RayBuffers { origins: &b.origins, dirs: &b.dirs, n_rays: r, ray_offset: 0 };
+                let m = &self.model;
+                let p = CompositeParams {
+                    bands,
+                    density_stride: m.field.mlp.config.n_output,
+                    density_scale: m.cfg.field.average_init_density,
+                    background: self.background(),
+                    rgb_norm: 0.0,
+                    dist_norm: 0.0,
+                    train: false,
+                };
+                let cb = CompositeBuffers {
+                    edges: &b.nerf.edges,
+                    density: &b.nerf.raw,
+                    colours: &b.colour.out,
+                    targets: &b.targets,
+                    band_weights: &b.band_weights,
+                    dy_density: &b.dummy,
+                    dy_colour: &b.dummy,
+                    weights: &b.nerf.weights,
+                    ray_out: &b.ray_out,
+                };
+                self.kernels.composite(&mut rec, rb, geo, b.nerf.n, &p, &cb)?;
+                out.timing.accumulate(&rec.submit_and_wait()?);
+                let ro = self.ctx.download_range(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?;
+                for row in ro.chunks(RAY_OUT_FIXED + bands) {
+                    out.accumulation.push(row[2]);
+                    out.median_depth.push(row[3]);
+                    out.expected_depth.push(row[4]);
+                    out.colour.extend_from_slice(&row[RAY_OUT_FIXED..]);
+                }
+                out.direction_norm.extend(self.ctx.download_range(&b.norms, 0, r)?);
+            }
+            GpuResult::Ok(())
+        })();
+        self.eval_bufs = Some(b);
+        res.map(|_| out)
+    }
+
+    /// Evaluation uses the mean appearance embedding (nerfstudio's use_average_appearance_embedding): it is stored
+    /// in the spare last row of the embedding slot.
+    fn update_mean_appearance(&self) -> GpuResult<()> {
+        let dim = self.model.cfg.field.appearance_embed_dim;
+        if dim == 0 {
+            return Ok(());
+        }
+        let store = &self.model.store;
+        let slot = store.slot("field.appearance").expect("appearance slot").clone();
+        let mut emb = store.download_slot(store.params(), &slot)?;
+        let rows = self.model.n_cameras;
+        let mean: Vec<f32> = (0..dim)
+            .map(|k| (0..rows).map(|r| emb[r * dim + k] as f64).sum::<f64>() as f32 / rows.max(1) as f32)
+            .collect();
+        emb[rows * dim..(rows + 1) * dim].copy_from_slice(&mean);
+        store.upload_slot(store.params(), &slot, &emb)
+    }
+}

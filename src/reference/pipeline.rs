@@ -1,0 +1,196 @@
+//! CPU reference of one whole nerfacto training step (f64), composed from the kernel twins: proposal sampling,
+//! fields, compositing with the per-band MSE and distortion loss, the interlevel loss, and the backward pass into
+//! every parameter slot. The GPU pipeline (`crate::nerf::pipeline`) is tested against it.
+
+use super::{hashgrid, mlp, render, sh};
+use crate::nerf::model::Model;
+use crate::nerf::schedule::anneal_at;
+
+/// One ray of the batch, already generated (origin, unit direction), with its camera, targets and weight.
+pub struct RefRay {
+    pub origin: [f64; 3],
+    pub dir: [f64; 3],
+    pub camera: usize,
+    pub target: Vec<f64>,
+    pub weight: f64,
+}
+
+#[derive(Debug, Default)]
+pub struct RefStep {
+    pub loss_rgb: f64,
+    pub loss_distortion: f64,
+    pub loss_interlevel: f64,
+    /// dLoss/dparams over the whole store (same layout as the GPU arrays).
+    pub grads: Vec<f64>,
+}
+
+/// What the interlevel backward needs from a proposal level's forward pass.
+struct ProposalLevel {
+    edges: Vec<f64>,
+    encodings: Vec<Vec<f64>>,
+    raw: Vec<f64>,
+}
+
+/// The training step's losses and gradients for `rays` at `step` (parameters `params`, the store's layout).
+pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, update_props: bool) -> RefStep {
+    let cfg = &model.cfg;
+    let s = &cfg.sampling;
+    let bands = model.bands;
+    let scale = cfg.field.average_init_density as f64;
+    let seed = cfg.trainer.seed as u32;
+    let anneal = anneal_at(s, step) as f64;
+    let total_w: f64 = rays.iter().map(|r| r.weight).sum::<f64>().max(1.0);
+    let rgb_norm = 1.0 / (total_w * bands as f64);
+    let dist_norm = cfg.loss.distortion_mult as f64 / total_w;
+    let inter_norm = cfg.loss.interlevel_mult as f64 / (rays.len() * s.num_nerf_samples) as f64;
+    let band_w: Vec<f64> = cfg.band_weights(bands).expect("validated").iter().map(|&v| v as f64).collect();
+    let background = match cfg.rendering.background {
+        crate::nerf::config::Background::LastSample => render::Background::LastSample,
+        crate::nerf::config::Background::Black => render::Background::Constant(0.0),
+        crate::nerf::config::Background::White => render::Background::Constant(1.0),
+    };
+    let mut out = RefStep { grads: vec![0.0; params.len()], ..Default::default() };
+    let slice = |name: &str, len: usize| model.offset(name)..model.offset(name) + len;
+
+    for (gi, ray) in rays.iter().enumerate() {
+        let geom = render::RayGeom {
+            origin: ray.origin,
+            dir: ray.dir,
+            near: s.near as f64,
+            far: s.far as f64,
+            contraction: s.scene_contraction,
+        };
+        let jitter = |level: u32| render::ray_uniform(seed, step as u32, gi as u32, level) as f64;
+        // Proposal levels: forward, keeping what the interlevel backward needs.
+        let mut levels: Vec<ProposalLevel> = Vec::new();
+        let mut prev: Option<(Vec<f64>, Vec<f64>)> = None; // (edges, weights)
+        for (p, (field, pc)) in model.proposals.iter().zip(&cfg.proposals).enumerate() {
+            let edges = match &prev {
+                None => render::initial_edges(pc.samples, jitter(0), s.single_jitter),
+                Some((e, w)) => render::pdf_resample(e, w, pc.samples, anneal, jitter(p as u32), s.single_jitter),
+            };
+            let grid = &params[slice(&field.grid_slot, pc.grid.n_params())];
+            let w_mlp = &params[slice(&field.mlp_slot, field.mlp.config.n_params())];
+            let levels_tab = pc.grid.levels();
+            let in_pad = field.mlp.config.in_pad();
+            let mut encs = Vec::new();
+            let mut raw = Vec::new();
+            for pos in geom.positions(&edges) {
+                let mut enc = hashgrid::forward(&levels_tab, pc.grid.features_per_level as usize, grid, pos);
+                enc.resize(in_pad, 1.0);
+                raw.push(mlp::forward(&field.mlp.config, w_mlp, &enc).1[0]);
+                encs.push(enc);
+            }
+            let w = render::weights(&geom, &edges, &raw, scale);
+            prev = Some((edges.clone(), w));
+            levels.push(ProposalLevel { edges, encodings: encs, raw });
+        }
+        // NeRF level.
+        let n = s.num_nerf_samples;
+        let level = model.proposals.len() as u32;
+        let edges = match &prev {
+            None => render::initial_edges(n, jitter(0), s.single_jitter),
+            Some((e, w)) => render::pdf_resample(e, w, n, anneal, jitter(level), s.single_jitter),
+        };
+        let f = &model.field;
+        let fg = &cfg.field.grid;
+        let grid_levels = fg.levels();
+        let grid = &params[slice(&f.grid_slot, fg.n_params())];
+        let fm = &f.mlp.config;
+        let w_density = &params[slice(&f.mlp_slot, fm.n_params())];
+        let cm = &model.colour.config;
+        let w_colour = &params[slice("field.colour_mlp", cm.n_params())];
+        let (geo_dim, app_dim) = (cfg.field.geo_feat_dim, cfg.field.appearance_embed_dim);
+        let shv = sh::encode(ray.dir);
+        let app: Vec<f64> = if app_dim > 0 {
+            let o = model.offset("field.appearance") + ray.camera * app_dim;
+            params[o..o + app_dim].to_vec()
+        } else {
+            vec![]
+        };
+        let positions = geom.positions(&edges);
+        let mut encs = Vec::new();
+        let mut raw = Vec::new();
+        let mut cin = Vec::new();
+        let mut colours = Vec::new();
+        for pos in &positions {
+            let mut enc = hashgrid::forward(&grid_levels, fg.features_per_level as usize, grid, *pos);
+            enc.resize(fm.in_pad(), 0.0);
+            let dens = mlp::forward(fm, w_density, &enc).1;
+            raw.push(dens[0]);
+            let mut row: Vec<f64> = shv.to_vec();
+            row.extend_from_slice(&dens[1..1 + geo_dim]);
+            row.extend_from_slice(&app);
+            row.resize(cm.in_pad(), 1.0);
+            colours.extend(mlp::forward(cm, w_colour, &row).1);
+            encs.push(enc);
+            cin.push(row);
+        }
+        let comp = render::composite(&render::CompositeIn {
+            geom,
+            edges: &edges,
+            raw: &raw,
+            colours: &colours,
+            target: &ray.target,
+            ray_weight: ray.weight,
+            band_weights: &band_w,
+            density_scale: scale,
+            background,
+            rgb_norm,
+            dist_norm,
+        });
+        out.loss_rgb += comp.loss_rgb;
+        out.loss_distortion += comp.loss_dist;
+        // Backward through the colour MLP, then the density MLP and the hash grid.
+        let (co, fo, go) = (model.offset("field.colour_mlp"), model.offset(&f.mlp_slot), model.offset(&f.grid_slot));
+        for k in 0..n {
+            let dy_c = &comp.d_colour[k * bands..(k + 1) * bands];
+            let dx = mlp::backward(cm, w_colour, &cin[k], dy_c, &mut out.grads[co..co + cm.n_params()]);
+            if app_dim > 0 {
+                let o = model.offset("field.appearance") + ray.camera * app_dim;
+                for a in 0..app_dim {
+                    out.grads[o + a] += dx[16 + geo_dim + a];
+                }
+            }
+            let mut dy_d = vec![comp.d_raw[k]];
+            dy_d.extend_from_slice(&dx[16..16 + geo_dim]);
+            let dx_enc = mlp::backward(fm, w_density, &encs[k], &dy_d, &mut out.grads[fo..fo + fm.n_params()]);
+            hashgrid::backward_params(
+                &grid_levels,
+                fg.features_per_level as usize,
+                positions[k],
+                &dx_enc,
+                &mut out.grads[go..go + fg.n_params()],
+            );
+        }
+        if !update_props {
+            continue;
+        }
+        for ((field, pc), lv) in model.proposals.iter().zip(&cfg.proposals).zip(&levels) {
+            let (pedges, pencs, praw) = (&lv.edges, &lv.encodings, &lv.raw);
+            let (loss, d_raw) = render::interlevel(&geom, &edges, &comp.weights, pedges, praw, scale, inter_norm);
+            out.loss_interlevel += loss;
+            let (mo, go) = (model.offset(&field.mlp_slot), model.offset(&field.grid_slot));
+            let w_mlp = &params[mo..mo + field.mlp.config.n_params()];
+            let plevels = pc.grid.levels();
+            let ppos = geom.positions(pedges);
+            for k in 0..praw.len() {
+                let dx = mlp::backward(
+                    &field.mlp.config,
+                    w_mlp,
+                    &pencs[k],
+                    &[d_raw[k]],
+                    &mut out.grads[mo..mo + field.mlp.config.n_params()],
+                );
+                hashgrid::backward_params(
+                    &plevels,
+                    pc.grid.features_per_level as usize,
+                    ppos[k],
+                    &dx,
+                    &mut out.grads[go..go + pc.grid.n_params()],
+                );
+            }
+        }
+    }
+    out
+}
