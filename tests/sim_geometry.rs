@@ -25,7 +25,7 @@ cameras:\n  - orbit: {{center: [0, 0], radius: 23, height: 40, tilt_deg: -60, co
 /// Distance from local point `p` to the nearest analytic surface of `scene_yaml`'s scene.
 fn surface_distance(p: [f64; 3]) -> f64 {
     let mut d = p[2].abs(); // ground
-    // Box: yaw 20 about (6, 4), half sizes (4, 3, 3.5) about mid-height.
+                            // Box: yaw 20 about (6, 4), half sizes (4, 3, 3.5) about mid-height.
     let (s, c) = 20f64.to_radians().sin_cos();
     let (dx, dy) = (p[0] - 6.0, p[1] - 4.0);
     let l = [c * dx + s * dy, -s * dx + c * dy, p[2] - 3.5];
@@ -67,7 +67,13 @@ fn depth_back_projects_onto_the_analytic_surfaces() {
                 let d = surface_distance(p);
                 assert!(d < 1e-4, "frame {i} ({row},{col}): {p:?} is {d} m off every surface");
                 worst = worst.max(d);
-                kinds[if p[2].abs() < 1e-4 { 0 } else if t < 300.0 { 1 } else { 2 }] += 1;
+                kinds[if p[2].abs() < 1e-4 {
+                    0
+                } else if t < 300.0 {
+                    1
+                } else {
+                    2
+                }] += 1;
             }
         }
     }
@@ -161,7 +167,14 @@ fn ground_truth_points_lie_on_surfaces_with_band_reflectance() {
     let (_t, ds) = run_yaml(&scene_yaml());
     let (header, xyz, vals) = read_ply(&ds.root.join("ground_truth.ply"));
     assert!(header.contains(&"format binary_little_endian 1.0".to_string()));
-    for (name, c) in [("refl_450", 450), ("refl_555", 555), ("refl_660", 660), ("refl_720", 720), ("refl_750", 750), ("refl_840", 840)] {
+    for (name, c) in [
+        ("refl_450", 450),
+        ("refl_555", 555),
+        ("refl_660", 660),
+        ("refl_720", 720),
+        ("refl_750", 750),
+        ("refl_840", 840),
+    ] {
         assert!(header.contains(&format!("property float {name}")), "{name}");
         assert!(header.iter().any(|l| l.starts_with("comment band ") && l.contains(&format!(" {c} nm fwhm "))));
     }

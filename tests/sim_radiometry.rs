@@ -240,7 +240,10 @@ cameras:\n  - poses:\n      - {{position: [0, -40, 30], look_at: [0, 0, 0]}}\n  
                 for b in 0..6 {
                     let expect = ref_img.get(row, col, b) as f64 * factor;
                     let got = img.get(row, col, b) as f64;
-                    assert!((got - expect).abs() < 1e-6 * expect.max(1e-3) + 1e-7, "({row},{col}) b{b}: {got} vs {expect}");
+                    assert!(
+                        (got - expect).abs() < 1e-6 * expect.max(1e-3) + 1e-7,
+                        "({row},{col}) b{b}: {got} vs {expect}"
+                    );
                 }
             }
         }
