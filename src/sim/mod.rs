@@ -127,7 +127,7 @@ impl Prepared {
         for (i, p) in poses.iter().enumerate() {
             if !world.contains([p[0][3], p[1][3], p[2][3]]) {
                 return Err(SimError::Scene {
-                    file: desc.name.clone(),
+                    file: desc.source.clone(),
                     key: "cameras".into(),
                     reason: format!("view {i} lies outside the dome of radius ground.extent or below the ground"),
                 });
@@ -138,7 +138,7 @@ impl Prepared {
                 .fold(0.0, f64::max);
             if dev > 1e-9 {
                 return Err(SimError::Scene {
-                    file: desc.name.clone(),
+                    file: desc.source.clone(),
                     key: "cameras".into(),
                     reason: format!("view {i}: rotation is not orthonormal (deviation {dev:.2e})"),
                 });

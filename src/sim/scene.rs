@@ -20,6 +20,9 @@ use super::error::SimError;
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneDesc {
+    /// Where the scene came from (file path or `built-in scene `name``); set by the loader, named in errors.
+    #[serde(skip)]
+    pub source: String,
     pub name: String,
     #[serde(default)]
     pub description: String,
@@ -239,7 +242,7 @@ fn default_tilt() -> f64 {
 }
 
 /// A lawnmower grid: `rows` x `cols` views over a rectangle, serpentine order, gimbal `tilt_deg` (-90 = nadir),
-/// image top towards `heading_deg` (counter-clockwise from north... see `cameras.rs`).
+/// image top towards `heading_deg` (clockwise from north).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GridDesc {
@@ -309,6 +312,8 @@ impl SceneDesc {
             key: String::new(),
             reason: e.to_string(),
         })?;
+        let mut desc = desc;
+        desc.source = file.to_string();
         desc.validate().map_err(|(key, reason)| SimError::Scene { file: file.to_string(), key, reason })?;
         Ok(desc)
     }
