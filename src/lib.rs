@@ -13,3 +13,4 @@ pub mod nn;
 pub mod ops;
 pub mod reference;
 pub mod shaders;
+pub mod sim;

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod devices;
+pub mod simulate;
 
 use clap::{Parser, Subcommand};
 
@@ -27,6 +28,8 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Benchmarks that print numbers (kernels)
     Bench(bench::BenchArgs),
+    /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
+    Simulate(simulate::SimulateArgs),
 }
 
 impl Cli {
@@ -47,5 +50,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match &cli.command {
         Command::Devices(a) => devices::run(&cli, a),
         Command::Bench(a) => bench::run(&cli, a),
+        Command::Simulate(a) => simulate::run(&cli, a),
     }
 }

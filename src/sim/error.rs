@@ -1,0 +1,23 @@
+//! `SimError`: every simulator failure names the scene file (or output path) and the key it concerns.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// A scene file that does not parse or does not make sense; `key` is a path like `boxes[2].roof`.
+    #[error("{file}: {}{reason}", if key.is_empty() { String::new() } else { format!("{key}: ") })]
+    Scene { file: String, key: String, reason: String },
+    /// A bad option (command-line flag or `SimOptions` field).
+    #[error("option --{key}: {reason}")]
+    Option { key: String, reason: String },
+    /// Writing the dataset failed.
+    #[error("{}: {source}", path.display())]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+impl SimError {
+    pub(crate) fn io(path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> SimError {
+        let path = path.into();
+        move |source| SimError::Io { path, source }
+    }
+}
