@@ -14,3 +14,4 @@ pub mod ops;
 pub mod reference;
 pub mod shaders;
 pub mod sim;
+pub mod util;

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod devices;
 pub mod simulate;
+pub mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -26,6 +27,8 @@ pub struct Cli {
 pub enum Command {
     /// List Vulkan devices and their capabilities
     Devices(devices::DevicesArgs),
+    /// Train a model on a dataset
+    Train(train::TrainArgs),
     /// Benchmarks that print numbers (kernels)
     Bench(bench::BenchArgs),
     /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
@@ -50,6 +53,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match &cli.command {
         Command::Devices(a) => devices::run(&cli, a),
         Command::Bench(a) => bench::run(&cli, a),
+        Command::Train(a) => train::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
     }
 }

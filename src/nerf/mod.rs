@@ -8,3 +8,4 @@ pub mod model;
 pub mod pipeline;
 pub mod rays;
 pub mod schedule;
+pub mod trainer;

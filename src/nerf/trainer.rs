@@ -1,0 +1,300 @@
+//! `msnerf train`: the training loop around [`Pipeline`]. Loads and normalises the dataset, keeps training images in
+//! the host cache (within a byte budget), samples ray batches, steps the pipeline, evaluates held-out PSNR every
+//! `steps_per_eval` steps on a fixed set of held-out pixels, and keeps a run folder:
+//!
+//! ```text
+//! RUN/config.yaml                    merged model config (after CLI overrides)
+//! RUN/dataparser_transforms.json     pose normalisation (nerfstudio's format), to map outputs back to the world
+//! RUN/dataset.json                   dataset path, bands, splits
+//! RUN/checkpoints/latest.msnp        parameters + Adam state (atomic), and latest.json (trainer state)
+//! RUN/metrics.jsonl                  one JSON object per logged step and per evaluation
+//! ```
+//! Ctrl-C saves a checkpoint and stops; `--resume` continues from the latest one; `--time-budget` stops in time.
+
+use super::config::ModelConfig;
+use super::model::Model;
+use super::pipeline::{Batch, Pipeline, StepStats};
+use super::rays::GpuCamera;
+use super::schedule::ProposalSchedule;
+use crate::data::{cache, load_dataset, Dataset, LoadOptions, Split};
+use crate::gpu::Context;
+use crate::util::atomic::write_atomic;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Clone, Debug)]
+pub struct TrainOptions {
+    pub data: PathBuf,
+    pub model: ModelConfig,
+    pub out: PathBuf,
+    pub resume: bool,
+    pub time_budget_s: Option<f64>,
+    /// Host bytes the image cache may use.
+    pub host_budget_bytes: u64,
+    /// Resample the resident images every this many steps (paper §6.1).
+    pub resample_every: u64,
+    /// Held-out pixels evaluated every `steps_per_eval` steps.
+    pub eval_pixels: usize,
+    pub progress: bool,
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+/// Trainer state saved next to each checkpoint.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrainerState {
+    pub step: u64,
+    pub schedule: ProposalSchedule,
+    pub best_eval_psnr: Option<f64>,
+    pub elapsed_s: f64,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TrainSummary {
+    pub steps: u64,
+    pub final_loss: f64,
+    pub final_train_psnr: f64,
+    pub first_eval_psnr: Option<f64>,
+    pub best_eval_psnr: Option<f64>,
+    pub eval_history: Vec<(u64, f64)>,
+    pub elapsed_s: f64,
+    pub rays_per_s: f64,
+    pub stopped_early: Option<String>,
+    pub peak_gpu_bytes: u64,
+    pub peak_cache_bytes: u64,
+    pub run_dir: PathBuf,
+}
+
+/// Consecutive NaN/Inf-poisoned steps after which training stops.
+pub const MAX_POISONED_STEPS: u32 = 5;
+
+/// The normalised camera table of every frame (GPU layout).
+pub fn camera_table(ds: &Dataset) -> Vec<GpuCamera> {
+    let t = ds.pose_transform();
+    ds.frames
+        .iter()
+        .map(|f| {
+            let m = t.pose_to_normalized(&f.c2w);
+            let c2w: [[f32; 4]; 3] = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| m[r][c] as f32));
+            GpuCamera::new(&f.camera, &c2w)
+        })
+        .collect()
+}
+
+/// Fixed held-out pixels (camera, row, col) with their values and ray weights, drawn from the eval split.
+pub struct EvalSet {
+    pub pixels: Vec<u32>,
+    pub targets: Vec<f32>,
+}
+
+pub fn eval_set(ds: &Dataset, n: usize, seed: u64) -> Result<EvalSet, String> {
+    let frames = ds.split_indices(Split::Eval);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_e7a1);
+    let b = ds.n_bands();
+    let mut set = EvalSet { pixels: Vec::new(), targets: Vec::new() };
+    if frames.is_empty() || n == 0 {
+        return Ok(set);
+    }
+    let per = n.div_ceil(frames.len());
+    for &fi in &frames {
+        let img = ds.read_frame(fi).map_err(|e| e.to_string())?;
+        let mut px = vec![0.0f32; b];
+        for _ in 0..per {
+            let (row, col) = (rng.random_range(0..ds.height), rng.random_range(0..ds.width));
+            img.pixel_into(row, col, &mut px);
+            set.pixels.extend([fi as u32, row, col]);
+            set.targets.extend_from_slice(&px);
+            set.targets.push(if img.mask_at(row, col) == 0 { 0.0 } else { 1.0 });
+        }
+    }
+    Ok(set)
+}
+
+/// Held-out PSNR (data range 1) over the eval set: mean squared error over unmasked pixels and all bands.
+pub fn eval_psnr(pipe: &mut Pipeline, set: &EvalSet) -> Result<f64, String> {
+    let out = pipe.render(&set.pixels).map_err(|e| e.to_string())?;
+    let b = pipe.model.bands;
+    let (mut sq, mut count) = (0.0f64, 0.0f64);
+    for i in 0..set.pixels.len() / 3 {
+        let w = set.targets[i * (b + 1) + b] as f64;
+        for k in 0..b {
+            let e = out.colour[i * b + k] as f64 - set.targets[i * (b + 1) + k] as f64;
+            sq += w * e * e;
+        }
+        count += w * b as f64;
+    }
+    Ok(-10.0 * (sq / count.max(1.0)).max(1e-20).log10())
+}
+
+fn ckpt_paths(run: &Path) -> (PathBuf, PathBuf) {
+    let d = run.join("checkpoints");
+    (d.join("latest.msnp"), d.join("latest.json"))
+}
+
+fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState) -> Result<(), String> {
+    let (p, s) = ckpt_paths(run);
+    std::fs::create_dir_all(p.parent().expect("has parent")).map_err(|e| format!("{}: {e}", run.display()))?;
+    pipe.model.store.save(&p).map_err(|e| e.to_string())?;
+    write_atomic(&s, serde_json::to_string_pretty(state).expect("serialisable").as_bytes())
+}
+
+/// Runs training; returns the summary. Errors are messages that name the file, key or step.
+pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String> {
+    let cfg = &opts.model;
+    let ds = load_dataset(&opts.data, &LoadOptions::default()).map_err(|e| e.to_string())?;
+    let bands = ds.n_bands();
+    cfg.band_weights(bands)?;
+    let train_frames = ds.split_indices(Split::Train);
+    if train_frames.is_empty() {
+        return Err(format!("{}: the train split is empty", ds.transforms_path.display()));
+    }
+    let run = &opts.out;
+    std::fs::create_dir_all(run).map_err(|e| format!("{}: {e}", run.display()))?;
+    write_atomic(&run.join("config.yaml"), serde_yaml::to_string(cfg).map_err(|e| e.to_string())?.as_bytes())?;
+    write_atomic(&run.join("dataparser_transforms.json"), ds.pose_transform().to_json().as_bytes())?;
+    let ds_info = serde_json::json!({
+        "data": opts.data, "bands": ds.bands, "width": ds.width, "height": ds.height,
+        "train_frames": train_frames, "eval_frames": ds.split_indices(Split::Eval),
+    });
+    write_atomic(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
+
+    let model = Model::new(ctx, cfg, bands, ds.frames.len()).map_err(|e| e.to_string())?;
+    let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
+    let mut state =
+        TrainerState { step: 0, schedule: ProposalSchedule::default(), best_eval_psnr: None, elapsed_s: 0.0 };
+    if opts.resume {
+        let (p, s) = ckpt_paths(run);
+        let text = std::fs::read_to_string(&s).map_err(|e| format!("{}: {e} (nothing to resume)", s.display()))?;
+        state = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", s.display()))?;
+        pipe.model.store.load(&p).map_err(|e| e.to_string())?;
+        pipe.step = state.step;
+        pipe.schedule = state.schedule;
+    }
+    let mut cache = cache::ImageCache::new(
+        &ds,
+        train_frames.clone(),
+        cache::CacheConfig {
+            budget_bytes: opts.host_budget_bytes,
+            resample_every: opts.resample_every,
+            seed: cfg.trainer.seed ^ state.step,
+        },
+    )
+    .map_err(|e| e.to_string())?;
+    let eval = eval_set(&ds, opts.eval_pixels, cfg.trainer.seed)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.trainer.seed.wrapping_add(state.step.wrapping_mul(0x9e37_79b9)));
+    let metrics_path = run.join("metrics.jsonl");
+    let mut metrics = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&metrics_path)
+        .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+    let mut log = |v: serde_json::Value| -> Result<(), String> {
+        writeln!(metrics, "{v}").and_then(|_| metrics.flush()).map_err(|e| format!("{}: {e}", metrics_path.display()))
+    };
+
+    let max_steps = cfg.trainer.max_steps;
+    let bar = opts.progress.then(|| {
+        let b = indicatif::ProgressBar::new(max_steps);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:30} step {pos}/{len} {msg} ETA {eta}")
+                .expect("valid template"),
+        );
+        b.set_position(state.step);
+        b
+    });
+    ctx.with_ledger(|l| l.reset_peaks());
+    let start = Instant::now();
+    let elapsed0 = state.elapsed_s;
+    let mut summary = TrainSummary { run_dir: run.clone(), best_eval_psnr: state.best_eval_psnr, ..Default::default() };
+    let mut poisoned_in_a_row = 0u32;
+    let mut rays_done = 0u64;
+    let mut last = StepStats::default();
+    let r = cfg.trainer.rays_per_batch;
+    while state.step < max_steps {
+        if opts.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed)) {
+            summary.stopped_early = Some("interrupted (Ctrl-C)".into());
+            break;
+        }
+        let elapsed = elapsed0 + start.elapsed().as_secs_f64();
+        if opts.time_budget_s.is_some_and(|t| elapsed >= t) {
+            summary.stopped_early = Some(format!("time budget of {:.0} s reached", opts.time_budget_s.unwrap_or(0.0)));
+            break;
+        }
+        cache.step().map_err(|e| e.to_string())?;
+        let px = cache.sample_pixels(&mut rng, r);
+        let mut batch = Batch { pixels: Vec::with_capacity(3 * r), targets: Vec::with_capacity(r * (bands + 1)) };
+        for i in 0..px.image.len() {
+            batch.pixels.extend([px.image[i], px.row[i], px.col[i]]);
+            batch.targets.extend_from_slice(&px.values[i * bands..(i + 1) * bands]);
+            batch.targets.push(if px.mask[i] == 0 { 0.0 } else { 1.0 });
+        }
+        let t0 = Instant::now();
+        let stats = pipe.train_step(&batch).map_err(|e| format!("step {}: {e}", state.step))?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        rays_done += r as u64;
+        state.step += 1;
+        state.schedule = pipe.schedule;
+        if stats.skipped {
+            poisoned_in_a_row += 1;
+            let what = stats.poisoned.clone().unwrap_or_default();
+            log(serde_json::json!({"step": stats.step, "skipped": true, "poisoned_buffer": what}))?;
+            if poisoned_in_a_row >= MAX_POISONED_STEPS {
+                return Err(format!(
+                    "step {}: {MAX_POISONED_STEPS} steps in a row produced NaN/Inf (first in: {what}); stopping. The last good checkpoint is in {}",
+                    stats.step,
+                    run.join("checkpoints").display()
+                ));
+            }
+            continue;
+        }
+        poisoned_in_a_row = 0;
+        let rays_per_s = r as f64 / (ms / 1e3);
+        if stats.step % 10 == 0 || state.step == max_steps {
+            log(serde_json::json!({
+                "step": stats.step, "loss": stats.loss, "loss_rgb": stats.loss_rgb, "loss_distortion": stats.loss_distortion,
+                "loss_interlevel": stats.loss_interlevel, "psnr": stats.psnr, "step_ms": ms, "rays_per_s": rays_per_s,
+                "proposals_updated": stats.proposals_updated,
+            }))?;
+        }
+        if let Some(b) = &bar {
+            b.set_position(state.step);
+            b.set_message(format!("{rays_per_s:.0} rays/s loss {:.4} psnr {:.2}", stats.loss, stats.psnr));
+        }
+        let is_last = state.step == max_steps;
+        if !eval.pixels.is_empty() && (state.step % cfg.trainer.steps_per_eval == 0 || is_last || state.step == 1) {
+            let p = eval_psnr(&mut pipe, &eval)?;
+            summary.first_eval_psnr.get_or_insert(p);
+            summary.eval_history.push((state.step, p));
+            state.best_eval_psnr = Some(state.best_eval_psnr.map_or(p, |b: f64| b.max(p)));
+            log(
+                serde_json::json!({"step": state.step, "eval_psnr": p, "elapsed_s": elapsed0 + start.elapsed().as_secs_f64()}),
+            )?;
+        }
+        if state.step % cfg.trainer.steps_per_save == 0 && !is_last {
+            state.elapsed_s = elapsed0 + start.elapsed().as_secs_f64();
+            save_checkpoint(&pipe, run, &state)?;
+        }
+        last = stats;
+    }
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    state.elapsed_s = elapsed0 + start.elapsed().as_secs_f64();
+    save_checkpoint(&pipe, run, &state)?;
+    summary.steps = state.step;
+    summary.final_loss = last.loss;
+    summary.final_train_psnr = last.psnr;
+    summary.best_eval_psnr = state.best_eval_psnr;
+    summary.elapsed_s = state.elapsed_s;
+    summary.rays_per_s = rays_done as f64 / start.elapsed().as_secs_f64().max(1e-9);
+    summary.peak_gpu_bytes = ctx.with_ledger(|l| l.total_peak());
+    summary.peak_cache_bytes = cache.peak_bytes();
+    let s = serde_json::to_string_pretty(&summary).expect("json");
+    write_atomic(&run.join("summary.json"), s.as_bytes())?;
+    Ok(summary)
+}

@@ -1,0 +1,3 @@
+//! Small generic helpers shared across layers.
+
+pub mod atomic;
