@@ -1,6 +1,7 @@
 //! The `msnerf` command line: one module per subcommand; `main.rs` only parses and dispatches.
 
 pub mod bench;
+pub mod compare_cloud;
 pub mod devices;
 
 use clap::{Parser, Subcommand};
@@ -27,6 +28,8 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Benchmarks that print numbers (kernels)
     Bench(bench::BenchArgs),
+    /// Compare a point cloud against a reference (accuracy, completeness, F-score, per-band error)
+    CompareCloud(compare_cloud::CompareCloudArgs),
 }
 
 impl Cli {
@@ -47,5 +50,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match &cli.command {
         Command::Devices(a) => devices::run(&cli, a),
         Command::Bench(a) => bench::run(&cli, a),
+        Command::CompareCloud(a) => compare_cloud::run(a),
     }
 }
