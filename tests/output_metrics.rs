@@ -237,7 +237,7 @@ fn eval_report_has_ns_eval_keys_per_band_and_per_view_entries() {
 
     // Views without timings: null rates. Band-count mismatch: an error naming the view.
     let v = ViewEval { render_seconds: None, ..views[0].clone() };
-    let r = EvalReport::new("s", "m", "c", &gt.bands, &[v.clone()], 1.0).unwrap();
+    let r = EvalReport::new("s", "m", "c", &gt.bands, std::slice::from_ref(&v), 1.0).unwrap();
     assert!(r.results.fps.is_none());
     assert_eq!(r.results.psnr_std, 0.0);
     let e = EvalReport::new("s", "m", "c", &gt.bands[..5], &[v], 1.0).unwrap_err().to_string();

@@ -20,7 +20,7 @@ use crate::output::{OutputError, Result};
 
 /// Statistical outlier removal; returns the filtered cloud and the kept indices.
 pub fn remove_statistical_outliers(cloud: &PointCloud, k: usize, std_ratio: f64) -> Result<(PointCloud, Vec<usize>)> {
-    if k < 1 || !(std_ratio > 0.0) {
+    if k < 1 || std_ratio.is_nan() || std_ratio <= 0.0 {
         return Err(OutputError::invalid(
             "statistical outlier removal",
             format!("needs k >= 1 and std_ratio > 0, got k = {k}, std_ratio = {std_ratio}"),

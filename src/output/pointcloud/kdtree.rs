@@ -61,7 +61,7 @@ impl KdTree {
             }
         }
         let axis = (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0);
-        if !(hi[axis] > lo[axis]) {
+        if hi[axis].partial_cmp(&lo[axis]) != Some(std::cmp::Ordering::Greater) {
             // All points equal (or non-finite extents): one leaf, however large.
             self.nodes.push(Node::Leaf { start: start as u32, end: end as u32 });
             return id;

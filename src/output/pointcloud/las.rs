@@ -214,7 +214,7 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
         }
     };
     for a in 0..3 {
-        if !(opts.scale[a] > 0.0) {
+        if opts.scale[a].is_nan() || opts.scale[a] <= 0.0 {
             return Err(OutputError::invalid(
                 "las scale",
                 format!("axis {a}: must be positive, got {}", opts.scale[a]),

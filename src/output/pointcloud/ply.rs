@@ -398,7 +398,7 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                     None => row.push(cur.read(p.ty)?),
                     Some(ct) => {
                         let n = cur.read(ct)?;
-                        if !(n >= 0.0 && n < 1e9) {
+                        if !(0.0..1e9).contains(&n) {
                             return Err(format!("bad list length {n} in element `{}`", el.name));
                         }
                         for _ in 0..n as usize {
