@@ -68,7 +68,7 @@ fn subsampled_prediction_has_the_expected_completeness() {
     assert!((r.completeness.rmse - 0.5f64.sqrt()).abs() < 1e-12);
     assert_eq!(r.completeness.max, 1.0);
     // A random quarter (deterministic).
-    let (q, _) = subsample(&reference, 100, 7);
+    let (q, _) = subsample(&reference, 100, 7).unwrap();
     let r = compare_clouds(&q, &reference, &CompareOptions::default()).unwrap();
     assert_eq!(r.recall, 0.25);
     assert_eq!(r.accuracy.max, 0.0);

@@ -7,12 +7,11 @@ use std::f64::consts::FRAC_PI_2;
 
 use msnerf::data::PoseTransform;
 use msnerf::output::image::{band, ms600pro_bands};
-use msnerf::output::pointcloud::filter::crop;
 use msnerf::output::pointcloud::kdtree::{dist2, KdTree};
 use msnerf::output::pointcloud::las::ExtraBytesDescriptor;
 use msnerf::output::pointcloud::{
-    read_las, read_ply, remove_statistical_outliers, subsample, write_las, write_ply, Aabb, LasOptions, OrientedBox,
-    PlyCoords, PlyOptions, PointCloud,
+    crop, read_las, read_ply, remove_statistical_outliers, subsample, write_las, write_ply, Aabb, LasOptions,
+    OrientedBox, PlyCoords, PlyOptions, PointCloud,
 };
 use output_support::{scratch, Rng};
 use ply_rs_bw::parser::Parser;
@@ -282,11 +281,11 @@ fn crop_boxes_and_subsampling() {
     let pos: Vec<[f64; 3]> = (0..1000).map(|i| [(i % 10) as f64, ((i / 10) % 10) as f64, (i / 100) as f64]).collect();
     let c = PointCloud::new(pos, vec![], vec![]).unwrap();
     let aabb = Aabb { min: [2.0, 2.0, 2.0], max: [4.0, 4.0, 4.0] };
-    let (a, _) = crop(&c, |p| aabb.contains(p));
+    let (a, _) = crop(&c, |p| aabb.contains(p)).unwrap();
     assert_eq!(a.len(), 27, "inclusive bounds");
     // nerfstudio OBB: strict bounds; a 90° yaw swaps the x and y extents.
     let obb = OrientedBox::from_rpy([4.5, 4.5, 4.5], [0.0, 0.0, FRAC_PI_2], [2.0, 6.0, 10.0]);
-    let (o, _) = crop(&c, |p| obb.contains(p));
+    let (o, _) = crop(&c, |p| obb.contains(p)).unwrap();
     // Box x-axis (2 m) lies along world y, box y-axis (6 m) along world x: x in (1.5, 7.5), y in (3.5, 5.5).
     assert_eq!(o.len(), 6 * 2 * 10);
     assert!(o.positions.iter().all(|p| p[0] > 1.5 && p[0] < 7.5 && p[1] > 3.5 && p[1] < 5.5));
@@ -298,14 +297,18 @@ fn crop_boxes_and_subsampling() {
         }
     }
 
-    let (s1, i1) = subsample(&c, 100, 42);
-    let (_, i2) = subsample(&c, 100, 42);
-    let (_, i3) = subsample(&c, 100, 43);
+    let (s1, i1) = subsample(&c, 100, 42).unwrap();
+    let (_, i2) = subsample(&c, 100, 42).unwrap();
+    let (_, i3) = subsample(&c, 100, 43).unwrap();
     assert_eq!(s1.len(), 100);
     assert_eq!(i1, i2, "same seed, same subset");
     assert_ne!(i1, i3);
     assert!(i1.windows(2).all(|w| w[0] < w[1]), "original order");
-    assert_eq!(subsample(&c, 5000, 1).0.len(), 1000);
+    assert_eq!(subsample(&c, 5000, 1).unwrap().0.len(), 1000);
+    // A hand-built inconsistent cloud is an error, not a panic.
+    let bad = PointCloud { values: vec![1.0], bands: vec![band("b", None, None)], ..c.clone() };
+    let e = subsample(&bad, 10, 1).unwrap_err().to_string();
+    assert!(e.contains("1 values for 1000 points"), "{e}");
 }
 
 #[test]

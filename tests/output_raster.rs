@@ -108,6 +108,14 @@ fn writers_report_the_path_on_failure() {
     assert!(matches!(e, OutputError::Write { .. }));
     assert!(e.to_string().contains("/nonexistent-dir-msnerf/x.tif"), "{e}");
     assert!(SpectralImage::from_planar(4, 4, ms600pro_bands(), vec![0.0; 10]).is_err());
+    // Hand-built inconsistent images are errors, not panics.
+    let bad = SpectralImage { data: vec![0.0; 10], ..img.clone() };
+    let e = write_geotiff(Path::new("x.tif"), &bad, &GeoTiffOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("10 values"), "{e}");
+    assert!(write_exr(Path::new("x.exr"), &bad).is_err());
+    assert!(preview::natural_colour(&bad, Stretch::default()).is_err());
+    assert!(compute_index(&bad, VegetationIndex::Ndvi, 25.0).is_err());
+    assert!(preview::error_preview(&bad, &img, None).is_err());
 }
 
 #[test]

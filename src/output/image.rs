@@ -59,6 +59,11 @@ impl SpectralImage {
         Self::from_planar(width, height, vec![band], data)
     }
 
+    /// Checks the shape (the fields are public, so a hand-built image may be inconsistent).
+    pub fn validate(&self) -> Result<()> {
+        check_shape(self.width, self.height, self.bands.len(), self.data.len())
+    }
+
     pub fn n_bands(&self) -> usize {
         self.bands.len()
     }
@@ -88,6 +93,8 @@ impl SpectralImage {
 
     /// Checks that `other` has the same width, height and band count (`what` names the argument).
     pub fn check_same_shape(&self, other: &SpectralImage, what: &str) -> Result<()> {
+        self.validate()?;
+        other.validate().map_err(|e| OutputError::invalid(what, e))?;
         if (self.width, self.height, self.n_bands()) != (other.width, other.height, other.n_bands()) {
             return Err(OutputError::invalid(
                 what,

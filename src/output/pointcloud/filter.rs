@@ -99,18 +99,20 @@ impl OrientedBox {
 }
 
 /// The points for which `inside` holds; returns the cloud and the kept indices.
-pub fn crop(cloud: &PointCloud, inside: impl Fn(&[f64; 3]) -> bool) -> (PointCloud, Vec<usize>) {
+pub fn crop(cloud: &PointCloud, inside: impl Fn(&[f64; 3]) -> bool) -> Result<(PointCloud, Vec<usize>)> {
+    cloud.validate()?;
     let keep: Vec<usize> = (0..cloud.len()).filter(|&i| inside(&cloud.positions[i])).collect();
-    (cloud.select(&keep), keep)
+    Ok((cloud.select(&keep), keep))
 }
 
 /// At most `target` points chosen uniformly at random with `seed` (the same seed gives the same subset),
 /// kept in their original order. A cloud no larger than `target` is returned whole.
-pub fn subsample(cloud: &PointCloud, target: usize, seed: u64) -> (PointCloud, Vec<usize>) {
+pub fn subsample(cloud: &PointCloud, target: usize, seed: u64) -> Result<(PointCloud, Vec<usize>)> {
+    cloud.validate()?;
     let n = cloud.len();
     if n <= target {
         let all: Vec<usize> = (0..n).collect();
-        return (cloud.clone(), all);
+        return Ok((cloud.clone(), all));
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut idx: Vec<usize> = (0..n).collect();
@@ -120,5 +122,5 @@ pub fn subsample(cloud: &PointCloud, target: usize, seed: u64) -> (PointCloud, V
     }
     idx.truncate(target);
     idx.sort_unstable();
-    (cloud.select(&idx), idx)
+    Ok((cloud.select(&idx), idx))
 }

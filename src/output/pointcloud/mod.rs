@@ -7,7 +7,7 @@ pub mod kdtree;
 pub mod las;
 pub mod ply;
 
-pub use filter::{remove_statistical_outliers, subsample, Aabb, OrientedBox};
+pub use filter::{crop, remove_statistical_outliers, subsample, Aabb, OrientedBox};
 pub use las::{read_las, write_las, LasOptions};
 pub use ply::{read_ply, write_ply, PlyCoords, PlyOptions};
 
@@ -88,7 +88,8 @@ impl PointCloud {
         Ok(())
     }
 
-    /// The points at `idx`, in that order.
+    /// The points at `idx`, in that order (indices must be `< len()` and the cloud valid: an internal helper
+    /// for the filters, which check both).
     pub fn select(&self, idx: &[usize]) -> PointCloud {
         let nb = self.n_bands();
         PointCloud {

@@ -9,6 +9,7 @@ use crate::output::{atomic::AtomicFile, OutputError, Result, SpectralImage};
 
 /// Writes `img` to `path` atomically. Band names must be unique and non-empty.
 pub fn write_exr(path: &Path, img: &SpectralImage) -> Result<()> {
+    img.validate()?;
     let mut names: Vec<&str> = img.bands.iter().map(|b| b.name.as_str()).collect();
     names.sort_unstable();
     if names.iter().any(|n| n.is_empty()) || names.windows(2).any(|w| w[0] == w[1]) {

@@ -122,6 +122,7 @@ fn ascii(tag: u16, s: &str) -> Entry {
 
 /// Writes `img` as a float32 GeoTIFF at `path` (atomically).
 pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) -> Result<()> {
+    img.validate()?;
     let nb = img.n_bands();
     if nb > u16::MAX as usize {
         return Err(OutputError::invalid("image", format!("{nb} bands do not fit a TIFF")));

@@ -156,6 +156,7 @@ pub fn index_bands(img: &SpectralImage, index: VegetationIndex, tol_nm: f64) -> 
 
 /// The index per pixel.
 pub fn compute_index(img: &SpectralImage, index: VegetationIndex, tol_nm: f64) -> Result<Vec<f32>> {
+    img.validate()?;
     let idx = index_bands(img, index, tol_nm)?;
     let planes: Vec<&[f32]> = idx.iter().map(|&b| img.band_data(b)).collect();
     let mut v = vec![0.0f64; planes.len()];

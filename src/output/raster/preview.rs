@@ -123,6 +123,7 @@ fn scale_byte(v: f32, lo: f64, hi: f64) -> u8 {
 
 /// Bands `idx` (as R, G, B) of `img`, each stretched on its own.
 pub fn composite(img: &SpectralImage, idx: [usize; 3], stretch: Stretch) -> Result<Rgb8> {
+    img.validate()?;
     if let Some(&b) = idx.iter().find(|&&b| b >= img.n_bands()) {
         return Err(OutputError::invalid("composite", format!("band {b} of a {}-band image", img.n_bands())));
     }
