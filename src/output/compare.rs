@@ -19,6 +19,7 @@ use serde::Serialize;
 
 use super::image::fmt_nm;
 use super::metrics::report::finite_or_null;
+use super::pointcloud::filter::par_map;
 use super::pointcloud::kdtree::KdTree;
 use super::pointcloud::PointCloud;
 use super::{OutputError, Result};
@@ -130,21 +131,16 @@ pub struct CompareReport {
     pub band_note: Option<String>,
 }
 
-/// Nearest neighbour in `tree` of every query point, on all cores: (index, distance).
-pub fn nearest_all(tree: &KdTree, queries: &[[f64; 3]]) -> Vec<(usize, f64)> {
-    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1).min(16);
-    let chunk = queries.len().div_ceil(threads).max(1024);
-    let mut out = vec![(0usize, 0.0f64); queries.len()];
-    std::thread::scope(|s| {
-        for (q, o) in queries.chunks(chunk).zip(out.chunks_mut(chunk)) {
-            s.spawn(move || {
-                for (p, r) in q.iter().zip(o.iter_mut()) {
-                    let (i, d2) = tree.nearest(p).expect("tree is not empty");
-                    *r = (i, d2.sqrt());
-                }
-            });
-        }
+/// Nearest neighbour in `tree` of every query point, on all cores: (index, distance). `order` (a permutation
+/// of the queries, e.g. their own tree's leaf order) only sets the query order, for cache locality.
+pub fn nearest_all(tree: &KdTree, queries: &[[f64; 3]], order: &[u32]) -> Vec<(usize, f64)> {
+    let found = par_map(order, |&q| {
+        tree.nearest(&queries[q as usize]).map(|(i, d2)| (i, d2.sqrt())).unwrap_or((usize::MAX, f64::INFINITY))
     });
+    let mut out = vec![(usize::MAX, f64::INFINITY); queries.len()];
+    for (&q, r) in order.iter().zip(found) {
+        out[q as usize] = r;
+    }
     out
 }
 
@@ -184,8 +180,8 @@ pub fn compare_clouds(pred: &PointCloud, reference: &PointCloud, opts: &CompareO
     }
     let ref_tree = KdTree::new(&reference.positions);
     let pred_tree = KdTree::new(&pred.positions);
-    let p2r = nearest_all(&ref_tree, &pred.positions);
-    let r2p = nearest_all(&pred_tree, &reference.positions);
+    let p2r = nearest_all(&ref_tree, &pred.positions, pred_tree.leaf_order());
+    let r2p = nearest_all(&pred_tree, &reference.positions, ref_tree.leaf_order());
     let acc: Vec<f64> = p2r.iter().map(|x| x.1).collect();
     let comp: Vec<f64> = r2p.iter().map(|x| x.1).collect();
     let t = opts.threshold;

@@ -28,18 +28,19 @@ pub fn remove_statistical_outliers(cloud: &PointCloud, k: usize, std_ratio: f64)
     }
     cloud.validate()?;
     let tree = KdTree::new(&cloud.positions);
-    let avg: Vec<f64> = cloud
-        .positions
-        .iter()
-        .map(|p| {
-            let nn = tree.knn(p, k);
-            if nn.is_empty() {
-                -1.0
-            } else {
-                nn.iter().map(|&(_, d2)| d2.sqrt()).sum::<f64>() / nn.len() as f64
-            }
-        })
-        .collect();
+    // Query in the tree's leaf order (cache-friendly), then scatter back to point order.
+    let by_leaf = par_map(tree.leaf_order(), |&i| {
+        let nn = tree.knn(&cloud.positions[i as usize], k);
+        if nn.is_empty() {
+            -1.0
+        } else {
+            nn.iter().map(|&(_, d2)| d2.sqrt()).sum::<f64>() / nn.len() as f64
+        }
+    });
+    let mut avg = vec![0.0f64; cloud.len()];
+    for (&i, d) in tree.leaf_order().iter().zip(by_leaf) {
+        avg[i as usize] = d;
+    }
     let valid = avg.iter().filter(|&&d| d >= 0.0).count();
     if valid == 0 {
         return Ok((cloud.select(&[]), Vec::new()));
@@ -50,6 +51,20 @@ pub fn remove_statistical_outliers(cloud: &PointCloud, k: usize, std_ratio: f64)
     let threshold = mean + std_ratio * std;
     let keep: Vec<usize> = (0..avg.len()).filter(|&i| avg[i] > 0.0 && avg[i] < threshold).collect();
     Ok((cloud.select(&keep), keep))
+}
+
+/// `f` over `items` on all cores (scoped threads, chunks in order: the result does not depend on the thread count).
+pub fn par_map<T: Sync, R: Send + Default + Clone>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1).min(16);
+    let chunk = items.len().div_ceil(threads).max(1024);
+    let mut out = vec![R::default(); items.len()];
+    let f = &f;
+    std::thread::scope(|s| {
+        for (q, o) in items.chunks(chunk).zip(out.chunks_mut(chunk)) {
+            s.spawn(move || q.iter().zip(o.iter_mut()).for_each(|(x, r)| *r = f(x)));
+        }
+    });
+    out
 }
 
 /// An axis-aligned box, bounds inclusive.

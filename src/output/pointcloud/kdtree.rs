@@ -15,9 +15,12 @@ enum Node {
 
 /// A k-d tree over a copy of the points.
 pub struct KdTree {
+    /// Input points (only during the build).
     points: Vec<[f64; 3]>,
     /// Point indices, permuted so every leaf is a contiguous range.
     order: Vec<u32>,
+    /// `points[order[k]]`: leaf points contiguous in memory (cache-friendly scans).
+    sorted: Vec<[f64; 3]>,
     nodes: Vec<Node>,
 }
 
@@ -30,19 +33,31 @@ pub fn dist2(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 impl KdTree {
     /// Builds the tree (O(n log n)). At most `u32::MAX` points.
     pub fn new(points: &[[f64; 3]]) -> KdTree {
-        let mut t = KdTree { points: points.to_vec(), order: (0..points.len() as u32).collect(), nodes: Vec::new() };
+        let mut t = KdTree {
+            points: points.to_vec(),
+            order: (0..points.len() as u32).collect(),
+            sorted: Vec::new(),
+            nodes: Vec::new(),
+        };
         if !points.is_empty() {
             t.build(0, points.len());
         }
+        t.sorted = t.order.iter().map(|&i| t.points[i as usize]).collect();
+        t.points = Vec::new();
         t
     }
 
     pub fn len(&self) -> usize {
-        self.points.len()
+        self.order.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.points.is_empty()
+        self.order.is_empty()
+    }
+
+    /// The point indices in leaf order (spatially coherent): querying in this order is cache-friendly.
+    pub fn leaf_order(&self) -> &[u32] {
+        &self.order
     }
 
     fn build(&mut self, start: usize, end: usize) -> u32 {
@@ -91,8 +106,9 @@ impl KdTree {
     fn nearest_in(&self, node: u32, q: &[f64; 3], best: &mut (usize, f64)) {
         match self.nodes[node as usize] {
             Node::Leaf { start, end } => {
-                for &i in &self.order[start as usize..end as usize] {
-                    let d = dist2(q, &self.points[i as usize]);
+                let (s, e) = (start as usize, end as usize);
+                for (&i, p) in self.order[s..e].iter().zip(&self.sorted[s..e]) {
+                    let d = dist2(q, p);
                     if d < best.1 || (d == best.1 && (i as usize) < best.0) {
                         *best = (i as usize, d);
                     }
@@ -126,8 +142,9 @@ impl KdTree {
     fn knn_in(&self, node: u32, q: &[f64; 3], k: usize, heap: &mut Vec<(usize, f64)>) {
         match self.nodes[node as usize] {
             Node::Leaf { start, end } => {
-                for &i in &self.order[start as usize..end as usize] {
-                    let cand = (i as usize, dist2(q, &self.points[i as usize]));
+                let (s, e) = (start as usize, end as usize);
+                for (&i, p) in self.order[s..e].iter().zip(&self.sorted[s..e]) {
+                    let cand = (i as usize, dist2(q, p));
                     if heap.len() == k && !Self::worse(&heap[k - 1], &cand) {
                         continue;
                     }
