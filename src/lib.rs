@@ -2,7 +2,8 @@
 //!
 //! Layers, one folder each: [`gpu`] (the Vulkan runtime), [`ops`] (generic compute operations), [`nn`] (neural
 //! modules: hash grid, MLP, SH, Adam, parameter store), [`data`] (datasets, image readers, poses, cameras, the host image cache),
-//! [`reference`] (CPU twins of every kernel), [`cli`] (the `msnerf` subcommands).
+//! [`reference`] (CPU twins of every kernel), [`output`] (metrics, rasters, previews, point clouds, cloud
+//! comparison), [`cli`] (the `msnerf` subcommands).
 
 pub mod bench;
 pub mod cli;
@@ -11,6 +12,7 @@ pub mod gpu;
 pub mod nerf;
 pub mod nn;
 pub mod ops;
+pub mod output;
 pub mod reference;
 pub mod shaders;
 pub mod sim;

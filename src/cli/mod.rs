@@ -1,6 +1,7 @@
 //! The `msnerf` command line: one module per subcommand; `main.rs` only parses and dispatches.
 
 pub mod bench;
+pub mod compare_cloud;
 pub mod devices;
 pub mod simulate;
 pub mod train;
@@ -33,6 +34,8 @@ pub enum Command {
     Bench(bench::BenchArgs),
     /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
     Simulate(simulate::SimulateArgs),
+    /// Compare a point cloud against a reference (accuracy, completeness, F-score, per-band error)
+    CompareCloud(compare_cloud::CompareCloudArgs),
 }
 
 impl Cli {
@@ -55,5 +58,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => bench::run(&cli, a),
         Command::Train(a) => train::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
+        Command::CompareCloud(a) => compare_cloud::run(a),
     }
 }

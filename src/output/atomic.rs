@@ -1,0 +1,69 @@
+//! Atomic file writes: write a temporary file in the destination folder, then rename it over the target, so a
+//! reader never sees a half-written output and a failed write leaves any previous file in place.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use super::{OutputError, Result};
+
+/// A temporary file that becomes `target` on [`AtomicFile::commit`]; dropped uncommitted, it is removed.
+pub struct AtomicFile {
+    tmp: PathBuf,
+    target: PathBuf,
+    committed: bool,
+}
+
+impl AtomicFile {
+    /// Creates `.<name>.tmp<pid>` next to `target` and opens it for writing.
+    pub fn create(target: &Path) -> Result<(AtomicFile, File)> {
+        let name = target
+            .file_name()
+            .ok_or_else(|| OutputError::write(target, "not a file path"))?
+            .to_string_lossy()
+            .into_owned();
+        let dir = match target.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+        let file = File::create(&tmp).map_err(|e| OutputError::write(target, e))?;
+        Ok((AtomicFile { tmp, target: target.to_path_buf(), committed: false }, file))
+    }
+
+    /// The temporary path (for writers that insist on opening a path themselves).
+    pub fn tmp_path(&self) -> &Path {
+        &self.tmp
+    }
+
+    /// Renames the temporary file onto the target.
+    pub fn commit(mut self) -> Result<()> {
+        std::fs::rename(&self.tmp, &self.target).map_err(|e| OutputError::write(&self.target, e))?;
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_with(path, |w| w.write_all(bytes))
+}
+
+/// Streams into `path` atomically through a buffered writer.
+pub fn write_with(path: &Path, f: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
+    let (atomic, file) = AtomicFile::create(path)?;
+    let mut w = BufWriter::with_capacity(1 << 20, file);
+    f(&mut w).map_err(|e| OutputError::write(path, e))?;
+    let file = w.into_inner().map_err(|e| OutputError::write(path, e.error()))?;
+    file.sync_all().map_err(|e| OutputError::write(path, e))?;
+    drop(file);
+    atomic.commit()
+}
