@@ -122,44 +122,15 @@ fn poses_follow_the_flight_plan_and_intrinsics_are_ms600pro() {
     }
 }
 
-/// Reads `ground_truth.ply`: (header lines, xyz, per-band values).
+/// Reads `ground_truth.ply` with the project's PLY reader: (header lines, xyz, per-band values).
 fn read_ply(path: &std::path::Path) -> (Vec<String>, Vec<[f64; 3]>, Vec<Vec<f32>>) {
     let bytes = std::fs::read(path).unwrap();
     let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
     let header: Vec<String> = String::from_utf8(bytes[..end].to_vec()).unwrap().lines().map(String::from).collect();
-    let n: usize = header.iter().find_map(|l| l.strip_prefix("element vertex ")).unwrap().parse().unwrap();
-    let props: Vec<(String, String)> = header
-        .iter()
-        .filter_map(|l| l.strip_prefix("property "))
-        .map(|l| {
-            let mut it = l.split(' ');
-            (it.next().unwrap().to_string(), it.next().unwrap().to_string())
-        })
-        .collect();
-    let mut off = end;
-    let (mut xyz, mut vals) = (Vec::new(), Vec::new());
-    for _ in 0..n {
-        let mut p = [0f64; 3];
-        let mut v = Vec::new();
-        for (k, (ty, _)) in props.iter().enumerate() {
-            let x = if ty == "double" {
-                off += 8;
-                f64::from_le_bytes(bytes[off - 8..off].try_into().unwrap())
-            } else {
-                off += 4;
-                f32::from_le_bytes(bytes[off - 4..off].try_into().unwrap()) as f64
-            };
-            if k < 3 {
-                p[k] = x;
-            } else {
-                v.push(x as f32);
-            }
-        }
-        xyz.push(p);
-        vals.push(v);
-    }
-    assert_eq!(off, bytes.len());
-    (header, xyz, vals)
+    let cloud = msnerf::output::pointcloud::read_ply(path).unwrap();
+    let b = cloud.bands.len();
+    let vals = cloud.values.chunks(b).map(|c| c.to_vec()).collect();
+    (header, cloud.positions, vals)
 }
 
 #[test]
@@ -176,7 +147,10 @@ fn ground_truth_points_lie_on_surfaces_with_band_reflectance() {
         ("refl_840", 840),
     ] {
         assert!(header.contains(&format!("property float {name}")), "{name}");
-        assert!(header.iter().any(|l| l.starts_with("comment band ") && l.contains(&format!(" {c} nm fwhm "))));
+        assert!(
+            header.iter().any(|l| l.starts_with("comment band ") && l.contains(&format!("center_nm {c} fwhm_nm "))),
+            "{name}"
+        );
     }
     // A world offset makes x y z double (float cannot hold UTM coordinates to a millimetre).
     assert!(header.contains(&"property double x".to_string()));

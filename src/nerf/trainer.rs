@@ -18,7 +18,7 @@ use super::rays::GpuCamera;
 use super::schedule::ProposalSchedule;
 use crate::data::{cache, load_dataset, Dataset, LoadOptions, Split};
 use crate::gpu::Context;
-use crate::util::atomic::write_atomic;
+use crate::util::atomic;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -140,7 +140,7 @@ fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState) -> Result<
     let (p, s) = ckpt_paths(run);
     std::fs::create_dir_all(p.parent().expect("has parent")).map_err(|e| format!("{}: {e}", run.display()))?;
     pipe.model.store.save(&p).map_err(|e| e.to_string())?;
-    write_atomic(&s, serde_json::to_string_pretty(state).expect("serialisable").as_bytes())
+    write_atomic_str(&s, serde_json::to_string_pretty(state).expect("serialisable").as_bytes())
 }
 
 /// Runs training; returns the summary. Errors are messages that name the file, key or step.
@@ -155,13 +155,13 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     }
     let run = &opts.out;
     std::fs::create_dir_all(run).map_err(|e| format!("{}: {e}", run.display()))?;
-    write_atomic(&run.join("config.yaml"), serde_yaml::to_string(cfg).map_err(|e| e.to_string())?.as_bytes())?;
-    write_atomic(&run.join("dataparser_transforms.json"), ds.pose_transform().to_json().as_bytes())?;
+    write_atomic_str(&run.join("config.yaml"), serde_yaml::to_string(cfg).map_err(|e| e.to_string())?.as_bytes())?;
+    write_atomic_str(&run.join("dataparser_transforms.json"), ds.pose_transform().to_json().as_bytes())?;
     let ds_info = serde_json::json!({
         "data": opts.data, "bands": ds.bands, "width": ds.width, "height": ds.height,
         "train_frames": train_frames, "eval_frames": ds.split_indices(Split::Eval),
     });
-    write_atomic(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
+    write_atomic_str(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
 
     let model = Model::new(ctx, cfg, bands, ds.frames.len()).map_err(|e| e.to_string())?;
     let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
@@ -295,6 +295,10 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     summary.peak_gpu_bytes = ctx.with_ledger(|l| l.total_peak());
     summary.peak_cache_bytes = cache.peak_bytes();
     let s = serde_json::to_string_pretty(&summary).expect("json");
-    write_atomic(&run.join("summary.json"), s.as_bytes())?;
+    write_atomic_str(&run.join("summary.json"), s.as_bytes())?;
     Ok(summary)
+}
+
+fn write_atomic_str(path: &Path, bytes: &[u8]) -> Result<(), String> {
+    atomic::write_bytes(path, bytes).map_err(|e| e.to_string())
 }

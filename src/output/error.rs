@@ -30,3 +30,9 @@ impl OutputError {
         OutputError::Invalid { what: what.into(), reason: reason.to_string() }
     }
 }
+
+impl From<crate::util::atomic::WriteError> for OutputError {
+    fn from(e: crate::util::atomic::WriteError) -> Self {
+        OutputError::Write { path: e.path, reason: e.reason }
+    }
+}

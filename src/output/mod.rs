@@ -11,7 +11,7 @@
 //! Every file is written atomically ([`atomic`]): a temporary file in the same folder, renamed on success.
 //! Bad input is an [`OutputError`] naming the file or the parameter, never a panic.
 
-pub mod atomic;
+pub use crate::util::atomic;
 pub mod compare;
 pub mod error;
 pub mod image;

@@ -13,6 +13,9 @@ pub enum SimError {
     /// Writing the dataset failed.
     #[error("{}: {source}", path.display())]
     Io { path: PathBuf, source: std::io::Error },
+    /// Writing an output file (the ground-truth cloud) failed; the error names the file.
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
 }
 
 impl SimError {

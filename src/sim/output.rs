@@ -19,7 +19,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::render::{Prepared, ViewImage};
-use super::writer::{self, PlyBand, StagingDir, TiffData};
+use super::writer::{self, StagingDir, TiffData};
 use super::{PixelFormat, SceneDesc, SimError, SimOptions, U16_SCALE};
 
 /// A ground-truth sample: local position and material index.
@@ -220,23 +220,20 @@ fn write_transforms(prep: &Prepared, opts: &SimOptions, root: &Path) -> Result<(
 }
 
 fn write_points(prep: &Prepared, root: &Path, points: &[([f64; 3], usize)]) -> Result<(), SimError> {
-    let names = super::bands::ply_names(&prep.bands);
-    let bands: Vec<PlyBand> = prep
-        .bands
-        .iter()
-        .zip(&names)
-        .map(|(b, p)| PlyBand { property: p, name: &b.name, center_nm: b.center_nm, fwhm_nm: b.fwhm_nm })
-        .collect();
+    use crate::output::pointcloud::{write_ply, PlyOptions, PointCloud};
+    let bands: Vec<crate::data::Band> =
+        prep.bands.iter().map(|b| crate::output::image::band(&b.name, Some(b.center_nm), Some(b.fwhm_nm))).collect();
     let o = prep.world_offset;
     let xyz: Vec<[f64; 3]> = points.iter().map(|(p, _)| [p[0] + o[0], p[1] + o[1], p[2] + o[2]]).collect();
     let refl: Vec<f32> = points.iter().flat_map(|(_, m)| prep.materials[*m].refl.iter().map(|&r| r as f32)).collect();
-    let double = o != [0.0; 3];
+    let path = root.join("ground_truth.ply");
+    let cloud = PointCloud::new(xyz, bands, refl)?;
     let comments = vec![
         format!("msnerf simulate scene {}", prep.name),
         format!("world frame: local scene frame + world_offset {} {} {} (metres, z up)", o[0], o[1], o[2]),
         "values: band-integrated Lambertian reflectance of the surface (no light or sensor effects)".to_string(),
     ];
-    writer::write_ply(&root.join("ground_truth.ply"), &comments, &bands, &xyz, &refl, double)
+    Ok(write_ply(&path, &cloud, &PlyOptions { comments, ..Default::default() })?)
 }
 
 fn write_meta(prep: &Prepared, desc: &SceneDesc, opts: &SimOptions, root: &Path) -> Result<(), SimError> {

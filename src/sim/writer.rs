@@ -1,11 +1,9 @@
-//! Dataset files (spec/dataset.md): multi-band TIFFs, depth TIFFs, `transforms.json`, `ground_truth.ply`,
-//! `simulation.json`, `README.md`, all written into a temporary sibling folder that is renamed into place
+//! Dataset files (spec/dataset.md): multi-band TIFFs, depth TIFFs, `transforms.json`, `simulation.json`, `README.md`, all written into a temporary sibling folder that is renamed into place
 //! only when complete ([`StagingDir`]), so a failed or interrupted run never leaves a half-written dataset.
 //!
 //! TIFFs are little-endian classic TIFF, uncompressed, chunky (B samples per pixel, PhotometricInterpretation
 //! BlackIsZero, B − 1 unspecified ExtraSamples, as GDAL writes them), strips of about 64 KiB.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use super::error::SimError;
@@ -143,62 +141,6 @@ pub fn tiff_bytes(width: u32, height: u32, samples: usize, data: TiffData) -> Ve
     out.extend_from_slice(&ifd_bytes);
     out.extend_from_slice(&extra);
     out
-}
-
-/// One band's PLY header facts.
-pub struct PlyBand<'a> {
-    pub property: &'a str,
-    pub name: &'a str,
-    pub center_nm: f64,
-    pub fwhm_nm: f64,
-}
-
-/// Writes a binary little-endian PLY: x y z (`double` when `double_xyz`, else `float`) and one `float`
-/// per band; `refl` holds `points.len() × bands` values.
-pub fn write_ply(
-    path: &Path,
-    comments: &[String],
-    bands: &[PlyBand],
-    points: &[[f64; 3]],
-    refl: &[f32],
-    double_xyz: bool,
-) -> Result<(), SimError> {
-    let mut h = String::from("ply\nformat binary_little_endian 1.0\n");
-    for c in comments {
-        h.push_str(&format!("comment {c}\n"));
-    }
-    for b in bands {
-        h.push_str(&format!(
-            "comment band {} {} nm fwhm {} nm property {}\n",
-            b.name, b.center_nm, b.fwhm_nm, b.property
-        ));
-    }
-    h.push_str(&format!("element vertex {}\n", points.len()));
-    let t = if double_xyz { "double" } else { "float" };
-    for a in ["x", "y", "z"] {
-        h.push_str(&format!("property {t} {a}\n"));
-    }
-    for b in bands {
-        h.push_str(&format!("property float {}\n", b.property));
-    }
-    h.push_str("end_header\n");
-    let nb = bands.len();
-    let mut out = Vec::with_capacity(h.len() + points.len() * (24 + 4 * nb));
-    out.extend_from_slice(h.as_bytes());
-    for (i, p) in points.iter().enumerate() {
-        for c in p {
-            if double_xyz {
-                out.extend_from_slice(&c.to_le_bytes());
-            } else {
-                out.extend_from_slice(&(*c as f32).to_le_bytes());
-            }
-        }
-        for r in &refl[i * nb..(i + 1) * nb] {
-            out.extend_from_slice(&r.to_le_bytes());
-        }
-    }
-    let mut f = std::fs::File::create(path).map_err(SimError::io(path))?;
-    f.write_all(&out).map_err(SimError::io(path))
 }
 
 /// Writes pretty JSON.

@@ -1,25 +1,83 @@
-//! Atomic file writes: the data goes to a temporary file in the same folder, is flushed to disk, then renamed over
-//! the target, so a reader (or a killed run) never sees a partially written file.
+//! Atomic file writes: write a temporary file in the destination folder, then rename it over the target, so a
+//! reader never sees a half-written output and a failed write leaves any previous file in place.
 
-use std::io::Write;
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-fn temp_path(path: &Path) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+/// A failed atomic write, naming the target file.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {reason}", path.display())]
+pub struct WriteError {
+    pub path: PathBuf,
+    pub reason: String,
 }
 
-/// Writes `bytes` to `path` atomically; errors name the path.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), String> {
-    let tmp = temp_path(path);
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        format!("{}: {e}", path.display())
-    })
+impl WriteError {
+    fn new(path: &Path, reason: impl std::fmt::Display) -> Self {
+        WriteError { path: path.to_path_buf(), reason: reason.to_string() }
+    }
+}
+
+pub type Result<T> = std::result::Result<T, WriteError>;
+
+/// A temporary file that becomes `target` on [`AtomicFile::commit`]; dropped uncommitted, it is removed.
+pub struct AtomicFile {
+    tmp: PathBuf,
+    target: PathBuf,
+    committed: bool,
+}
+
+impl AtomicFile {
+    /// Creates `.<name>.tmp<pid>` next to `target` and opens it for writing.
+    pub fn create(target: &Path) -> Result<(AtomicFile, File)> {
+        let name = target
+            .file_name()
+            .ok_or_else(|| WriteError::new(target, "not a file path"))?
+            .to_string_lossy()
+            .into_owned();
+        let dir = match target.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+        let file = File::create(&tmp).map_err(|e| WriteError::new(target, e))?;
+        Ok((AtomicFile { tmp, target: target.to_path_buf(), committed: false }, file))
+    }
+
+    /// The temporary path (for writers that insist on opening a path themselves).
+    pub fn tmp_path(&self) -> &Path {
+        &self.tmp
+    }
+
+    /// Renames the temporary file onto the target.
+    pub fn commit(mut self) -> Result<()> {
+        std::fs::rename(&self.tmp, &self.target).map_err(|e| WriteError::new(&self.target, e))?;
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_with(path, |w| w.write_all(bytes))
+}
+
+/// Streams into `path` atomically through a buffered writer.
+pub fn write_with(path: &Path, f: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
+    let (atomic, file) = AtomicFile::create(path)?;
+    let mut w = BufWriter::with_capacity(1 << 20, file);
+    f(&mut w).map_err(|e| WriteError::new(path, e))?;
+    let file = w.into_inner().map_err(|e| WriteError::new(path, e.error()))?;
+    file.sync_all().map_err(|e| WriteError::new(path, e))?;
+    drop(file);
+    atomic.commit()
 }

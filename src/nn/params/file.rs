@@ -28,30 +28,28 @@ impl ParamStore {
     /// Saves parameters, Adam moments, step counters and the slot layout to `path`, atomically: a temporary
     /// file in the same folder is written, fsynced and renamed over `path`.
     pub fn save(&self, path: &Path) -> Result<(), ParamError> {
-        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        let file_name = path.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
-        let tmp = dir.join(format!(".{file_name}.tmp-{}", std::process::id()));
-        let result = (|| {
-            let file = std::fs::File::create(&tmp).map_err(|e| io_err(&tmp, e))?;
-            let mut w = HashWriter { inner: std::io::BufWriter::with_capacity(1 << 20, file), sum: Checksum::new() };
-            self.write_body(&mut w).map_err(|e| match e {
-                WriteError::Io(source) => ParamError::Io { path: tmp.clone(), source },
-                WriteError::Gpu(g) => ParamError::Gpu(g),
-            })?;
-            let sum = w.sum.finish();
-            let mut inner = w.inner;
-            inner.write_all(&sum.to_le_bytes()).map_err(|e| io_err(&tmp, e))?;
-            let file = inner.into_inner().map_err(|e| ParamError::Io { path: tmp.clone(), source: e.into_error() })?;
-            file.sync_all().map_err(|e| io_err(&tmp, e))?;
-            std::fs::rename(&tmp, path).map_err(|e| io_err(path, e))
-        })();
-        if result.is_err() {
-            let _ = std::fs::remove_file(&tmp);
-        } else if let Ok(d) = std::fs::File::open(dir) {
-            // Make the rename durable; some filesystems refuse to fsync a directory, which is not an error here.
+        let atomic_err = |e: crate::util::atomic::WriteError| ParamError::Io {
+            path: e.path,
+            source: std::io::Error::other(e.reason),
+        };
+        let (atomic, file) = crate::util::atomic::AtomicFile::create(path).map_err(atomic_err)?;
+        let mut w = HashWriter { inner: std::io::BufWriter::with_capacity(1 << 20, file), sum: Checksum::new() };
+        self.write_body(&mut w).map_err(|e| match e {
+            WriteError::Io(source) => ParamError::Io { path: path.to_owned(), source },
+            WriteError::Gpu(g) => ParamError::Gpu(g),
+        })?;
+        let sum = w.sum.finish();
+        let mut inner = w.inner;
+        inner.write_all(&sum.to_le_bytes()).map_err(|e| io_err(path, e))?;
+        let file = inner.into_inner().map_err(|e| ParamError::Io { path: path.to_owned(), source: e.into_error() })?;
+        file.sync_all().map_err(|e| io_err(path, e))?;
+        drop(file);
+        atomic.commit().map_err(atomic_err)?;
+        // Make the rename durable; some filesystems refuse to fsync a directory, which is not an error here.
+        if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()).and_then(|d| std::fs::File::open(d).ok()) {
             let _ = d.sync_all();
         }
-        result
+        Ok(())
     }
 
     fn write_body(&self, w: &mut HashWriter) -> Result<(), WriteError> {

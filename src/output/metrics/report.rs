@@ -247,7 +247,7 @@ impl EvalReport {
     pub fn write(&self, path: &Path) -> Result<()> {
         let mut s = self.to_json();
         s.push('\n');
-        atomic::write_bytes(path, s.as_bytes())
+        Ok(atomic::write_bytes(path, s.as_bytes())?)
     }
 
     /// A short text table: one row per band and the mean.

@@ -310,7 +310,7 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
     let file = inner.into_inner().map_err(|e| OutputError::write(path, e.error()))?;
     file.sync_all().map_err(|e| OutputError::write(path, e))?;
     drop(file);
-    atomic.commit()
+    Ok(atomic.commit()?)
 }
 
 /// Reads a LAS file (bands from the msnerf band VLR when present, otherwise from the Extra Bytes).

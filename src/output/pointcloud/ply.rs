@@ -112,7 +112,7 @@ pub fn write_ply(path: &Path, cloud: &PointCloud, opts: &PlyOptions) -> Result<(
     h += "end_header\n";
 
     let rgb = cloud.display_rgb(opts.stretch);
-    atomic::write_with(path, |w| {
+    Ok(atomic::write_with(path, |w| {
         w.write_all(h.as_bytes())?;
         let mut rec = Vec::with_capacity(64 + 4 * cloud.n_bands());
         for i in 0..cloud.len() {
@@ -132,7 +132,7 @@ pub fn write_ply(path: &Path, cloud: &PointCloud, opts: &PlyOptions) -> Result<(
             w.write_all(&rec)?;
         }
         Ok(())
-    })
+    })?)
 }
 
 // ------------------------------------------------------------------------------------------------ reader

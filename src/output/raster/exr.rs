@@ -30,5 +30,5 @@ pub fn write_exr(path: &Path, img: &SpectralImage) -> Result<()> {
     let image = Image::from_layer(layer);
     let (atomic, file) = AtomicFile::create(path)?;
     image.write().to_buffered(std::io::BufWriter::new(file)).map_err(|e| OutputError::write(path, e))?;
-    atomic.commit()
+    Ok(atomic.commit()?)
 }

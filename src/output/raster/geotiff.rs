@@ -239,7 +239,7 @@ pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) ->
     }
 
     let n = img.n_pixels();
-    atomic::write_with(path, |f| {
+    Ok(atomic::write_with(path, |f| {
         if big {
             f.write_all(b"II\x2b\x00\x08\x00\x00\x00")?;
             f.write_all(&ifd_off.to_le_bytes())?;
@@ -262,5 +262,5 @@ pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) ->
         }
         f.write_all(&ifd)?;
         f.write_all(&ext)
-    })
+    })?)
 }

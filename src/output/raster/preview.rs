@@ -55,7 +55,7 @@ impl Rgb8 {
     /// Writes a PNG atomically.
     pub fn write_png(&self, path: &Path) -> Result<()> {
         let bytes = self.to_png().map_err(|e| OutputError::write(path, e))?;
-        atomic::write_bytes(path, &bytes)
+        Ok(atomic::write_bytes(path, &bytes)?)
     }
 }
 
