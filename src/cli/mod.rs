@@ -2,7 +2,11 @@
 
 pub mod bench;
 pub mod compare_cloud;
+pub mod dataset;
 pub mod devices;
+pub mod eval;
+pub mod export;
+pub mod render;
 pub mod simulate;
 pub mod train;
 
@@ -30,6 +34,14 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Train a model on a dataset
     Train(train::TrainArgs),
+    /// Evaluate a trained run: PSNR and SSIM per band and per view
+    Eval(eval::EvalArgs),
+    /// Render views of a trained run: GeoTIFFs, previews, vegetation indices
+    Render(render::RenderArgs),
+    /// Export a multispectral point cloud from a trained run
+    Export(export::ExportArgs),
+    /// Dataset tools (check)
+    Dataset(dataset::DatasetArgs),
     /// Benchmarks that print numbers (kernels)
     Bench(bench::BenchArgs),
     /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
@@ -57,6 +69,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Devices(a) => devices::run(&cli, a),
         Command::Bench(a) => bench::run(&cli, a),
         Command::Train(a) => train::run(&cli, a),
+        Command::Eval(a) => eval::run(&cli, a),
+        Command::Render(a) => render::run(&cli, a),
+        Command::Export(a) => export::run(&cli, a),
+        Command::Dataset(a) => dataset::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),
     }

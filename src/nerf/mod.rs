@@ -3,9 +3,11 @@
 
 pub mod buffers;
 pub mod config;
+pub mod export;
 pub mod kernels;
 pub mod model;
 pub mod pipeline;
 pub mod rays;
+pub mod run;
 pub mod schedule;
 pub mod trainer;
