@@ -1,3 +1,4 @@
 //! Benchmarks that print numbers (`msnerf bench ...`). Speed goals are measured here, never in timed tests.
 
 pub mod kernels;
+pub mod train;

@@ -11,6 +11,22 @@ pub struct BenchArgs {
 
 #[derive(clap::Subcommand, Debug)]
 pub enum BenchWhat {
+    /// Training-step time, rays/s and per-kernel breakdown for model profiles at several band counts
+    Train {
+        /// Model profiles (built-in names or YAML files), comma separated
+        #[arg(long, value_delimiter = ',', default_value = "nerfacto,multispectral-nerf")]
+        models: Vec<String>,
+        /// Band counts, comma separated
+        #[arg(long, value_delimiter = ',', default_value = "3,6,16,64")]
+        bands: Vec<usize>,
+        /// Rays per batch (overrides the profile; keeps lavapipe runs short)
+        #[arg(long)]
+        rays_per_batch: Option<usize>,
+        #[arg(long, default_value_t = 3)]
+        steps: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// Hash grid points/s and fused MLP GFLOP/s at nerfacto's and Table 1's sizes
     Kernels {
         /// Points per hash grid measurement
@@ -34,6 +50,26 @@ pub enum BenchWhat {
 pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
     let ctx = Context::new(&cli.context_desc())?;
     match args.what {
+        BenchWhat::Train { ref models, ref bands, rays_per_batch, steps, json } => {
+            let mut all = Vec::new();
+            for m in models {
+                let mut cfg = crate::nerf::config::ModelConfig::resolve(m).map_err(anyhow::Error::msg)?;
+                if let Some(r) = rays_per_batch {
+                    cfg.trainer.rays_per_batch = r;
+                    cfg.trainer.rays_per_chunk = cfg.trainer.rays_per_chunk.min(r);
+                }
+                for &b in bands {
+                    let r = crate::bench::train::run(&ctx, &cfg, b, steps, 1).map_err(anyhow::Error::msg)?;
+                    if !json {
+                        print!("{}", r.table());
+                    }
+                    all.push(r);
+                }
+            }
+            if json {
+                println!("{}", serde_json::to_string_pretty(&all)?);
+            }
+        }
         BenchWhat::Kernels { points, rows, repeats, json, ref filter } => {
             let r = crate::bench::kernels::run(&ctx, points, rows, repeats, filter.as_deref())?;
             if json {

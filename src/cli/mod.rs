@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod compare_cloud;
 pub mod dataset;
+pub mod demo;
 pub mod devices;
 pub mod eval;
 pub mod export;
@@ -42,6 +43,8 @@ pub enum Command {
     Export(export::ExportArgs),
     /// Dataset tools (check)
     Dataset(dataset::DatasetArgs),
+    /// The whole job on a built-in simulated scene: simulate, train, evaluate, render, export, compare
+    Demo(demo::DemoArgs),
     /// Benchmarks that print numbers (kernels)
     Bench(bench::BenchArgs),
     /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
@@ -73,6 +76,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(&cli, a),
         Command::Export(a) => export::run(&cli, a),
         Command::Dataset(a) => dataset::run(&cli, a),
+        Command::Demo(a) => demo::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),
     }

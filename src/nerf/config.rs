@@ -152,12 +152,13 @@ impl ModelConfig {
         Ok(c)
     }
 
-    /// A built-in profile by name (`nerfacto`, `multispectral-nerf`, `tiny`), or a path to a YAML file.
+    /// A built-in profile by name (`nerfacto`, `multispectral-nerf`, `tiny`, `demo`), or a path to a YAML file.
     pub fn resolve(name_or_path: &str) -> Result<Self, String> {
         let builtin = match name_or_path {
             "nerfacto" => Some(include_str!("../../configs/models/nerfacto.yaml")),
             "multispectral-nerf" => Some(include_str!("../../configs/models/multispectral-nerf.yaml")),
             "tiny" => Some(include_str!("../../configs/models/tiny.yaml")),
+            "demo" => Some(include_str!("../../configs/models/demo.yaml")),
             _ => None,
         };
         match builtin {

@@ -1,0 +1,120 @@
+//! `msnerf bench train`: milliseconds per training step, rays/s and the per-kernel time breakdown, for a model
+//! profile at a given number of bands, on synthetic rays (a ring of cameras around the origin and random targets), so
+//! the numbers depend only on the model, the batch and the device.
+
+use crate::data::camera::{Camera, CameraModel, Distortion};
+use crate::gpu::TimingReport;
+use crate::gpu::{Context, KernelTime};
+use crate::nerf::config::ModelConfig;
+use crate::nerf::model::Model;
+use crate::nerf::pipeline::{Batch, Pipeline};
+use crate::nerf::rays::GpuCamera;
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+use std::time::Instant;
+
+#[derive(Clone, Debug, Serialize)]
+pub struct TrainBench {
+    pub model: String,
+    pub bands: usize,
+    pub rays_per_batch: usize,
+    pub rays_per_chunk: usize,
+    pub steps: usize,
+    pub ms_per_step: f64,
+    pub rays_per_s: f64,
+    pub kernels: Vec<KernelTime>,
+    pub gpu_ms_per_step: f64,
+}
+
+fn ring_cameras(n: usize) -> Vec<GpuCamera> {
+    let cam = Camera {
+        model: CameraModel::Pinhole,
+        fx: 200.0,
+        fy: 200.0,
+        cx: 128.0,
+        cy: 96.0,
+        width: 256,
+        height: 192,
+        distortion: Distortion::default(),
+    };
+    (0..n)
+        .map(|i| {
+            let a = i as f32 * std::f32::consts::TAU / n as f32;
+            let pos = [0.9 * a.cos(), 0.9 * a.sin(), 0.4];
+            let l = (pos[0] * pos[0] + pos[1] * pos[1] + pos[2] * pos[2]).sqrt();
+            let z = pos.map(|v| v / l);
+            let xl = (z[0] * z[0] + z[1] * z[1]).sqrt();
+            let x = [-z[1] / xl, z[0] / xl, 0.0];
+            let y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]];
+            GpuCamera::new(&cam, &[[x[0], y[0], z[0], pos[0]], [x[1], y[1], z[1], pos[1]], [x[2], y[2], z[2], pos[2]]])
+        })
+        .collect()
+}
+
+/// Runs `steps` timed training steps after `warmup` untimed ones.
+pub fn run(ctx: &Context, cfg: &ModelConfig, bands: usize, steps: usize, warmup: usize) -> Result<TrainBench, String> {
+    let cams = ring_cameras(16);
+    let model = Model::new(ctx, cfg, bands, cams.len()).map_err(|e| e.to_string())?;
+    let mut pipe = Pipeline::new(ctx, model, &cams).map_err(|e| e.to_string())?;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let r = cfg.trainer.rays_per_batch;
+    let mut batch = Batch::default();
+    for _ in 0..r {
+        batch.pixels.extend([
+            rng.random_range(0..cams.len() as u32),
+            rng.random_range(0..192),
+            rng.random_range(0..256),
+        ]);
+        batch.targets.extend((0..bands).map(|_| rng.random_range(0.0f32..1.0)));
+        batch.targets.push(1.0);
+    }
+    for _ in 0..warmup {
+        pipe.train_step(&batch).map_err(|e| e.to_string())?;
+    }
+    let mut timing = TimingReport::default();
+    let t = Instant::now();
+    for _ in 0..steps {
+        timing.accumulate(&pipe.train_step(&batch).map_err(|e| e.to_string())?.timing);
+    }
+    let ms = t.elapsed().as_secs_f64() * 1e3 / steps as f64;
+    let mut kernels = timing.by_kernel();
+    for k in &mut kernels {
+        k.total_ms /= steps as f64;
+    }
+    Ok(TrainBench {
+        model: cfg.name.clone(),
+        bands,
+        rays_per_batch: r,
+        rays_per_chunk: cfg.trainer.rays_per_chunk,
+        steps,
+        ms_per_step: ms,
+        rays_per_s: r as f64 / (ms / 1e3),
+        kernels,
+        gpu_ms_per_step: timing.gpu_ms / steps as f64,
+    })
+}
+
+impl TrainBench {
+    pub fn table(&self) -> String {
+        let mut s = format!(
+            "{} with {} bands: {} rays/batch ({} per chunk): {:.1} ms/step, {:.0} rays/s (GPU time {:.1} ms/step)\n",
+            self.model,
+            self.bands,
+            self.rays_per_batch,
+            self.rays_per_chunk,
+            self.ms_per_step,
+            self.rays_per_s,
+            self.gpu_ms_per_step
+        );
+        for k in &self.kernels {
+            s += &format!(
+                "  {:<24} {:>5} calls {:>9.2} ms/step {:>6.1}%\n",
+                k.name,
+                k.count / self.steps as u32,
+                k.total_ms,
+                100.0 * k.total_ms / self.gpu_ms_per_step.max(1e-9)
+            );
+        }
+        s
+    }
+}
