@@ -24,8 +24,11 @@ pub struct DemoArgs {
     #[arg(long, default_value = "demo-output")]
     pub out: PathBuf,
     /// Seconds of training
-    #[arg(long, default_value_t = 150.0)]
+    #[arg(long, default_value_t = 90.0)]
     pub time_budget: f64,
+    /// Held-out views to evaluate (the demo keeps this small; `msnerf eval` evaluates them all)
+    #[arg(long, default_value_t = 6)]
+    pub eval_views: usize,
     /// Scene: built-in name or YAML file
     #[arg(long, default_value = "campus")]
     pub scene: String,
@@ -85,7 +88,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
 
     println!("[3/6] evaluating held-out views");
     let mut run = LoadedRun::load(&ctx, &run_dir).map_err(anyhow::Error::msg)?;
-    let report = super::eval::evaluate(&mut run, Split::Eval)?;
+    let report = super::eval::evaluate(&mut run, Split::Eval, Some(a.eval_views))?;
     report.write(&run_dir.join("eval.json"))?;
 
     println!("[4/6] rendering CIR and NDVI previews");
@@ -101,22 +104,22 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
     };
     let frames = run.ds.split_indices(Split::Eval);
     let mut tiles = Vec::new();
-    for &f in frames.iter().take(4) {
+    for &f in frames.iter().take(2) {
         tiles.extend(write_view(&mut run, f, &renders, &rargs)?.tiles);
     }
-    let per_view = tiles.len() / frames.len().clamp(1, 4);
+    let per_view = tiles.len() / frames.len().clamp(1, 2);
     let t: Vec<_> =
         tiles.iter().map(|(l, i)| crate::output::raster::contact::Tile { image: i, label: Some(l.as_str()) }).collect();
     crate::output::raster::contact::contact_sheet(&t, per_view.max(1), 4, [32, 32, 32])?
         .write_png(&renders.join("contact_sheet.png"))?;
 
     println!("[5/6] exporting the multispectral point cloud");
-    let raw = export_points(&mut run, &ExportOptions { rays: 150_000, min_accumulation: 0.5, seed: 42 })
+    let raw = export_points(&mut run, &ExportOptions { rays: 100_000, min_accumulation: 0.5, seed: 42 })
         .map_err(anyhow::Error::msg)?;
     let pargs = PointcloudArgs {
         run: run_dir.clone(),
         out: cloud_path.clone(),
-        rays: 150_000,
+        rays: 100_000,
         min_accumulation: 0.5,
         outlier_neighbours: 20,
         outlier_std_ratio: 2.0,

@@ -42,8 +42,12 @@ pub fn ground_truth(run: &LoadedRun, frame: usize) -> anyhow::Result<(SpectralIm
     Ok((img, mask))
 }
 
-pub fn evaluate(run: &mut LoadedRun, split: Split) -> anyhow::Result<EvalReport> {
-    let frames = run.ds.split_indices(split);
+/// Evaluates the views of `split` (at most `max_views`, evenly spread, when given).
+pub fn evaluate(run: &mut LoadedRun, split: Split, max_views: Option<usize>) -> anyhow::Result<EvalReport> {
+    let mut frames = run.ds.split_indices(split);
+    if let Some(m) = max_views.filter(|&m| m > 0 && m < frames.len()) {
+        frames = (0..m).map(|k| frames[k * frames.len() / m]).collect();
+    }
     anyhow::ensure!(!frames.is_empty(), "{}: the {split:?} split has no frames", run.ds.transforms_path.display());
     let mut views = Vec::new();
     for f in frames {
@@ -73,7 +77,7 @@ pub fn run(cli: &Cli, a: &EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
     let ctx = Context::new(&cli.context_desc())?;
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
-    let report = evaluate(&mut run, split)?;
+    let report = evaluate(&mut run, split, None)?;
     let out = a.output.clone().unwrap_or_else(|| a.run.join("eval.json"));
     report.write(&out)?;
     if a.json {
