@@ -48,9 +48,12 @@ float ray_uniform(uint seed, uint step, uint ray, uint level) {
     return float(h >> 8u) * (1.0 / 16777216.0);
 }
 
-// Density activation: sigma = scale * exp(raw) in fp32 (trunc_exp forward).
+// Density activation: sigma = scale * exp(raw) in fp32 (trunc_exp forward). raw is capped at 88 (exp(88) = 1.65e38,
+// the largest integer power below FLT_MAX): an overflowed sigma = +Inf times a zero-width interval (duplicate PDF
+// edges) is NaN, which poisoned every later weight and the backward (docs/stability.md). Unchanged below 88; a NaN
+// raw stays NaN (a comparison, not min(), whose NaN result is undefined) for the trainer's step guard to see.
 float density_from_raw(float raw, float scale) {
-    return scale * exp(raw);
+    return scale * exp(raw > 88.0 ? 88.0 : raw);
 }
 
 // d sigma / d raw with trunc_exp's clamped derivative: scale * exp(clamp(raw, -15, 15)).

@@ -108,6 +108,12 @@ pub fn initial_edges<T: Float>(n: usize, u: T, jitter: bool) -> Vec<T> {
         .collect()
 }
 
+/// The density activation `scale * exp(min(raw, 88))` (the kernels' `density_from_raw`: the cap keeps sigma finite
+/// in fp32, so Inf x 0 = NaN cannot happen on a zero-width interval). A NaN raw stays NaN.
+pub fn density<T: Float>(raw: T, scale: T) -> T {
+    scale * if raw > c(88.0) { c::<T>(88.0) } else { raw }.exp()
+}
+
 /// Per-sample (sigma, delta, tmid) of a level.
 fn samples<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Vec<(T, T, T)> {
     edges
@@ -116,7 +122,7 @@ fn samples<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Vec<(T
         .map(|(e, &r)| {
             let (t0, t1) = (g.t(e[0]), g.t(e[1]));
             let tmid = c::<T>(0.5) * (t0 + t1);
-            let sigma = if g.inside(tmid) { scale * r.exp() } else { T::zero() };
+            let sigma = if g.inside(tmid) { density(r, scale) } else { T::zero() };
             (sigma, t1 - t0, tmid)
         })
         .collect()
