@@ -14,9 +14,18 @@ float spacing_g_inv(float s) {
     return s < 0.5 ? 2.0 * s : 1.0 / (2.0 - 2.0 * s);
 }
 
-// Euclidean distance of a normalised edge s.
+// 1 - g(t) in closed form (no cancellation next to 1).
+float spacing_one_minus_g(float t) {
+    return t < 1.0 ? 1.0 - 0.5 * t : 0.5 / t;
+}
+
+// Euclidean distance of a normalised edge s. The linear-in-disparity branch is evaluated as
+// 0.5 / (s (1 - g(far)) + (1 - s) (1 - g(near))): 1/(2 - 2a) cancels catastrophically next to a = 1 (5 % error in t at
+// far = 1e6) and is 1/0 = Inf once g(far) rounds to 1 (far above ~1.7e7); this form is exact to rounding up to t = far.
 float edge_to_t(float s, float near, float far) {
-    return spacing_g_inv(s * spacing_g(far) + (1.0 - s) * spacing_g(near));
+    float a = s * spacing_g(far) + (1.0 - s) * spacing_g(near);
+    if (a < 0.5) return 2.0 * a;
+    return 0.5 / (s * spacing_one_minus_g(far) + (1.0 - s) * spacing_one_minus_g(near));
 }
 
 vec3 contract_point(vec3 x) {

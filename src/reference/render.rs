@@ -24,8 +24,23 @@ pub fn spacing_g_inv<T: Float>(s: T) -> T {
     }
 }
 
+/// 1 - g(t) in closed form (no cancellation next to 1).
+pub fn spacing_one_minus_g<T: Float>(t: T) -> T {
+    if t < T::one() {
+        T::one() - c::<T>(0.5) * t
+    } else {
+        c::<T>(0.5) / t
+    }
+}
+
+/// Euclidean distance of edge s: g^-1(s g(far) + (1 - s) g(near)), the linear-in-disparity branch evaluated as
+/// 0.5 / (s (1 - g(far)) + (1 - s)(1 - g(near))) (the kernels' form: no cancellation next to s = 1, finite for any far).
 pub fn edge_to_t<T: Float>(s: T, near: T, far: T) -> T {
-    spacing_g_inv(s * spacing_g(far) + (T::one() - s) * spacing_g(near))
+    let a = s * spacing_g(far) + (T::one() - s) * spacing_g(near);
+    if a < c(0.5) {
+        return c::<T>(2.0) * a;
+    }
+    c::<T>(0.5) / (s * spacing_one_minus_g(far) + (T::one() - s) * spacing_one_minus_g(near))
 }
 
 pub fn contract<T: Float>(x: [T; 3]) -> [T; 3] {
