@@ -65,6 +65,13 @@ float density_from_raw(float raw, float scale) {
     return scale * exp(raw > 88.0 ? 88.0 : raw);
 }
 
+// Opacity 1 - exp(-tau) of an interval. Below tau = 2^-7 a 4-term series (relative error < 2e-10): 1 - exp(-tau)
+// cancels, and an exp that is one ulp off (lavapipe: exp(-4e-20) = 1 - 6e-8) turned near-empty space into weights
+// of 6e-8 per sample, hence an accumulation of 1e-6 and a made-up expected depth (docs/stability.md).
+float alpha_of(float tau) {
+    return tau < 0.0078125 ? tau * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0)))) : 1.0 - exp(-tau);
+}
+
 // d sigma / d raw with trunc_exp's clamped derivative: scale * exp(clamp(raw, -15, 15)).
 float density_grad_scale(float raw, float scale) {
     return scale * exp(clamp(raw, -15.0, 15.0));

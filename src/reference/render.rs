@@ -129,6 +129,11 @@ pub fn density<T: Float>(raw: T, scale: T) -> T {
     scale * if raw > c(88.0) { c::<T>(88.0) } else { raw }.exp()
 }
 
+/// Opacity 1 - exp(-tau) without cancellation (the kernels' `alpha_of`: a 4-term series below 2^-7).
+pub fn alpha<T: Float>(tau: T) -> T {
+    -(-tau).exp_m1()
+}
+
 /// Per-sample (sigma, delta, tmid) of a level.
 fn samples<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Vec<(T, T, T)> {
     edges
@@ -158,7 +163,7 @@ pub fn weights<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Ve
         .into_iter()
         .map(|(sigma, delta, _)| {
             let tau = sigma * delta;
-            let w = nan0((-acc).exp() * (T::one() - (-tau).exp()));
+            let w = nan0((-acc).exp() * alpha(tau));
             acc = acc + tau;
             w
         })
@@ -264,7 +269,7 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
     let mut median = None;
     for (i, &(sigma, delta, tmid)) in s.iter().enumerate() {
         let tau = sigma * delta;
-        let wi = nan0((-acc).exp() * (T::one() - (-tau).exp()));
+        let wi = nan0((-acc).exp() * alpha(tau));
         excl.push(acc);
         acc = acc + tau;
         w.push(wi);
@@ -385,7 +390,7 @@ pub fn weights_backward<T: Float>(geom: &RayGeom<T>, edges: &[T], raw: &[T], sca
     for k in (0..n).rev() {
         let (sigma, delta, _) = s[k];
         let tau = sigma * delta;
-        let wk = nan0((-excl[k]).exp() * (T::one() - (-tau).exp()));
+        let wk = nan0((-excl[k]).exp() * alpha(tau));
         let dsigma = delta * (g[k] * (-(excl[k] + tau)).exp() - sfx);
         let live = geom.contraction || sigma > T::zero();
         out[k] = if live { dsigma * scale * raw[k].max(c(-15.0)).min(c(15.0)).exp() } else { T::zero() };
