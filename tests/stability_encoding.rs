@@ -258,8 +258,8 @@ fn largest_hash_resolution_keeps_u32_indices_exact() {
     ];
     // Exact-arithmetic indices of every corner equal the u32 ones (the table is a power of two).
     for p in &pts {
-        for d in 0..3 {
-            let q = (p[d] * top + 0.5).max(0.0);
+        for x in p {
+            let q = (x * top + 0.5).max(0.0);
             let c = q.floor() as u64;
             assert!(c <= 1 << 19, "vertex coordinate {c} in range");
         }

@@ -140,8 +140,8 @@ fn check_head(c: &MlpConfig, w: &[f32], x: &[f32], case: &CompositeCase, got: &H
     for (m, (rows, cols)) in c.matrices().into_iter().enumerate() {
         let want = &want_g[off..off + rows * cols];
         let mean = want.iter().map(|v| v.abs()).sum::<f64>() / want.len() as f64;
-        for e in 0..rows * cols {
-            let (a, b) = (got.grads[off + e] as f64, want[e]);
+        for (e, &b) in want.iter().enumerate() {
+            let a = got.grads[off + e] as f64;
             assert!((a - b).abs() <= 1e-4 * (b.abs() + mean) + 1e-12, "{what}: matrix {m} element {e}: {a} vs {b}");
         }
         off += rows * cols;
