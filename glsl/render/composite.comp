@@ -72,7 +72,7 @@ void main() {
         float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
         float tmid = 0.5 * (t0 + t1);
         float tau = sigma_of(r, i, o, d, tmid) * (t1 - t0);
-        float w = exp(-acc) * (1.0 - exp(-tau));
+        float w = exp(-acc) * alpha_of(tau);
         w = isnan(w) ? 0.0 : w;
         if (pc.train != 0u) dy_density[(r * pc.n + i) * pc.density_stride] = acc; // exclusive prefix, reused below
         acc += tau;

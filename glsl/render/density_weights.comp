@@ -36,7 +36,7 @@ void main() {
             if (!inside) sigma = 0.0;
         }
         float tau = sigma * (t1 - t0);
-        float w = exp(-acc) * (1.0 - exp(-tau));
+        float w = exp(-acc) * alpha_of(tau);
         weights[r * pc.n + i] = isnan(w) ? 0.0 : w;
         acc += tau;
         t0 = t1;

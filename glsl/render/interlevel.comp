@@ -99,7 +99,7 @@ void main() {
         float sigma = prop_sigma(r, k, o, d, 0.5 * (t0k + t1));
         float tau = sigma * delta;
         float excl = wp[wo + k];
-        float wk = exp(-excl) * (1.0 - exp(-tau));
+        float wk = exp(-excl) * alpha_of(tau);
         wk = isnan(wk) ? 0.0 : wk;
         float g = dy[di];
         float dsigma = delta * (g * exp(-(excl + tau)) - S);

@@ -14,9 +14,18 @@ float spacing_g_inv(float s) {
     return s < 0.5 ? 2.0 * s : 1.0 / (2.0 - 2.0 * s);
 }
 
-// Euclidean distance of a normalised edge s.
+// 1 - g(t) in closed form (no cancellation next to 1).
+float spacing_one_minus_g(float t) {
+    return t < 1.0 ? 1.0 - 0.5 * t : 0.5 / t;
+}
+
+// Euclidean distance of a normalised edge s. The linear-in-disparity branch is evaluated as
+// 0.5 / (s (1 - g(far)) + (1 - s) (1 - g(near))): 1/(2 - 2a) cancels catastrophically next to a = 1 (5 % error in t at
+// far = 1e6) and is 1/0 = Inf once g(far) rounds to 1 (far above ~1.7e7); this form is exact to rounding up to t = far.
 float edge_to_t(float s, float near, float far) {
-    return spacing_g_inv(s * spacing_g(far) + (1.0 - s) * spacing_g(near));
+    float a = s * spacing_g(far) + (1.0 - s) * spacing_g(near);
+    if (a < 0.5) return 2.0 * a;
+    return 0.5 / (s * spacing_one_minus_g(far) + (1.0 - s) * spacing_one_minus_g(near));
 }
 
 vec3 contract_point(vec3 x) {
@@ -48,9 +57,19 @@ float ray_uniform(uint seed, uint step, uint ray, uint level) {
     return float(h >> 8u) * (1.0 / 16777216.0);
 }
 
-// Density activation: sigma = scale * exp(raw) in fp32 (trunc_exp forward).
+// Density activation: sigma = scale * exp(raw) in fp32 (trunc_exp forward). raw is capped at 88 (exp(88) = 1.65e38,
+// the largest integer power below FLT_MAX): an overflowed sigma = +Inf times a zero-width interval (duplicate PDF
+// edges) is NaN, which poisoned every later weight and the backward (docs/stability.md). Unchanged below 88; a NaN
+// raw stays NaN (a comparison, not min(), whose NaN result is undefined) for the trainer's step guard to see.
 float density_from_raw(float raw, float scale) {
-    return scale * exp(raw);
+    return scale * exp(raw > 88.0 ? 88.0 : raw);
+}
+
+// Opacity 1 - exp(-tau) of an interval. Below tau = 2^-7 a 4-term series (relative error < 2e-10): 1 - exp(-tau)
+// cancels, and an exp that is one ulp off (lavapipe: exp(-4e-20) = 1 - 6e-8) turned near-empty space into weights
+// of 6e-8 per sample, hence an accumulation of 1e-6 and a made-up expected depth (docs/stability.md).
+float alpha_of(float tau) {
+    return tau < 0.0078125 ? tau * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0)))) : 1.0 - exp(-tau);
 }
 
 // d sigma / d raw with trunc_exp's clamped derivative: scale * exp(clamp(raw, -15, 15)).

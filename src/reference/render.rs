@@ -24,8 +24,23 @@ pub fn spacing_g_inv<T: Float>(s: T) -> T {
     }
 }
 
+/// 1 - g(t) in closed form (no cancellation next to 1).
+pub fn spacing_one_minus_g<T: Float>(t: T) -> T {
+    if t < T::one() {
+        T::one() - c::<T>(0.5) * t
+    } else {
+        c::<T>(0.5) / t
+    }
+}
+
+/// Euclidean distance of edge s: g^-1(s g(far) + (1 - s) g(near)), the linear-in-disparity branch evaluated as
+/// 0.5 / (s (1 - g(far)) + (1 - s)(1 - g(near))) (the kernels' form: no cancellation next to s = 1, finite for any far).
 pub fn edge_to_t<T: Float>(s: T, near: T, far: T) -> T {
-    spacing_g_inv(s * spacing_g(far) + (T::one() - s) * spacing_g(near))
+    let a = s * spacing_g(far) + (T::one() - s) * spacing_g(near);
+    if a < c(0.5) {
+        return c::<T>(2.0) * a;
+    }
+    c::<T>(0.5) / (s * spacing_one_minus_g(far) + (T::one() - s) * spacing_one_minus_g(near))
 }
 
 pub fn contract<T: Float>(x: [T; 3]) -> [T; 3] {
@@ -108,6 +123,17 @@ pub fn initial_edges<T: Float>(n: usize, u: T, jitter: bool) -> Vec<T> {
         .collect()
 }
 
+/// The density activation `scale * exp(min(raw, 88))` (the kernels' `density_from_raw`: the cap keeps sigma finite
+/// in fp32, so Inf x 0 = NaN cannot happen on a zero-width interval). A NaN raw stays NaN.
+pub fn density<T: Float>(raw: T, scale: T) -> T {
+    scale * if raw > c(88.0) { c::<T>(88.0) } else { raw }.exp()
+}
+
+/// Opacity 1 - exp(-tau) without cancellation (the kernels' `alpha_of`: a 4-term series below 2^-7).
+pub fn alpha<T: Float>(tau: T) -> T {
+    -(-tau).exp_m1()
+}
+
 /// Per-sample (sigma, delta, tmid) of a level.
 fn samples<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Vec<(T, T, T)> {
     edges
@@ -116,7 +142,7 @@ fn samples<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Vec<(T
         .map(|(e, &r)| {
             let (t0, t1) = (g.t(e[0]), g.t(e[1]));
             let tmid = c::<T>(0.5) * (t0 + t1);
-            let sigma = if g.inside(tmid) { scale * r.exp() } else { T::zero() };
+            let sigma = if g.inside(tmid) { density(r, scale) } else { T::zero() };
             (sigma, t1 - t0, tmid)
         })
         .collect()
@@ -137,7 +163,7 @@ pub fn weights<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Ve
         .into_iter()
         .map(|(sigma, delta, _)| {
             let tau = sigma * delta;
-            let w = nan0((-acc).exp() * (T::one() - (-tau).exp()));
+            let w = nan0((-acc).exp() * alpha(tau));
             acc = acc + tau;
             w
         })
@@ -243,7 +269,7 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
     let mut median = None;
     for (i, &(sigma, delta, tmid)) in s.iter().enumerate() {
         let tau = sigma * delta;
-        let wi = nan0((-acc).exp() * (T::one() - (-tau).exp()));
+        let wi = nan0((-acc).exp() * alpha(tau));
         excl.push(acc);
         acc = acc + tau;
         w.push(wi);
@@ -364,7 +390,7 @@ pub fn weights_backward<T: Float>(geom: &RayGeom<T>, edges: &[T], raw: &[T], sca
     for k in (0..n).rev() {
         let (sigma, delta, _) = s[k];
         let tau = sigma * delta;
-        let wk = nan0((-excl[k]).exp() * (T::one() - (-tau).exp()));
+        let wk = nan0((-excl[k]).exp() * alpha(tau));
         let dsigma = delta * (g[k] * (-(excl[k] + tau)).exp() - sfx);
         let live = geom.contraction || sigma > T::zero();
         out[k] = if live { dsigma * scale * raw[k].max(c(-15.0)).min(c(15.0)).exp() } else { T::zero() };
