@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod compare_cloud;
 pub mod devices;
+pub mod plan;
 pub mod simulate;
 pub mod train;
 
@@ -34,6 +35,8 @@ pub enum Command {
     Bench(bench::BenchArgs),
     /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
     Simulate(simulate::SimulateArgs),
+    /// Plan GPU and host memory for training a model on a hardware profile (VRAM budget planner)
+    Plan(plan::PlanArgs),
     /// Compare a point cloud against a reference (accuracy, completeness, F-score, per-band error)
     CompareCloud(compare_cloud::CompareCloudArgs),
 }
@@ -59,5 +62,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => train::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),
+        Command::Plan(a) => plan::run(&cli, a),
     }
 }
