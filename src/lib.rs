@@ -13,6 +13,7 @@ pub mod nerf;
 pub mod nn;
 pub mod ops;
 pub mod output;
+pub mod plan;
 pub mod reference;
 pub mod shaders;
 pub mod sim;

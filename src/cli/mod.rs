@@ -7,6 +7,7 @@ pub mod demo;
 pub mod devices;
 pub mod eval;
 pub mod export;
+pub mod plan;
 pub mod render;
 pub mod simulate;
 pub mod train;
@@ -49,6 +50,8 @@ pub enum Command {
     Bench(bench::BenchArgs),
     /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
     Simulate(simulate::SimulateArgs),
+    /// Plan GPU and host memory for training a model on a hardware profile (VRAM budget planner)
+    Plan(plan::PlanArgs),
     /// Compare a point cloud against a reference (accuracy, completeness, F-score, per-band error)
     CompareCloud(compare_cloud::CompareCloudArgs),
 }
@@ -79,5 +82,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),
+        Command::Plan(a) => plan::run(&cli, a),
     }
 }

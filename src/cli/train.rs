@@ -49,10 +49,19 @@ pub struct TrainArgs {
     /// No progress bar
     #[arg(long)]
     pub quiet: bool,
+    /// Hardware profile (rtx2080ti-11gb, a100-80gb, lavapipe, a YAML file, or `auto`: this device's memory through
+    /// the planner): ray counts and cache sizes from it; refuses before allocating when the plan does not fit.
+    /// Explicit --rays-per-* flags still override the profile.
+    #[arg(long)]
+    pub hardware: Option<String>,
 }
 
 pub fn model_with_overrides(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
-    let mut m = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    let m = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    apply_overrides(m, a)
+}
+
+fn apply_overrides(mut m: ModelConfig, a: &TrainArgs) -> anyhow::Result<ModelConfig> {
     let t = &mut m.trainer;
     if let Some(v) = a.max_steps {
         t.max_steps = v;
@@ -75,7 +84,7 @@ pub fn model_with_overrides(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
 }
 
 pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
-    let model = model_with_overrides(a)?;
+    let mut model = model_with_overrides(a)?;
     let out = a.out.clone().unwrap_or_else(|| {
         let ds = a.data.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "data".into());
         PathBuf::from("runs").join(format!("{ds}-{}", model.name))
@@ -90,14 +99,42 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
     let s2 = stop.clone();
     let _ = ctrlc::set_handler(move || s2.store(true, std::sync::atomic::Ordering::Relaxed));
     let ctx = Context::new(&cli.context_desc())?;
+    let (mut host_budget_bytes, mut resample_every) =
+        ((a.host_budget_gib * (1u64 << 30) as f64) as u64, a.resample_every);
+    if let Some(h) = &a.hardware {
+        use crate::plan::{train as pt, DatasetShape};
+        let ds = crate::data::load_dataset(&a.data, &Default::default()).map_err(anyhow::Error::msg)?;
+        let shape = DatasetShape::from_dataset(&ds);
+        let base = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+        let profile = pt::resolve_profile(&ctx, h, &base, &shape).map_err(anyhow::Error::msg)?;
+        let mut m = base;
+        pt::apply_profile(&mut m, &profile);
+        model = apply_overrides(m, a)?;
+        let p = pt::check_training(&ctx, &model, &profile, shape).map_err(anyhow::Error::msg)?;
+        host_budget_bytes = p.host.cache_budget_bytes;
+        resample_every = p.host.resample_every.unwrap_or(resample_every);
+        let t = &model.trainer;
+        eprintln!(
+            "hardware {}: {} rays per batch in chunks of {}, eval chunks of {}; planned VRAM {:.2} of {:.2} GiB; cache N = {} of {} images{}",
+            profile.name,
+            t.rays_per_batch,
+            t.rays_per_chunk,
+            t.eval_rays_per_chunk,
+            p.vram.total_bytes as f64 / (1u64 << 30) as f64,
+            p.vram_budget_bytes as f64 / (1u64 << 30) as f64,
+            p.host.n_resident,
+            p.host.n_images,
+            p.host.resample_every.map(|m| format!(", M = {m}")).unwrap_or_default()
+        );
+    }
     let opts = TrainOptions {
         data: a.data.clone(),
         model,
         out,
         resume: a.resume,
         time_budget_s: a.time_budget,
-        host_budget_bytes: (a.host_budget_gib * (1u64 << 30) as f64) as u64,
-        resample_every: a.resample_every,
+        host_budget_bytes,
+        resample_every,
         eval_pixels: a.eval_pixels,
         progress: !a.quiet,
         stop: Some(stop),

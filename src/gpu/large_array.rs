@@ -19,6 +19,14 @@ pub struct LargeArray<T: Pod> {
     table: Option<GpuBuffer<u64>>,
 }
 
+/// Element counts of the chunk buffers [`LargeArray::with_chunk_shift`] creates for `len` elements (at least one
+/// chunk); with `bufferDeviceAddress` it adds a chunk table of one `u64` per chunk. The VRAM planner uses this.
+pub fn chunk_lens(len: usize, shift: u32) -> Vec<usize> {
+    let chunk = 1usize << shift;
+    let n_chunks = len.div_ceil(chunk).max(1);
+    (0..n_chunks).map(|c| chunk.min(len - (c * chunk).min(len))).collect()
+}
+
 impl<T: Pod> LargeArray<T> {
     /// Chunks as large as one binding allows (a power of two of elements).
     pub fn new(ctx: &Context, name: &str, len: usize, category: MemoryCategory) -> GpuResult<Self> {
@@ -44,10 +52,9 @@ impl<T: Pod> LargeArray<T> {
                 msg: format!("chunks of 2^{shift} elements exceed one binding"),
             });
         }
-        let n_chunks = len.div_ceil(chunk).max(1);
-        let mut chunks = Vec::with_capacity(n_chunks);
-        for c in 0..n_chunks {
-            let clen = chunk.min(len - (c * chunk).min(len));
+        let lens = chunk_lens(len, shift);
+        let mut chunks = Vec::with_capacity(lens.len());
+        for (c, &clen) in lens.iter().enumerate() {
             chunks.push(GpuBuffer::new(ctx, &BufferDesc { name: &format!("{name}[chunk {c}]"), len: clen, category })?);
         }
         let table = if ctx.caps().buffer_device_address {

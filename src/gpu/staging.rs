@@ -15,7 +15,14 @@ use gpu_allocator::MemoryLocation;
 
 /// Largest staging buffer; bigger transfers go in pieces of this size.
 pub const MAX_STAGING_BYTES: u64 = 64 << 20;
-const MIN_STAGING_BYTES: u64 = 1 << 20;
+/// Smallest staging buffer.
+pub const MIN_STAGING_BYTES: u64 = 1 << 20;
+
+/// Size of the staging buffer a transfer of `bytes` needs (a power of two in [1 MiB, 64 MiB]); each direction's
+/// buffer only grows, so its final size is this of the largest transfer (the VRAM planner uses it).
+pub fn staging_bytes(bytes: u64) -> u64 {
+    bytes.next_power_of_two().clamp(MIN_STAGING_BYTES, MAX_STAGING_BYTES)
+}
 
 #[derive(Default)]
 pub(crate) struct StagingBuffers {
@@ -43,7 +50,7 @@ impl Context {
             }
         }
         if slot.is_none() {
-            let size = bytes.next_power_of_two().clamp(MIN_STAGING_BYTES, MAX_STAGING_BYTES);
+            let size = staging_bytes(bytes);
             let (name, usage, loc) = if upload {
                 ("staging upload", vk::BufferUsageFlags::TRANSFER_SRC, MemoryLocation::CpuToGpu)
             } else {

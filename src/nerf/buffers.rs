@@ -2,7 +2,7 @@
 //! [`PlanAlloc`] only records (name, category, bytes). The VRAM planner uses the second, so it cannot drift from what
 //! the trainer allocates.
 
-use super::model::Model;
+use super::model::{Model, ModelShapes};
 use crate::gpu::{BufferDesc, Context, GpuBuffer, GpuResult, MemoryCategory};
 
 /// Something that hands out buffers of f32 and u32 elements.
@@ -132,6 +132,11 @@ fn mlp_train<A: Alloc>(
 impl<A: Alloc> ChunkBuffers<A> {
     /// Buffers for `rays` rays of `model`; `train` adds what the backward pass needs.
     pub fn new(a: &mut A, model: &Model, rays: usize, train: bool) -> GpuResult<Self> {
+        Self::with_shapes(a, &model.shapes(), rays, train)
+    }
+
+    /// The same from the configuration alone (what the VRAM planner calls with [`PlanAlloc`]).
+    pub fn with_shapes(a: &mut A, model: &ModelShapes, rays: usize, train: bool) -> GpuResult<Self> {
         let (act, ray) = (MemoryCategory::Activations, MemoryCategory::Rays);
         let bands = model.bands;
         let cfg = &model.cfg;
@@ -164,14 +169,13 @@ impl<A: Alloc> ChunkBuffers<A> {
             })
         };
         let mut proposals = Vec::new();
-        for (i, (p, pc)) in model.proposals.iter().zip(&cfg.proposals).enumerate() {
-            let m = &p.mlp.config;
+        for (i, (m, pc)) in model.proposal_mlps.iter().zip(&cfg.proposals).enumerate() {
             proposals.push(level(a, &format!("proposal {i}"), pc.samples, m.in_pad(), m.n_output, m, true)?);
         }
-        let fm = &model.field.mlp.config;
+        let fm = &model.field_mlp;
         let n = cfg.sampling.num_nerf_samples;
         let nerf = level(a, "nerf", n, fm.in_pad(), fm.n_output, fm, false)?;
-        let cm = &model.colour.config;
+        let cm = &model.colour_mlp;
         let s = rays * n;
         let MlpTrain { acts, deltas, scratch } = mlp_train(a, "colour MLP", cm, s, train)?;
         let colour = ColourBuffers {

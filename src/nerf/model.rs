@@ -4,7 +4,7 @@
 
 use super::config::ModelConfig;
 use crate::gpu::{Context, GpuResult};
-use crate::nn::hashgrid::{HashGrid, OutputSlot};
+use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
 use crate::nn::mlp::{Activation, Mlp, MlpConfig};
 use crate::nn::params::{MatrixShape, ParamError, ParamGroup, ParamStore, ParamStoreDesc, SlotDesc, SlotKind};
 
@@ -32,57 +32,58 @@ fn mlp_shapes(c: &MlpConfig) -> Vec<MatrixShape> {
     c.matrices().into_iter().map(|(rows, cols)| MatrixShape { fan_in: cols, fan_out: rows }).collect()
 }
 
-impl Model {
-    /// Colour MLP input width before padding: SH 16 + geometric features + appearance.
-    pub fn colour_inputs(cfg: &ModelConfig) -> usize {
-        16 + cfg.field.geo_feat_dim + cfg.field.appearance_embed_dim
+/// What the model's GPU buffers depend on, from the configuration alone (no device): the MLP shapes, the parameter
+/// groups and slots, and the hash grids. [`Model::new`] builds from it and the VRAM planner (`crate::plan`) plans
+/// from it, so the two cannot disagree.
+#[derive(Clone, Debug)]
+pub struct ModelShapes {
+    pub cfg: ModelConfig,
+    pub bands: usize,
+    pub n_cameras: usize,
+    /// Density MLP of each proposal level, coarse to fine.
+    pub proposal_mlps: Vec<MlpConfig>,
+    pub field_mlp: MlpConfig,
+    pub colour_mlp: MlpConfig,
+}
+
+fn density_mlp(grid: &HashGridConfig, width: usize, layers: usize, n_out: usize) -> MlpConfig {
+    MlpConfig {
+        n_input: grid.n_output(),
+        n_output: n_out,
+        width,
+        n_hidden_layers: layers - 1,
+        output_activation: Activation::None,
+    }
+}
+
+impl ModelShapes {
+    pub fn new(cfg: &ModelConfig, bands: usize, n_cameras: usize) -> Self {
+        let f = &cfg.field;
+        Self {
+            cfg: cfg.clone(),
+            bands,
+            n_cameras,
+            proposal_mlps: cfg.proposals.iter().map(|p| density_mlp(&p.grid, p.hidden_dim, p.num_layers, 1)).collect(),
+            field_mlp: density_mlp(&f.grid, f.hidden_dim, f.num_layers, 1 + f.geo_feat_dim),
+            colour_mlp: MlpConfig {
+                n_input: Model::colour_inputs(cfg),
+                n_output: bands,
+                width: f.hidden_dim_color,
+                n_hidden_layers: f.num_layers_color - 1,
+                output_activation: Activation::Sigmoid,
+            },
+        }
     }
 
-    pub fn new(ctx: &Context, cfg: &ModelConfig, bands: usize, n_cameras: usize) -> Result<Self, ParamError> {
-        let f = &cfg.field;
-        let gpu = |e: crate::gpu::GpuError| ParamError::Gpu(e);
-        let density_field =
-            |ctx: &Context, grid: &crate::nn::hashgrid::HashGridConfig, width, layers, n_out, pad, name: &str| {
-                let enc = grid.n_output();
-                let mlp_cfg = MlpConfig {
-                    n_input: enc,
-                    n_output: n_out,
-                    width,
-                    n_hidden_layers: layers - 1,
-                    output_activation: Activation::None,
-                };
-                let grid_k = HashGrid::new(ctx, grid)?;
-                let mlp = Mlp::new(ctx, &mlp_cfg)?;
-                let in_pad = mlp_cfg.in_pad();
-                GpuResult::Ok(DensityField {
-                    grid: grid_k,
-                    mlp,
-                    grid_slot: format!("{name}.grid"),
-                    mlp_slot: format!("{name}.mlp"),
-                    enc_slot: OutputSlot { stride: in_pad, col: 0, pad_to: in_pad, pad_value: pad },
-                })
-            };
-        // tcnn pads the proposal MLPs' inputs with ones (a learned bias); the field's grid output (32) needs none.
-        let proposals = cfg
-            .proposals
-            .iter()
-            .enumerate()
-            .map(|(i, p)| density_field(ctx, &p.grid, p.hidden_dim, p.num_layers, 1, 1.0, &format!("proposal{i}")))
-            .collect::<GpuResult<Vec<_>>>()
-            .map_err(gpu)?;
-        let field =
-            density_field(ctx, &f.grid, f.hidden_dim, f.num_layers, 1 + f.geo_feat_dim, 0.0, "field").map_err(gpu)?;
-        let colour_cfg = MlpConfig {
-            n_input: Self::colour_inputs(cfg),
-            n_output: bands,
-            width: f.hidden_dim_color,
-            n_hidden_layers: f.num_layers_color - 1,
-            output_activation: Activation::Sigmoid,
-        };
-        let colour = Mlp::new(ctx, &colour_cfg).map_err(gpu)?;
+    /// Every hash grid of the model (the field's first, then the proposals'), each with one level-table buffer.
+    pub fn grids(&self) -> Vec<&HashGridConfig> {
+        std::iter::once(&self.cfg.field.grid).chain(self.cfg.proposals.iter().map(|p| &p.grid)).collect()
+    }
 
-        let o = &cfg.optimizer;
-        let groups = vec![
+    /// The optimiser groups (`fields`, `proposals`) with the configured schedules.
+    pub fn param_groups(&self) -> Vec<ParamGroup> {
+        let o = &self.cfg.optimizer;
+        vec![
             ParamGroup::new("fields", o.fields.lr, o.fields.lr_final, o.fields.max_steps),
             ParamGroup::new("proposals", o.proposals.lr, o.proposals.lr_final, o.proposals.max_steps),
         ]
@@ -92,29 +93,91 @@ impl Model {
             g.adam.eps = eps;
             g
         })
-        .collect::<Vec<_>>();
+        .collect()
+    }
+
+    /// The parameter store's slots, in store order.
+    pub fn param_slots(&self) -> Vec<SlotDesc> {
+        let f = &self.cfg.field;
         let mut slots = vec![
-            SlotDesc::new(&field.grid_slot, SlotKind::HashTable { len: f.grid.n_params() }, "fields"),
-            SlotDesc::new(&field.mlp_slot, SlotKind::Mlp { matrices: mlp_shapes(&field.mlp.config) }, "fields"),
-            SlotDesc::new("field.colour_mlp", SlotKind::Mlp { matrices: mlp_shapes(&colour_cfg) }, "fields"),
+            SlotDesc::new("field.grid", SlotKind::HashTable { len: f.grid.n_params() }, "fields"),
+            SlotDesc::new("field.mlp", SlotKind::Mlp { matrices: mlp_shapes(&self.field_mlp) }, "fields"),
+            SlotDesc::new("field.colour_mlp", SlotKind::Mlp { matrices: mlp_shapes(&self.colour_mlp) }, "fields"),
         ];
         if f.appearance_embed_dim > 0 {
             slots.push(SlotDesc::new(
                 "field.appearance",
                 // One row per camera plus a spare row that holds the mean embedding for evaluation.
-                SlotKind::Embedding { rows: n_cameras + 1, dim: f.appearance_embed_dim },
+                SlotKind::Embedding { rows: self.n_cameras + 1, dim: f.appearance_embed_dim },
                 "fields",
             ));
         }
-        for (p, pc) in proposals.iter().zip(&cfg.proposals) {
-            slots.push(SlotDesc::new(&p.grid_slot, SlotKind::HashTable { len: pc.grid.n_params() }, "proposals"));
-            slots.push(SlotDesc::new(&p.mlp_slot, SlotKind::Mlp { matrices: mlp_shapes(&p.mlp.config) }, "proposals"));
+        for (i, (pc, m)) in self.cfg.proposals.iter().zip(&self.proposal_mlps).enumerate() {
+            slots.push(SlotDesc::new(
+                &format!("proposal{i}.grid"),
+                SlotKind::HashTable { len: pc.grid.n_params() },
+                "proposals",
+            ));
+            slots.push(SlotDesc::new(
+                &format!("proposal{i}.mlp"),
+                SlotKind::Mlp { matrices: mlp_shapes(m) },
+                "proposals",
+            ));
         }
-        let store = ParamStore::new(
-            ctx,
-            &ParamStoreDesc { name: &cfg.name, groups, slots, seed: cfg.trainer.seed, chunk_shift: None },
-        )?;
+        slots
+    }
+
+    /// The store's creation parameters (`chunk_shift` None: as large as one binding of the device allows).
+    pub fn store_desc(&self, chunk_shift: Option<u32>) -> ParamStoreDesc<'_> {
+        ParamStoreDesc {
+            name: &self.cfg.name,
+            groups: self.param_groups(),
+            slots: self.param_slots(),
+            seed: self.cfg.trainer.seed,
+            chunk_shift,
+        }
+    }
+}
+
+impl Model {
+    /// Colour MLP input width before padding: SH 16 + geometric features + appearance.
+    pub fn colour_inputs(cfg: &ModelConfig) -> usize {
+        16 + cfg.field.geo_feat_dim + cfg.field.appearance_embed_dim
+    }
+
+    pub fn new(ctx: &Context, cfg: &ModelConfig, bands: usize, n_cameras: usize) -> Result<Self, ParamError> {
+        let shapes = ModelShapes::new(cfg, bands, n_cameras);
+        let gpu = |e: crate::gpu::GpuError| ParamError::Gpu(e);
+        let density_field = |ctx: &Context, grid: &HashGridConfig, mlp_cfg: &MlpConfig, pad, name: &str| {
+            let grid_k = HashGrid::new(ctx, grid)?;
+            let mlp = Mlp::new(ctx, mlp_cfg)?;
+            let in_pad = mlp_cfg.in_pad();
+            GpuResult::Ok(DensityField {
+                grid: grid_k,
+                mlp,
+                grid_slot: format!("{name}.grid"),
+                mlp_slot: format!("{name}.mlp"),
+                enc_slot: OutputSlot { stride: in_pad, col: 0, pad_to: in_pad, pad_value: pad },
+            })
+        };
+        // tcnn pads the proposal MLPs' inputs with ones (a learned bias); the field's grid output (32) needs none.
+        let proposals = cfg
+            .proposals
+            .iter()
+            .zip(&shapes.proposal_mlps)
+            .enumerate()
+            .map(|(i, (p, m))| density_field(ctx, &p.grid, m, 1.0, &format!("proposal{i}")))
+            .collect::<GpuResult<Vec<_>>>()
+            .map_err(gpu)?;
+        let field = density_field(ctx, &cfg.field.grid, &shapes.field_mlp, 0.0, "field").map_err(gpu)?;
+        let colour = Mlp::new(ctx, &shapes.colour_mlp).map_err(gpu)?;
+        let store = ParamStore::new(ctx, &shapes.store_desc(None))?;
         Ok(Self { cfg: cfg.clone(), bands, n_cameras, proposals, field, colour, store })
+    }
+
+    /// The configuration-only description this model was built from.
+    pub fn shapes(&self) -> ModelShapes {
+        ModelShapes::new(&self.cfg, self.bands, self.n_cameras)
     }
 
     /// Offset of a slot in the store's arrays.

@@ -33,7 +33,7 @@ pub const SLOT_ALIGN: usize = 64;
 /// Scale of the hash-table initialisation U(-1e-4, 1e-4) (tcnn, nerfacto.md §3.4).
 pub const HASH_INIT_SCALE: f32 = 1e-4;
 /// Elements generated or transferred per piece (bounds host memory for 256 MiB tables).
-const PIECE: usize = 1 << 22;
+pub const PIECE: usize = 1 << 22;
 const MAX_NAME_BYTES: usize = 1024;
 
 #[derive(Debug, thiserror::Error)]
@@ -293,7 +293,13 @@ pub struct ParamStore {
 /// The chunk shift `LargeArray::new` would choose for f32 on this device.
 pub fn default_chunk_shift(ctx: &Context) -> u32 {
     let caps = ctx.caps();
-    let max_elems = (caps.max_storage_buffer_range.min(caps.max_memory_allocation_size) / 4).max(1);
+    chunk_shift_for(caps.max_storage_buffer_range, caps.max_memory_allocation_size)
+}
+
+/// The f32 chunk shift for a device with these limits: the largest power of two of elements one binding and one
+/// allocation hold (what [`default_chunk_shift`] computes from a context, and the planner from a profile).
+pub fn chunk_shift_for(max_storage_buffer_range: u64, max_memory_allocation_size: u64) -> u32 {
+    let max_elems = (max_storage_buffer_range.min(max_memory_allocation_size) / 4).max(1);
     63 - max_elems.leading_zeros()
 }
 

@@ -7,7 +7,7 @@ mod reduce;
 mod scan;
 
 pub use fill_copy::{copy, fill};
-pub use reduce::{reduce_sum, sum};
+pub use reduce::{partial_lens, reduce_sum, sum};
 pub use scan::{exclusive_scan, segmented_exclusive_scan};
 
 use crate::gpu::ShaderBlob;

@@ -24,12 +24,7 @@ pub fn reduce_sum<V: ScanValue>(
     let k = Kernel::<ReducePush>::new(ctx, V::REDUCE)?;
     let mut cur: Binding = input.binding();
     let mut cur_n = n;
-    loop {
-        let groups = cur_n.div_ceil(BLOCK);
-        if groups == 1 {
-            rec.dispatch(&k, &[cur, out.binding()], &ReducePush { n: cur_n as u32 }, cur_n as u64)?;
-            return Ok(());
-        }
+    for groups in partial_lens(n) {
         let partial = GpuBuffer::<V>::new(
             ctx,
             &BufferDesc { name: "reduce partials", len: groups, category: MemoryCategory::Other },
@@ -39,6 +34,19 @@ pub fn reduce_sum<V: ScanValue>(
         cur_n = groups;
         rec.keep_alive(partial);
     }
+    rec.dispatch(&k, &[cur, out.binding()], &ReducePush { n: cur_n as u32 }, cur_n as u64)
+}
+
+/// Element counts of the temporary partial-sum buffers [`reduce_sum`] allocates for `n` inputs (all alive until
+/// the recorder's work completes); the VRAM planner counts them.
+pub fn partial_lens(n: usize) -> Vec<usize> {
+    let mut out = Vec::new();
+    let mut cur = n;
+    while cur > 0 && cur.div_ceil(BLOCK) > 1 {
+        cur = cur.div_ceil(BLOCK);
+        out.push(cur);
+    }
+    out
 }
 
 /// Convenience: the sum of `input[0..n]` on the host.

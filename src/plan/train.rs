@@ -1,0 +1,102 @@
+//! Profile-driven training (`msnerf train --hardware H|auto`): the model's ray counts from the profile (auto:
+//! the largest chunks that fit this device), then a plan on this device with the dataset's shape; training is
+//! refused before anything is allocated when it does not fit, naming the largest chunk that would.
+
+use super::device::DeviceRule;
+use super::fit::{fit_chunks, plan, profile_rays, Plan, PlanRequest};
+use super::hardware::{HardwareProfile, TrainerProfile};
+use super::host::DatasetShape;
+use super::vram::RayCounts;
+use crate::gpu::Context;
+use crate::nerf::config::ModelConfig;
+use crate::nerf::model::ModelShapes;
+
+/// Resolves `--hardware` (a profile name or file, or `auto`) for training `model` on `ctx`.
+pub fn resolve_profile(
+    ctx: &Context,
+    hardware: &str,
+    model: &ModelConfig,
+    data: &DatasetShape,
+) -> Result<HardwareProfile, String> {
+    if hardware != "auto" {
+        return HardwareProfile::resolve(hardware);
+    }
+    let t = &model.trainer;
+    let mut p = HardwareProfile::auto(
+        ctx,
+        TrainerProfile {
+            rays_per_batch: t.rays_per_batch,
+            rays_per_chunk: t.rays_per_chunk.min(t.rays_per_batch),
+            eval_rays_per_chunk: t.eval_rays_per_chunk,
+        },
+    );
+    // Fit the chunks to this device: the model's sizes, or smaller where they do not fit.
+    let shapes = ModelShapes::new(model, data.bands, data.n_frames);
+    let dev = DeviceRule::from_context(ctx);
+    let rays = profile_rays(&p);
+    let f = fit_chunks(
+        &shapes,
+        &RayCounts { eval_rays_per_chunk: super::fit::FIT_STEP, ..rays },
+        &dev,
+        p.vram_budget_bytes(),
+    )?;
+    if let Some(r) = f.max_rays_per_chunk {
+        p.trainer.rays_per_chunk = rays.rays_per_chunk.min(r);
+        let f2 = fit_chunks(
+            &shapes,
+            &RayCounts { rays_per_chunk: p.trainer.rays_per_chunk, ..rays },
+            &dev,
+            p.vram_budget_bytes(),
+        )?;
+        if let Some(e) = f2.max_eval_rays_per_chunk {
+            p.trainer.eval_rays_per_chunk = rays.eval_rays_per_chunk.min(e);
+        }
+    }
+    Ok(p)
+}
+
+/// Sets the model's ray counts from the profile.
+pub fn apply_profile(model: &mut ModelConfig, p: &HardwareProfile) {
+    let r = profile_rays(p);
+    model.trainer.rays_per_batch = r.rays_per_batch;
+    model.trainer.rays_per_chunk = r.rays_per_chunk;
+    model.trainer.eval_rays_per_chunk = r.eval_rays_per_chunk;
+}
+
+/// Plans training `model` (its ray counts as they are) on `ctx` against `p`'s budgets; an error, before anything
+/// is allocated, when it does not fit.
+pub fn check_training(
+    ctx: &Context,
+    model: &ModelConfig,
+    p: &HardwareProfile,
+    data: DatasetShape,
+) -> Result<Plan, String> {
+    let t = &model.trainer;
+    let rays = RayCounts {
+        rays_per_batch: t.rays_per_batch,
+        rays_per_chunk: t.rays_per_chunk,
+        eval_rays_per_chunk: t.eval_rays_per_chunk,
+    };
+    let dev = DeviceRule::from_context(ctx);
+    let req = PlanRequest { model, profile: p, data, rays: Some(rays), fit: false };
+    let mut pl = plan(&req, &dev)?;
+    if pl.fits {
+        return Ok(pl);
+    }
+    let shapes = ModelShapes::new(model, pl.data.bands, pl.data.n_frames);
+    let f = fit_chunks(&shapes, &rays, &dev, p.vram_budget_bytes())?;
+    let hint = match (pl.fits_vram, f.max_rays_per_chunk) {
+        (true, _) => String::new(),
+        (false, Some(r)) => format!(
+            "; the largest training chunk that fits is --rays-per-chunk {r} (the batch of {} rays is then processed in {} passes)",
+            t.rays_per_batch,
+            t.rays_per_batch.div_ceil(r)
+        ),
+        (false, None) => format!(
+            "; no training chunk fits with an evaluation chunk of {} rays (try a smaller eval_rays_per_chunk)",
+            t.eval_rays_per_chunk
+        ),
+    };
+    pl.fit = Some(f);
+    Err(format!("training does not fit {}: {}{hint}", p.name, pl.problems().join("; ")))
+}
