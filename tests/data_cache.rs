@@ -1,5 +1,6 @@
 //! Host image cache: budget respected across resampling, every image visited, paper-scale plan, sampling.
 
+mod common;
 mod data_support;
 
 use data_support::TempDir;

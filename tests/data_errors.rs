@@ -1,6 +1,7 @@
 //! Every bad input of dataset.md gets an error naming the file and the key or frame; nothing panics and the
 //! user's files are not modified.
 
+mod common;
 mod data_support;
 
 use data_support::*;

@@ -1,6 +1,7 @@
 //! Thousands of seeded corruptions (bit flips, truncations, byte insertions) of TIFF, EXR and JSON inputs:
 //! the readers and the loader must return errors, never panic.
 
+mod common;
 mod data_support;
 
 use std::panic::{catch_unwind, AssertUnwindSafe};

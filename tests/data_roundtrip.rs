@@ -1,6 +1,7 @@
 //! Round trips: datasets written here in every supported variant read back bit-exact (integers) and exact
 //! (floats), with the documented scaling.
 
+mod common;
 mod data_support;
 
 use data_support::*;

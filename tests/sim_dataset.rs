@@ -1,6 +1,7 @@
 //! The written dataset: determinism (seed, thread count), layouts (multi-band, band files, u16), any number of
 //! bands, atomic writing, and errors that name the scene file and key (library and `msnerf simulate`).
 
+mod common;
 mod sim_support;
 
 use msnerf::sim::{simulate, PixelFormat, SceneDesc, SimOptions};

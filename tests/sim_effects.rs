@@ -2,6 +2,7 @@
 //! measured effect (vignetting radial fall-off, misregistration pixel shift, exposure drift gain, noise std
 //! and 12-bit quantisation).
 
+mod common;
 mod sim_support;
 
 use msnerf::sim::SimOptions;

@@ -2,6 +2,7 @@
 //! analytic surfaces, poses follow the flight plan, intrinsics are the MS600Pro's, and the ground-truth point
 //! cloud lies on the surfaces with the materials' band reflectances.
 
+mod common;
 mod sim_support;
 
 use msnerf::data::check_dataset;

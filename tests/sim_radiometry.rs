@@ -1,6 +1,7 @@
 //! Radiometry of the simulator: band integration, flat Lambertian light, sun + sky with cast shadows, and the
 //! vegetation BRDF, each against its documented formula (src/sim/effects.rs, src/sim/spectra.rs).
 
+mod common;
 mod sim_support;
 
 use msnerf::sim::spectra::{band_value, fwhm_to_sigma, Response, Spectrum};

@@ -1,37 +1,12 @@
 //! Shared helpers for tests/sim_*.rs: temp folders, small scenes as YAML, and simulate-then-load.
 #![allow(dead_code)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use msnerf::data::{load_dataset, Dataset, LoadOptions, Raster};
 use msnerf::sim::{simulate, SceneDesc, SimOptions};
 
-/// A unique folder under the system temp dir, removed on drop.
-pub struct TempDir(pub PathBuf);
-
-impl TempDir {
-    pub fn new(tag: &str) -> TempDir {
-        use std::sync::atomic::{AtomicU64, Ordering};
-        static N: AtomicU64 = AtomicU64::new(0);
-        let p = std::env::temp_dir().join(format!(
-            "msnerf_sim_{tag}_{}_{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&p);
-        std::fs::create_dir_all(&p).unwrap();
-        TempDir(p)
-    }
-    pub fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+pub use crate::common::TempDir;
 
 pub fn scene(yaml: &str) -> SceneDesc {
     SceneDesc::from_yaml(yaml, "test.yaml").unwrap_or_else(|e| panic!("{e}"))
