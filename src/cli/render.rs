@@ -97,6 +97,11 @@ pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs)
 }
 
 pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
+    // Check every flag before rendering anything, so a typo does not leave a half-filled output folder.
+    for name in &a.indices {
+        VegetationIndex::parse(name)?;
+    }
+    stretch(&a.stretch)?;
     let ctx = Context::new(&cli.context_desc())?;
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
     let frames: Vec<usize> = match a.views.as_str() {

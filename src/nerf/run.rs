@@ -35,6 +35,12 @@ pub struct RenderedView {
 impl LoadedRun {
     /// Loads `dir`; errors name the file that is missing or malformed.
     pub fn load(ctx: &Context, dir: &Path) -> Result<Self, String> {
+        if !dir.join("config.yaml").is_file() || !dir.join("checkpoints/latest.msnp").is_file() {
+            return Err(format!(
+                "{}: not a run folder (it needs config.yaml and checkpoints/latest.msnp, as `msnerf train` writes)",
+                dir.display()
+            ));
+        }
         let cfg = ModelConfig::load(&dir.join("config.yaml"))?;
         let info_path = dir.join("dataset.json");
         let info: serde_json::Value = serde_json::from_str(
