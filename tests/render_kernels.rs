@@ -257,6 +257,7 @@ fn composite_in<'a>(
         background: bg,
         rgb_norm: 1.0 / (cc.nr * cc.bands) as f64,
         dist_norm: 0.002 / cc.nr as f64,
+        grad_scaling: false,
     }
 }
 
@@ -267,7 +268,12 @@ fn composite_matches_twin_for_every_background() {
     let mut r = rng(3);
     let cc = composite_case(&mut r, 53, 24, 6);
     let (nr, n, bb) = (cc.nr, cc.n, cc.bands);
-    for (bg, bgv) in [(tw::Background::LastSample, None), (tw::Background::Constant(1.0), Some(1.0f32))] {
+    let cases = [
+        (tw::Background::LastSample, None, false),
+        (tw::Background::Constant(1.0), Some(1.0f32), false),
+        (tw::Background::LastSample, None, true),
+    ];
+    for (bg, bgv, gs) in cases {
         let geo = Geometry { near: 0.05, far: 1000.0, contraction: true };
         let o = up(&g, "o", &cc.rays.o.concat());
         let d = up(&g, "d", &cc.rays.d.concat());
@@ -293,6 +299,7 @@ fn composite_matches_twin_for_every_background() {
             background: bgv,
             rgb_norm: 1.0 / (nr * bb) as f32,
             dist_norm: 0.002 / nr as f32,
+            grad_scaling: gs,
             train: true,
         };
         let bufs = CompositeBuffers {
@@ -321,7 +328,15 @@ fn composite_matches_twin_for_every_background() {
             let (raw, colours) = (f(&cc.raw[i * n..(i + 1) * n]), f(&cc.colours[i * n * bb..(i + 1) * n * bb]));
             let (target, edges) =
                 (f(&cc.targets[i * (bb + 1)..i * (bb + 1) + bb]), f(&cc.edges[i * (n + 1)..(i + 1) * (n + 1)]));
-            let t = tw::composite(&composite_in(&cc, i, &raw, &colours, &target, &bw64, &edges, geo, bg));
+            let mut ci = composite_in(&cc, i, &raw, &colours, &target, &bw64, &edges, geo, bg);
+            ci.grad_scaling = gs;
+            let t = tw::composite(&ci);
+            if gs {
+                // Gradient scaling only damps: never larger than without it, and strictly smaller near the camera.
+                ci.grad_scaling = false;
+                let plain = tw::composite(&ci);
+                assert!(t.d_raw.iter().zip(&plain.d_raw).all(|(a, b)| a.abs() <= b.abs() + 1e-15));
+            }
             check_vals(&gw[i * n..(i + 1) * n], &t.weights, "weights");
             let ro = &go[i * (6 + bb)..(i + 1) * (6 + bb)];
             check_vals(

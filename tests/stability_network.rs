@@ -124,6 +124,7 @@ fn check_head(c: &MlpConfig, w: &[f32], x: &[f32], case: &CompositeCase, got: &H
             background: tw::Background::LastSample,
             rgb_norm: case.rgb_norm() as f64,
             dist_norm: case.dist_norm() as f64,
+            grad_scaling: false,
         });
         let ro = &got.comp.ray_out[i * (6 + bb)..(i + 1) * (6 + bb)];
         check_vals(&ro[..3], &[t.loss_rgb, t.loss_dist, t.accumulation], &format!("{what}: ray {i} losses"));

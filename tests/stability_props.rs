@@ -133,6 +133,7 @@ proptest! {
             background: bg.map_or(tw::Background::LastSample, tw::Background::Constant),
             rgb_norm: 0.5,
             dist_norm: 0.002,
+            grad_scaling: false,
         });
         prop_assert!(t.d_raw.iter().chain(&t.d_colour).all(|v| v.is_finite()), "{:?} {:?}", t.d_raw, t.d_colour);
         prop_assert!(t.loss_rgb.is_finite() && t.loss_dist.is_finite() && t.expected_depth.is_finite());

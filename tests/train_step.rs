@@ -66,8 +66,13 @@ fn cameras() -> (Vec<Camera>, Vec<[[f32; 4]; 3]>) {
 }
 
 fn check_step(update: bool, seed: u64) {
+    check_step_with(update, seed, false);
+}
+
+fn check_step_with(update: bool, seed: u64, gradient_scaling: bool) {
     let g = gpu();
-    let cfg = small_config();
+    let mut cfg = small_config();
+    cfg.loss.gradient_scaling = gradient_scaling;
     let bands = 6;
     let (cams, poses) = cameras();
     let model = Model::new(&g, &cfg, bands, cams.len()).expect("model");
@@ -167,4 +172,9 @@ fn whole_step_matches_reference_on_a_proposal_update_step() {
 #[test]
 fn whole_step_matches_reference_without_proposal_update() {
     check_step(false, 12);
+}
+
+#[test]
+fn whole_step_matches_reference_with_gradient_scaling() {
+    check_step_with(true, 11, true);
 }

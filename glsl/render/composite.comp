@@ -14,7 +14,8 @@
 //           5 dy_density (rows of density_stride: column 0 written), 6 dy_colour (float[R*N][B], written),
 //           7 weights (float[R][N], written), 8 ray_out (float[R][6+B], written), 9 origins, 10 directions.
 // Push:     n_rays, n, bands, near, far, density_stride, density_scale, background (0 last_sample, 1 constant),
-//           bg_value, rgb_norm, dist_norm, train, contraction.
+//           bg_value, rgb_norm, dist_norm, train, contraction, grad_scaling (1: nerfacto's optional gradient
+//           scaling, every field-output gradient times clamp(t_mid^2, 0, 1), damping near-camera samples).
 // Threads:  one invocation per ray, serial over its samples (forward, then a reverse pass), 64 per group.
 #version 460
 #define WG_SIZE 64
@@ -34,7 +35,7 @@ layout(std430, binding = 9) readonly buffer Origins { float origins[]; };
 layout(std430, binding = 10) readonly buffer Dirs { float dirs[]; };
 layout(push_constant) uniform Push {
     uint n_rays; uint n; uint bands; float near; float far; uint density_stride; float density_scale;
-    uint background; float bg_value; float rgb_norm; float dist_norm; uint train; uint contraction;
+    uint background; float bg_value; float rgb_norm; float dist_norm; uint train; uint contraction; uint grad_scaling;
 } pc;
 
 const uint MAX_BANDS = 128u;
@@ -123,13 +124,15 @@ void main() {
         float sigma = sigma_of(r, k, o, d, 0.5 * (t0k + t1));
         float t_next = exp(-(dy_density[di] + sigma * delta)); // T_{k+1}
         float w = weights[r * pc.n + k];
+        float tmid = 0.5 * (t0k + t1);
+        float gs = pc.grad_scaling != 0u ? min(tmid * tmid, 1.0) : 1.0;
         float g = -Gbg;
         for (uint b = 0u; b < B; ++b) {
             float gb = C[b];
             g += gb * colours[(r * pc.n + k) * B + b];
             float dc = w * gb;
             if (k == pc.n - 1u && pc.background == 0u) dc += (1.0 - A) * gb;
-            dy_colour[(r * pc.n + k) * B + b] = dc;
+            dy_colour[(r * pc.n + k) * B + b] = dc * gs;
         }
         // Distortion gradient (edges detached): W_k = W - w - Sw, M_k = M - w m - Swm.
         float s0 = edges[e0 + k], s1 = edges[e0 + k + 1u];
@@ -139,7 +142,7 @@ void main() {
         g += gd * pc.dist_norm * ray_w;
         float dsigma = delta * (g * t_next - S);
         bool live = pc.contraction != 0u || sigma > 0.0;
-        dy_density[di] = live ? dsigma * density_grad_scale(raw, pc.density_scale) : 0.0;
+        dy_density[di] = live ? dsigma * density_grad_scale(raw, pc.density_scale) * gs : 0.0;
         S += g * w;
         Sw += w;
         Swm += w * m;

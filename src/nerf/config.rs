@@ -96,11 +96,15 @@ pub struct LossConfig {
     /// Optional weight per band in the MSE of eq. 3.1 (one per dataset band).
     #[serde(default)]
     pub band_weights: Option<Vec<f32>>,
+    /// nerfacto's `use_gradient_scaling` (off by default): every NeRF-field output gradient is multiplied by
+    /// clamp(t^2, 0, 1), damping near-camera floaters. Off costs nothing.
+    #[serde(default)]
+    pub gradient_scaling: bool,
 }
 
 impl Default for LossConfig {
     fn default() -> Self {
-        Self { interlevel_mult: 1.0, distortion_mult: 0.002, band_weights: None }
+        Self { interlevel_mult: 1.0, distortion_mult: 0.002, band_weights: None, gradient_scaling: false }
     }
 }
 

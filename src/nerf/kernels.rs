@@ -102,6 +102,7 @@ struct CompositePush {
     dist_norm: f32,
     train: u32,
     contraction: u32,
+    grad_scaling: u32,
 }
 
 #[repr(C)]
@@ -163,6 +164,8 @@ pub struct CompositeParams {
     pub rgb_norm: f32,
     pub dist_norm: f32,
     pub train: bool,
+    /// nerfacto's optional gradient scaling (field-output gradients times clamp(t_mid^2, 0, 1)).
+    pub grad_scaling: bool,
 }
 
 /// Buffers of the composite kernel.
@@ -382,6 +385,7 @@ impl RenderKernels {
             dist_norm: p.dist_norm,
             train: b(p.train),
             contraction: b(geo.contraction),
+            grad_scaling: b(p.grad_scaling),
         };
         let bindings = [
             bufs.edges.binding(),

@@ -245,6 +245,7 @@ impl Pipeline {
             rgb_norm,
             dist_norm,
             train: true,
+            grad_scaling: m.cfg.loss.gradient_scaling,
         };
         let cb = CompositeBuffers {
             edges: &lv.edges,
@@ -494,6 +495,7 @@ impl Pipeline {
                     rgb_norm: 0.0,
                     dist_norm: 0.0,
                     train: false,
+                    grad_scaling: false,
                 };
                 let cb = CompositeBuffers {
                     edges: &b.nerf.edges,

@@ -138,6 +138,7 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
             background,
             rgb_norm,
             dist_norm,
+            grad_scaling: cfg.loss.gradient_scaling,
         });
         out.loss_rgb += comp.loss_rgb;
         out.loss_distortion += comp.loss_dist;

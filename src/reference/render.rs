@@ -248,6 +248,8 @@ pub struct CompositeIn<'a, T> {
     pub background: Background,
     pub rgb_norm: T,
     pub dist_norm: T,
+    /// nerfacto's optional gradient scaling: field-output gradients times clamp(t_mid^2, 0, 1).
+    pub grad_scaling: bool,
 }
 
 pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
@@ -301,7 +303,8 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
     let mut d_colour = vec![T::zero(); n * b_n];
     let (mut sfx, mut sw, mut swm) = (T::zero(), T::zero(), T::zero());
     for k in (0..n).rev() {
-        let (sigma, delta, _) = s[k];
+        let (sigma, delta, tmid) = s[k];
+        let gs = if a.grad_scaling { (tmid * tmid).min(T::one()) } else { T::one() };
         let t_next = (-(excl[k] + sigma * delta)).exp();
         let wk = w[k];
         let mut g = -g_bg;
@@ -311,7 +314,7 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
             if k == n - 1 && a.background == Background::LastSample {
                 dc = dc + (T::one() - big_a) * g_c[b];
             }
-            d_colour[k * b_n + b] = dc;
+            d_colour[k * b_n + b] = dc * gs;
         }
         let (s0, s1) = (a.edges[k], a.edges[k + 1]);
         let m = c::<T>(0.5) * (s0 + s1);
@@ -323,7 +326,7 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         let dsigma = delta * (g * t_next - sfx);
         let live = a.geom.contraction || sigma > T::zero();
         let grad_scale = a.density_scale * a.raw[k].max(c(-15.0)).min(c(15.0)).exp();
-        d_raw[k] = if live { dsigma * grad_scale } else { T::zero() };
+        d_raw[k] = if live { dsigma * grad_scale * gs } else { T::zero() };
         sfx = sfx + g * wk;
         sw = sw + wk;
         swm = swm + wk * m;

@@ -170,6 +170,7 @@ impl<'a> Render<'a> {
             background: c.background,
             rgb_norm: c.rgb_norm(),
             dist_norm: c.dist_norm(),
+            grad_scaling: false,
             train,
         };
         let bufs = CompositeBuffers {
@@ -308,6 +309,7 @@ pub fn twin_composite(c: &CompositeCase, i: usize) -> tw::Composite<f64> {
         },
         rgb_norm: c.rgb_norm() as f64,
         dist_norm: c.dist_norm() as f64,
+        grad_scaling: false,
     })
 }
 
