@@ -268,10 +268,13 @@ fn composite_matches_twin_for_every_background() {
     let mut r = rng(3);
     let cc = composite_case(&mut r, 53, 24, 6);
     let (nr, n, bb) = (cc.nr, cc.n, cc.bands);
+    use msnerf::nerf::kernels::BackgroundMode;
+    let random = BackgroundMode::Random { seed: 7, step: 3 };
     let cases = [
-        (tw::Background::LastSample, None, false),
-        (tw::Background::Constant(1.0), Some(1.0f32), false),
-        (tw::Background::LastSample, None, true),
+        (tw::Background::LastSample, BackgroundMode::LastSample, false),
+        (tw::Background::Constant(1.0), BackgroundMode::Constant(1.0), false),
+        (tw::Background::LastSample, BackgroundMode::LastSample, true),
+        (tw::Background::Random { seed: 7, step: 3, ray: 0 }, random, false),
     ];
     for (bg, bgv, gs) in cases {
         let geo = Geometry { near: 0.05, far: 1000.0, contraction: true };
@@ -328,6 +331,12 @@ fn composite_matches_twin_for_every_background() {
             let (raw, colours) = (f(&cc.raw[i * n..(i + 1) * n]), f(&cc.colours[i * n * bb..(i + 1) * n * bb]));
             let (target, edges) =
                 (f(&cc.targets[i * (bb + 1)..i * (bb + 1) + bb]), f(&cc.edges[i * (n + 1)..(i + 1) * (n + 1)]));
+            // A random background differs per ray: the twin draws it from the same stream (ray offset 0).
+            let bg = if let tw::Background::Random { seed, step, .. } = bg {
+                tw::Background::Random { seed, step, ray: i as u32 }
+            } else {
+                bg
+            };
             let mut ci = composite_in(&cc, i, &raw, &colours, &target, &bw64, &edges, geo, bg);
             ci.grad_scaling = gs;
             let t = tw::composite(&ci);

@@ -66,13 +66,13 @@ fn cameras() -> (Vec<Camera>, Vec<[[f32; 4]; 3]>) {
 }
 
 fn check_step(update: bool, seed: u64) {
-    check_step_with(update, seed, false);
+    check_step_with(update, seed, |_| {});
 }
 
-fn check_step_with(update: bool, seed: u64, gradient_scaling: bool) {
+fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
     let g = gpu();
     let mut cfg = small_config();
-    cfg.loss.gradient_scaling = gradient_scaling;
+    tweak(&mut cfg);
     let bands = 6;
     let (cams, poses) = cameras();
     let model = Model::new(&g, &cfg, bands, cams.len()).expect("model");
@@ -176,5 +176,10 @@ fn whole_step_matches_reference_without_proposal_update() {
 
 #[test]
 fn whole_step_matches_reference_with_gradient_scaling() {
-    check_step_with(true, 11, true);
+    check_step_with(true, 11, |c| c.loss.gradient_scaling = true);
+}
+
+#[test]
+fn whole_step_matches_reference_with_random_background() {
+    check_step_with(false, 12, |c| c.rendering.background = msnerf::nerf::config::Background::Random);
 }

@@ -13,9 +13,11 @@
 //           3 targets (float[R][B+1]: B values then the ray weight), 4 band weights (float[B]),
 //           5 dy_density (rows of density_stride: column 0 written), 6 dy_colour (float[R*N][B], written),
 //           7 weights (float[R][N], written), 8 ray_out (float[R][6+B], written), 9 origins, 10 directions.
-// Push:     n_rays, n, bands, near, far, density_stride, density_scale, background (0 last_sample, 1 constant),
+// Push:     n_rays, n, bands, near, far, density_stride, density_scale, background (0 last_sample, 1 constant,
+//           2 random: a uniform colour per ray and band from (seed, step, ray_offset + ray), as nerfstudio's `random`),
 //           bg_value, rgb_norm, dist_norm, train, contraction, grad_scaling (1: nerfacto's optional gradient
-//           scaling, every field-output gradient times clamp(t_mid^2, 0, 1), damping near-camera samples).
+//           scaling, every field-output gradient times clamp(t_mid^2, 0, 1), damping near-camera samples), seed, step,
+//           ray_offset.
 // Threads:  one invocation per ray, serial over its samples (forward, then a reverse pass), 64 per group.
 #version 460
 #define WG_SIZE 64
@@ -36,6 +38,7 @@ layout(std430, binding = 10) readonly buffer Dirs { float dirs[]; };
 layout(push_constant) uniform Push {
     uint n_rays; uint n; uint bands; float near; float far; uint density_stride; float density_scale;
     uint background; float bg_value; float rgb_norm; float dist_norm; uint train; uint contraction; uint grad_scaling;
+    uint seed; uint step; uint ray_offset;
 } pc;
 
 const uint MAX_BANDS = 128u;
@@ -51,6 +54,7 @@ float sigma_of(uint r, uint i, vec3 o, vec3 d, float tmid) {
 }
 
 float bg_of(uint r, uint b) {
+    if (pc.background == 2u) return ray_uniform(pc.seed, pc.step, pc.ray_offset + r, 100u + b);
     return pc.background == 0u ? colours[(r * pc.n + pc.n - 1u) * pc.bands + b] : pc.bg_value;
 }
 

@@ -79,6 +79,8 @@ pub enum Background {
     LastSample,
     Black,
     White,
+    /// A random colour per ray and band in training (black in evaluation), as nerfstudio's `random`.
+    Random,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]

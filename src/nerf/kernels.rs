@@ -103,6 +103,9 @@ struct CompositePush {
     train: u32,
     contraction: u32,
     grad_scaling: u32,
+    seed: u32,
+    step: u32,
+    ray_offset: u32,
 }
 
 #[repr(C)]
@@ -153,14 +156,24 @@ pub struct Jitter {
     pub enabled: bool,
 }
 
+/// The background a ray sees where it is not opaque.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub enum BackgroundMode {
+    /// The colour of the last (farthest) sample, learnable (nerfacto's default).
+    LastSample,
+    /// The same value in every band (black 0, white 1).
+    Constant(f32),
+    /// A uniform colour per ray and band from (seed, step, ray) (training only).
+    Random { seed: u32, step: u32 },
+}
+
 /// Composite settings.
 #[derive(Copy, Clone, Debug)]
 pub struct CompositeParams {
     pub bands: usize,
     pub density_stride: usize,
     pub density_scale: f32,
-    /// None: last_sample; Some(v): constant background v in every band.
-    pub background: Option<f32>,
+    pub background: BackgroundMode,
     pub rgb_norm: f32,
     pub dist_norm: f32,
     pub train: bool,
@@ -379,13 +392,20 @@ impl RenderKernels {
             far: geo.far,
             density_stride: p.density_stride as u32,
             density_scale: p.density_scale,
-            background: b(p.background.is_some()),
-            bg_value: p.background.unwrap_or(0.0),
+            background: match p.background {
+                BackgroundMode::LastSample => 0,
+                BackgroundMode::Constant(_) => 1,
+                BackgroundMode::Random { .. } => 2,
+            },
+            bg_value: if let BackgroundMode::Constant(v) = p.background { v } else { 0.0 },
             rgb_norm: p.rgb_norm,
             dist_norm: p.dist_norm,
             train: b(p.train),
             contraction: b(geo.contraction),
             grad_scaling: b(p.grad_scaling),
+            seed: if let BackgroundMode::Random { seed, .. } = p.background { seed } else { 0 },
+            step: if let BackgroundMode::Random { step, .. } = p.background { step } else { 0 },
+            ray_offset: rays.ray_offset,
         };
         let bindings = [
             bufs.edges.binding(),

@@ -10,7 +10,7 @@
 use super::buffers::{ChunkBuffers, GpuAlloc, RAY_OUT_FIXED};
 use super::config::Background;
 use super::kernels::{
-    CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
+    BackgroundMode, CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
 };
 use super::model::Model;
 use super::rays::GpuCamera;
@@ -98,11 +98,15 @@ impl Pipeline {
         Geometry { near: if eval { 0.0 } else { s.near }, far: s.far, contraction: s.scene_contraction }
     }
 
-    fn background(&self) -> Option<f32> {
+    fn background(&self, train: bool) -> BackgroundMode {
         match self.model.cfg.rendering.background {
-            Background::LastSample => None,
-            Background::Black => Some(0.0),
-            Background::White => Some(1.0),
+            Background::LastSample => BackgroundMode::LastSample,
+            Background::Black => BackgroundMode::Constant(0.0),
+            Background::White => BackgroundMode::Constant(1.0),
+            Background::Random if train => {
+                BackgroundMode::Random { seed: self.model.cfg.trainer.seed as u32, step: self.step as u32 }
+            }
+            Background::Random => BackgroundMode::Constant(0.0),
         }
     }
 
@@ -222,7 +226,7 @@ impl Pipeline {
         &self,
         rec: &mut Recorder,
         b: &ChunkBuffers<GpuAlloc>,
-        r: usize,
+        (r, ray_offset): (usize, usize),
         norms: (f32, f32, f32),
         update_props: bool,
     ) -> GpuResult<()> {
@@ -231,7 +235,7 @@ impl Pipeline {
         let store = &m.store;
         let (params, grads) = (store.params(), store.grads());
         let geo = self.geometry(false);
-        let rb = RayBuffers { origins: &b.origins, dirs: &b.dirs, n_rays: r, ray_offset: 0 };
+        let rb = RayBuffers { origins: &b.origins, dirs: &b.dirs, n_rays: r, ray_offset: ray_offset as u32 };
         let scale = m.cfg.field.average_init_density;
         let lv = &b.nerf;
         let f = &m.field;
@@ -241,7 +245,7 @@ impl Pipeline {
             bands: m.bands,
             density_stride: fm.n_output,
             density_scale: scale,
-            background: self.background(),
+            background: self.background(true),
             rgb_norm,
             dist_norm,
             train: true,
@@ -388,7 +392,7 @@ impl Pipeline {
                 )?;
                 let mut rec = self.ctx.recorder("train chunk")?;
                 self.record_forward(&mut rec, &b, (r, c0), true, update_props)?;
-                self.record_backward(&mut rec, &b, r, norms, update_props)?;
+                self.record_backward(&mut rec, &b, (r, c0), norms, update_props)?;
                 rec.submit_and_wait()
             };
             match run() {
@@ -491,7 +495,7 @@ impl Pipeline {
                     bands,
                     density_stride: m.field.mlp.config.n_output,
                     density_scale: m.cfg.field.average_init_density,
-                    background: self.background(),
+                    background: self.background(false),
                     rgb_norm: 0.0,
                     dist_norm: 0.0,
                     train: false,

@@ -48,6 +48,7 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         crate::nerf::config::Background::LastSample => render::Background::LastSample,
         crate::nerf::config::Background::Black => render::Background::Constant(0.0),
         crate::nerf::config::Background::White => render::Background::Constant(1.0),
+        crate::nerf::config::Background::Random => render::Background::Constant(f64::NAN), // per ray, below
     };
     let mut out = RefStep { grads: vec![0.0; params.len()], ..Default::default() };
     let slice = |name: &str, len: usize| model.offset(name)..model.offset(name) + len;
@@ -135,7 +136,11 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
             ray_weight: ray.weight,
             band_weights: &band_w,
             density_scale: scale,
-            background,
+            background: if matches!(cfg.rendering.background, crate::nerf::config::Background::Random) {
+                render::Background::Random { seed, step: step as u32, ray: gi as u32 }
+            } else {
+                background
+            },
             rgb_norm,
             dist_norm,
             grad_scaling: cfg.loss.gradient_scaling,

@@ -216,6 +216,12 @@ pub fn pdf_resample<T: Float>(edges: &[T], weights: &[T], m: usize, anneal: T, u
 pub enum Background {
     LastSample,
     Constant(f64),
+    /// A uniform colour per ray and band from the kernels' random stream (nerfstudio's `random`, training only).
+    Random {
+        seed: u32,
+        step: u32,
+        ray: u32,
+    },
 }
 
 /// Everything `composite` computes for one ray.
@@ -260,6 +266,7 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         .map(|b| match a.background {
             Background::LastSample => a.colours[(n - 1) * b_n + b],
             Background::Constant(v) => c(v),
+            Background::Random { seed, step, ray } => c(ray_uniform(seed, step, ray, 100 + b as u32) as f64),
         })
         .collect();
     let mut acc = T::zero();

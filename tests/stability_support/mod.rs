@@ -167,7 +167,10 @@ impl<'a> Render<'a> {
             bands: bb,
             density_stride: stride,
             density_scale: c.scale,
-            background: c.background,
+            background: c.background.map_or(
+                msnerf::nerf::kernels::BackgroundMode::LastSample,
+                msnerf::nerf::kernels::BackgroundMode::Constant,
+            ),
             rgb_norm: c.rgb_norm(),
             dist_norm: c.dist_norm(),
             grad_scaling: false,
