@@ -505,7 +505,9 @@ impl Dataset {
         Ok((r, blacks))
     }
 
-    fn read_mask(&self, p: &Path, f: &Frame) -> Result<Vec<u8>, DataError> {
+    /// Decodes an auxiliary image of frame `f` (mask, depth) and checks it has the dataset's size; errors name the
+    /// file, the key it came from and the frame.
+    fn read_sized(&self, p: &Path, f: &Frame, key: &str) -> Result<Raster, DataError> {
         let d = read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
             path: p.to_path_buf(),
             frame: Some(frame_of(f)),
@@ -515,12 +517,17 @@ impl Dataset {
         if (r.width, r.height) != (self.width, self.height) {
             return Err(DataError::ImageSize {
                 path: p.to_path_buf(),
-                key: "mask_path".into(),
+                key: key.into(),
                 frame: Some(frame_of(f)),
                 expected: (self.width, self.height),
                 found: (r.width, r.height),
             });
         }
+        Ok(r)
+    }
+
+    fn read_mask(&self, p: &Path, f: &Frame) -> Result<Vec<u8>, DataError> {
+        let r = self.read_sized(p, f, "mask_path")?;
         let px = (self.width * self.height) as usize;
         Ok((0..px).map(|q| u8::from(r.samples.raw(q * r.bands) != 0.0)).collect())
     }
@@ -529,21 +536,7 @@ impl Dataset {
     pub fn read_depth(&self, i: usize) -> Result<Option<Vec<f32>>, DataError> {
         let f = &self.frames[i];
         let Some(p) = &f.depth else { return Ok(None) };
-        let d = read_image_file(p, self.max_decode_bytes()).map_err(|reason| DataError::Decode {
-            path: p.clone(),
-            frame: Some(frame_of(f)),
-            reason,
-        })?;
-        let r = d.raster;
-        if (r.width, r.height) != (self.width, self.height) {
-            return Err(DataError::ImageSize {
-                path: p.clone(),
-                key: "depth_file_path".into(),
-                frame: Some(frame_of(f)),
-                expected: (self.width, self.height),
-                found: (r.width, r.height),
-            });
-        }
+        let r = self.read_sized(p, f, "depth_file_path")?;
         let s = self.depth_unit_scale_factor;
         let px = (self.width * self.height) as usize;
         Ok(Some((0..px).map(|q| (r.samples.raw(q * r.bands) * s) as f32).collect()))

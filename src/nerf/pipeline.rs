@@ -221,6 +221,39 @@ impl Pipeline {
         }
     }
 
+    /// Backward of one density field over `s` samples: its MLP (from dL/draw rows to dL/dencoding, adding weight
+    /// gradients) then its hash grid's parameter gradient. The NeRF density field and every proposal share it.
+    fn record_density_backward(
+        &self,
+        rec: &mut Recorder,
+        field: &super::model::DensityField,
+        lv: &super::buffers::LevelBuffers<GpuAlloc>,
+        s: usize,
+    ) -> GpuResult<()> {
+        let m = &self.model;
+        let (params, grads) = (m.store.params(), m.store.grads());
+        let c = &field.mlp.config;
+        let mp = ParamSlice { array: params, offset: m.offset(&field.mlp_slot) };
+        let mg = ParamSlice { array: grads, offset: m.offset(&field.mlp_slot) };
+        let input = RowSlice { buf: &lv.enc, stride: c.in_pad(), col: 0 };
+        let out = RowSlice { buf: &lv.raw, stride: c.n_output, col: 0 };
+        let dy = RowSlice { buf: need(&lv.dy), stride: c.n_output, col: 0 };
+        let dx = RowSlice { buf: need(&lv.dx), stride: c.in_pad(), col: 0 };
+        let bufs = crate::nn::mlp::MlpTrainBuffers {
+            acts: need(&lv.acts),
+            deltas: need(&lv.deltas),
+            scratch: need(&lv.scratch),
+        };
+        field.mlp.backward(rec, mp, mg, (input, out, dy), s, &bufs, Some(dx))?;
+        field.grid.backward_params(
+            rec,
+            ParamSlice { array: grads, offset: m.offset(&field.grid_slot) },
+            &lv.positions,
+            s,
+            dx,
+        )
+    }
+
     /// Records composite + backward of one training chunk.
     fn record_backward(
         &self,
@@ -292,25 +325,7 @@ impl Pipeline {
                 &b.cam_idx,
             )?;
         }
-        let mp = ParamSlice { array: params, offset: m.offset(&f.mlp_slot) };
-        let mg = ParamSlice { array: grads, offset: m.offset(&f.mlp_slot) };
-        let fin = RowSlice { buf: &lv.enc, stride: fm.in_pad(), col: 0 };
-        let fout = RowSlice { buf: &lv.raw, stride: fm.n_output, col: 0 };
-        let fdy = RowSlice { buf: need(&lv.dy), stride: fm.n_output, col: 0 };
-        let fdx = RowSlice { buf: need(&lv.dx), stride: fm.in_pad(), col: 0 };
-        let fbufs = crate::nn::mlp::MlpTrainBuffers {
-            acts: need(&lv.acts),
-            deltas: need(&lv.deltas),
-            scratch: need(&lv.scratch),
-        };
-        f.mlp.backward(rec, mp, mg, (fin, fout, fdy), s, &fbufs, Some(fdx))?;
-        f.grid.backward_params(
-            rec,
-            ParamSlice { array: grads, offset: m.offset(&f.grid_slot) },
-            &lv.positions,
-            s,
-            fdx,
-        )?;
+        self.record_density_backward(rec, f, lv, s)?;
         if !update_props {
             return Ok(());
         }
@@ -325,27 +340,7 @@ impl Pipeline {
                 losses: need(&pl.losses),
             };
             k.interlevel(rec, rb, geo, (lv.n, pl.n), 1, scale, inter_norm, &ib)?;
-            let ps = r * pl.n;
-            let pm = &field.mlp.config;
-            let mp = ParamSlice { array: params, offset: m.offset(&field.mlp_slot) };
-            let mg = ParamSlice { array: grads, offset: m.offset(&field.mlp_slot) };
-            let pin = RowSlice { buf: &pl.enc, stride: pm.in_pad(), col: 0 };
-            let pout = RowSlice { buf: &pl.raw, stride: 1, col: 0 };
-            let pdy = RowSlice { buf: need(&pl.dy), stride: 1, col: 0 };
-            let pdx = RowSlice { buf: need(&pl.dx), stride: pm.in_pad(), col: 0 };
-            let pbufs = crate::nn::mlp::MlpTrainBuffers {
-                acts: need(&pl.acts),
-                deltas: need(&pl.deltas),
-                scratch: need(&pl.scratch),
-            };
-            field.mlp.backward(rec, mp, mg, (pin, pout, pdy), ps, &pbufs, Some(pdx))?;
-            field.grid.backward_params(
-                rec,
-                ParamSlice { array: grads, offset: m.offset(&field.grid_slot) },
-                &pl.positions,
-                ps,
-                pdx,
-            )?;
+            self.record_density_backward(rec, field, pl, r * pl.n)?;
         }
         Ok(())
     }
