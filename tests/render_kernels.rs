@@ -534,3 +534,34 @@ fn colour_input_and_column_copy_match_twin() {
         common::assert_same(&row[3..3 + geo_dim], &gr[s * in_pad + 16..s * in_pad + 16 + geo_dim], "copied columns");
     }
 }
+
+#[test]
+fn appearance_grad_matches_twin() {
+    // CPU twin: grad_emb[cam[ray]][k] += dx[s][col + k] for every sample s of ray `ray` (fp32 atomics on the GPU,
+    // in any order: compared within the fp32 tolerance of a sum).
+    let g = gpu();
+    let k = RenderKernels::new(&g).expect("kernels");
+    let mut r = rng(7);
+    let (nr, n, dim, stride, col, cams, offset) = (37, 5, 4, 24, 19, 3, 64);
+    let mut dx: Vec<f32> = (0..nr * n * stride).map(|_| r.random_range(-1.0f32..1.0)).collect();
+    for s in (0..nr * n).step_by(3) {
+        dx[s * stride + col] = 0.0; // zero gradients are skipped by the kernel; the result must not change
+    }
+    let cam: Vec<u32> = (0..nr).map(|i| (i % cams) as u32).collect();
+    let grads = msnerf::gpu::LargeArray::<f32>::new(&g, "grads", offset + cams * dim + 16, MemoryCategory::Gradients)
+        .expect("grads");
+    grads.upload(&g, 0, &vec![0.5; offset + cams * dim + 16]).expect("init");
+    let dxb = up(&g, "dx", &dx);
+    let camb = GpuBuffer::from_slice(&g, "cams", MemoryCategory::Rays, &cam).expect("cams");
+    let mut rec = g.recorder("appearance grad").expect("rec");
+    k.appearance_grad(&mut rec, &grads, offset, (nr, n), dim, (&dxb, stride, col), &camb).expect("dispatch");
+    rec.submit_and_wait().expect("submit");
+    let got = grads.download(&g).expect("download");
+    let mut want = vec![0.5f64; got.len()];
+    for s in 0..nr * n {
+        for d in 0..dim {
+            want[offset + cam[s / n] as usize * dim + d] += dx[s * stride + col + d] as f64;
+        }
+    }
+    check_vals(&got, &want, "appearance gradients (entries outside the slot stay 0.5)");
+}
