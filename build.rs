@@ -66,6 +66,11 @@ const VARIANTS: &[Variant] = &[
     v("composite", "render/composite.comp"),
     v("interlevel", "render/interlevel.comp"),
     v("appearance_grad", "render/appearance_grad.comp"),
+    // pose: SO3xR3 camera pose refinement (src/nerf/pose.rs)
+    v("pose_apply", "pose/pose_apply.comp"),
+    v("pose_ray_grad", "pose/pose_ray_grad.comp"),
+    v("pose_reduce", "pose/pose_reduce.comp"),
+    v("pose_regularizer", "pose/pose_regularizer.comp"),
 ];
 
 fn main() {
