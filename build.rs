@@ -44,6 +44,7 @@ const VARIANTS: &[Variant] = &[
     vd("scan_segmented_u32", "util/scan_segmented.comp", &[("VALUE_U32", "1")]),
     v("large_array_iota", "util/large_array_iota.comp"),
     v("copy_cols", "util/copy_cols.comp"),
+    v("check_finite", "util/check_finite.comp"),
     // encoding: multiresolution hash grid (src/nn/hashgrid.rs)
     v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),

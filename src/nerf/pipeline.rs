@@ -71,6 +71,8 @@ pub struct Pipeline {
     /// Present when the camera optimiser is on.
     pose_kernels: Option<PoseKernels>,
     cameras: GpuBuffer<GpuCamera>,
+    /// The NaN/Inf guard's flag (1 when a gradient chunk holds a non-finite value).
+    guard_flag: GpuBuffer<u32>,
     train_bufs: Option<ChunkBuffers<GpuAlloc>>,
     eval_bufs: Option<ChunkBuffers<GpuAlloc>>,
     pub schedule: ProposalSchedule,
@@ -90,12 +92,14 @@ impl Pipeline {
         let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;
         let pose_kernels = if model.cfg.camera_optimizer.enabled() { Some(PoseKernels::new(ctx)?) } else { None };
         let n_train_cameras = model.n_cameras;
+        let guard_flag = GpuBuffer::from_slice(ctx, "NaN guard flag", MemoryCategory::Other, &[0u32])?;
         Ok(Self {
             ctx: ctx.clone(),
             model,
             kernels,
             pose_kernels,
             cameras,
+            guard_flag,
             train_bufs: None,
             eval_bufs: None,
             schedule: ProposalSchedule::default(),
@@ -496,7 +500,7 @@ impl Pipeline {
             && stats.loss_distortion.is_finite()
             && stats.loss_interlevel.is_finite()
             && stats.loss_pose.is_finite();
-        let grads_finite = finite && self.grads_finite()?;
+        let grads_finite = finite && self.grads_finite(&mut stats.timing)?;
         if result.is_ok() && !grads_finite {
             stats.skipped = true;
             stats.poisoned = Some(self.first_poisoned(&b)?);
@@ -523,14 +527,15 @@ impl Pipeline {
         Ok(stats)
     }
 
-    /// Sum of the gradients of each chunk is finite (a NaN or Inf anywhere makes it non-finite).
-    fn grads_finite(&self) -> GpuResult<bool> {
+    /// No gradient chunk holds a NaN or Inf (`check_finite` over each, one submission, one readback).
+    fn grads_finite(&self, timing: &mut TimingReport) -> GpuResult<bool> {
+        let mut rec = self.ctx.recorder("gradient check")?;
+        crate::ops::fill(&mut rec, &self.guard_flag, 0u32, 0, 1)?;
         for c in self.model.store.grads().chunks() {
-            if !crate::ops::sum(&self.ctx, c, c.len())?.is_finite() {
-                return Ok(false);
-            }
+            crate::ops::record_check_finite(&mut rec, c, c.len(), &self.guard_flag)?;
         }
-        Ok(true)
+        timing.accumulate(&rec.submit_and_wait()?);
+        Ok(self.ctx.download(&self.guard_flag)?[0] == 0)
     }
 
     /// Name of the first buffer, in pipeline order, that holds a NaN or Inf.
