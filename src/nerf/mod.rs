@@ -2,6 +2,7 @@
 //! losses and training (spec/nerfacto.md §2; Multispectral-NeRF §3).
 
 pub mod buffers;
+pub mod camera_path;
 pub mod camera_poses;
 pub mod config;
 pub mod export;
@@ -13,3 +14,4 @@ pub mod rays;
 pub mod run;
 pub mod schedule;
 pub mod trainer;
+pub mod views;
