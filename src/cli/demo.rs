@@ -116,7 +116,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
 
     println!("[5/6] exporting the multispectral point cloud");
     let raw =
-        export_points(&mut run, &ExportOptions { rays: 100_000, min_accumulation: 0.5, seed: 42 })
+        export_points(&mut run, &ExportOptions { rays: 100_000, min_accumulation: 0.5, seed: 42, normals: false })
             .map_err(anyhow::Error::msg)?;
     let pargs = PointcloudArgs {
         run: run_dir.clone(),
@@ -128,6 +128,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         crop: None,
         points: None,
         seed: 42,
+        normals: false,
     };
     let cloud = filter(raw, &pargs)?;
     write_cloud(&cloud, &cloud_path)?;

@@ -8,6 +8,7 @@ pub mod config;
 pub mod export;
 pub mod kernels;
 pub mod model;
+pub mod normals;
 pub mod pipeline;
 pub mod pose;
 pub mod rays;
