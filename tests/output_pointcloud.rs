@@ -131,7 +131,9 @@ fn ply_reader_accepts_ascii_and_foreign_properties() {
 #[test]
 fn las_pdrf8_with_extra_bytes_round_trips() {
     let dir = scratch("las");
-    let cloud = utm_cloud(400, 9);
+    let mut cloud = utm_cloud(400, 9);
+    cloud.normals = None; // normals add three Extra Bytes: see las_normals_are_extra_bytes_named_normal_xyz_and_read_back
+    let cloud = cloud;
     let path = dir.join("cloud.las");
     write_las(&path, &cloud, &LasOptions::default()).unwrap();
 
@@ -327,4 +329,37 @@ fn to_world_undoes_the_pose_normalisation() {
     }
     // Normal (1,0,0) in the normalised frame is Rᵀ·(1,0,0) = (0,-1,0) in the world.
     assert_eq!(c.normals.unwrap()[0], [0.0, -1.0, 0.0]);
+}
+
+#[test]
+fn las_normals_are_extra_bytes_named_normal_xyz_and_read_back() {
+    let dir = scratch("las_normals");
+    let mut cloud = utm_cloud(50, 11);
+    let normals: Vec<[f32; 3]> = (0..cloud.len())
+        .map(|i| {
+            let a = i as f32 * 0.3;
+            [a.cos() * 0.6, a.sin() * 0.6, 0.8]
+        })
+        .collect();
+    cloud.normals = Some(normals.clone());
+    let path = dir.join("normals.las");
+    write_las(&path, &cloud, &LasOptions::default()).unwrap();
+    // The las crate's view: two band extras (RE1, RE2) then NormalX/Y/Z, 5 x f32 per point.
+    let r = las::Reader::from_path(&path).unwrap();
+    let h = r.header().clone();
+    assert_eq!(h.point_format().extra_bytes, 20);
+    let vlr = h.all_vlrs().find(|v| v.user_id == "LASF_Spec" && v.record_id == 4).unwrap();
+    let names: Vec<String> = vlr.data.chunks_exact(192).map(|d| ExtraBytesDescriptor::unpack(d).name).collect();
+    assert_eq!(names, ["refl_720", "refl_750", "NormalX", "NormalY", "NormalZ"]);
+    let back = read_las(&path).unwrap();
+    assert_eq!(back.bands.len(), 6, "normals are not bands");
+    assert_eq!(back.normals.as_deref(), Some(&normals[..]), "f32 normals round-trip exactly");
+    // PLY carries them as nx ny nz (CloudCompare's names).
+    let ply = dir.join("normals.ply");
+    write_ply(&ply, &cloud, &PlyOptions::default()).unwrap();
+    assert_eq!(read_ply(&ply).unwrap().normals.as_deref(), Some(&normals[..]));
+    // Without normals, nothing is added.
+    cloud.normals = None;
+    write_las(&path, &cloud, &LasOptions::default()).unwrap();
+    assert!(read_las(&path).unwrap().normals.is_none());
 }

@@ -101,6 +101,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         indices: vec!["NDVI".into(), "NDRE720".into()],
         stretch: "reflectance".into(),
         sheet_views: 4,
+        orbit: Default::default(),
     };
     let frames = run.ds.split_indices(Split::Eval);
     let mut tiles = Vec::new();
@@ -114,8 +115,9 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         .write_png(&renders.join("contact_sheet.png"))?;
 
     println!("[5/6] exporting the multispectral point cloud");
-    let raw = export_points(&mut run, &ExportOptions { rays: 100_000, min_accumulation: 0.5, seed: 42 })
-        .map_err(anyhow::Error::msg)?;
+    let raw =
+        export_points(&mut run, &ExportOptions { rays: 100_000, min_accumulation: 0.5, seed: 42, normals: false })
+            .map_err(anyhow::Error::msg)?;
     let pargs = PointcloudArgs {
         run: run_dir.clone(),
         out: cloud_path.clone(),
@@ -126,6 +128,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         crop: None,
         points: None,
         seed: 42,
+        normals: false,
     };
     let cloud = filter(raw, &pargs)?;
     write_cloud(&cloud, &cloud_path)?;

@@ -1,7 +1,8 @@
 //! `msnerf export pointcloud RUN --out cloud.ply|cloud.las`: a multispectral point cloud in the dataset's own world
 //! frame and units (see `msnerf::nerf::export`), with statistical outlier removal, an optional crop box and a target
 //! point count. PLY carries every band as float and a display RGB; LAS 1.4 point format 8 carries RGB + NIR and the
-//! other bands as Extra Bytes.
+//! other bands as Extra Bytes. `--normals` adds each point's surface normal from the density field (PLY `nx ny nz`,
+//! LAS Extra Bytes `NormalX/Y/Z`).
 
 use super::Cli;
 use crate::gpu::Context;
@@ -48,6 +49,9 @@ pub struct PointcloudArgs {
     pub points: Option<usize>,
     #[arg(long, default_value_t = 42)]
     pub seed: u64,
+    /// Also write surface normals: -grad(density) of the NeRF field at each point, facing the camera that saw it
+    #[arg(long)]
+    pub normals: bool,
 }
 
 /// Filters a cloud as the flags ask.
@@ -80,7 +84,7 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
     anyhow::ensure!(ext_ok, "--out {}: the file must end in .ply or .las", a.out.display());
     let ctx = Context::new(&cli.context_desc())?;
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
-    let opts = ExportOptions { rays: a.rays, min_accumulation: a.min_accumulation, seed: a.seed };
+    let opts = ExportOptions { rays: a.rays, min_accumulation: a.min_accumulation, seed: a.seed, normals: a.normals };
     let raw = export_points(&mut run, &opts).map_err(anyhow::Error::msg)?;
     let n_raw = raw.len();
     let cloud = filter(raw, a)?;

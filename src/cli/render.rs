@@ -1,12 +1,16 @@
-//! `msnerf render RUN --views eval|train|all --out DIR`: per view a multi-band float32 GeoTIFF with band names (GDAL
-//! metadata), optional EXR, PNG previews (natural colour, CIR, NDVI with a colour bar, depth, accumulation, error
-//! against ground truth), vegetation indices chosen by name as float GeoTIFFs, and a contact sheet.
+//! `msnerf render RUN --views eval|train|all|orbit|PATH.json --out DIR`: per view a multi-band float32 GeoTIFF with
+//! band names (GDAL metadata), optional EXR, PNG previews (natural colour, CIR, NDVI with a colour bar, depth,
+//! accumulation, error against ground truth), vegetation indices chosen by name as float GeoTIFFs, and a contact
+//! sheet. Dataset frames are named after their images; novel views (`orbit`: [`crate::nerf::views`], a camera path:
+//! [`crate::nerf::camera_path`]) are `orbit_000`, `path_000`, ... and have no error preview (no ground truth).
 
-use super::eval::{ground_truth, parse_split};
+use super::eval::ground_truth;
 use super::Cli;
 use crate::data::Split;
 use crate::gpu::Context;
-use crate::nerf::run::LoadedRun;
+use crate::nerf::camera_path::load_camera_path;
+use crate::nerf::run::{LoadedRun, RenderedView};
+use crate::nerf::views::{orbit_views, NovelView, OrbitDesc};
 use crate::output::image::SpectralImage;
 use crate::output::raster::colormap::Colormap;
 use crate::output::raster::contact::{contact_sheet, Tile};
@@ -19,7 +23,8 @@ use std::path::{Path, PathBuf};
 pub struct RenderArgs {
     /// Run folder written by `msnerf train`
     pub run: PathBuf,
-    /// Views to render: eval, train or all
+    /// Views to render: eval, train, all (dataset frames), orbit (novel views circling the scene), or a camera-path
+    /// JSON file (nerfstudio's viewer camera_path.json, or a list of transforms.json-style frames)
     #[arg(long, default_value = "eval")]
     pub views: String,
     /// Output folder
@@ -37,6 +42,68 @@ pub struct RenderArgs {
     /// At most this many views in the contact sheet
     #[arg(long, default_value_t = 8)]
     pub sheet_views: usize,
+    #[command(flatten)]
+    pub orbit: OrbitArgs,
+}
+
+/// The orbit's flags (`--views orbit` only); defaults come from the training cameras.
+#[derive(clap::Args, Debug, Default, Clone)]
+pub struct OrbitArgs {
+    /// Number of orbit views [default: 24]
+    #[arg(long)]
+    pub orbit_views: Option<usize>,
+    /// Orbit radius in world units [default: the training cameras' mean horizontal distance from their look-at centre]
+    #[arg(long)]
+    pub orbit_radius: Option<f64>,
+    /// Orbit height above the look-at centre in world units [default: the training cameras' mean height]
+    #[arg(long, allow_hyphen_values = true)]
+    pub orbit_height: Option<f64>,
+    /// Camera pitch in degrees, negative looking down [default: looking at the centre]
+    #[arg(long, allow_hyphen_values = true)]
+    pub orbit_pitch_deg: Option<f64>,
+}
+
+impl OrbitArgs {
+    fn any(&self) -> bool {
+        self.orbit_views.is_some()
+            || self.orbit_radius.is_some()
+            || self.orbit_height.is_some()
+            || self.orbit_pitch_deg.is_some()
+    }
+
+    fn desc(&self) -> OrbitDesc {
+        OrbitDesc {
+            views: self.orbit_views.unwrap_or(24),
+            radius: self.orbit_radius,
+            height: self.orbit_height,
+            pitch_deg: self.orbit_pitch_deg,
+        }
+    }
+}
+
+/// What `--views` asks for.
+enum Views {
+    Frames(Vec<usize>),
+    Novel(Vec<NovelView>),
+}
+
+const VIEWS_CHOICES: &str = "eval, train, all, orbit or a camera-path .json file";
+
+fn parse_views(run: &LoadedRun, a: &RenderArgs) -> anyhow::Result<Views> {
+    let views = match a.views.as_str() {
+        "all" => Views::Frames((0..run.ds.frames.len()).collect()),
+        "eval" => Views::Frames(run.ds.split_indices(Split::Eval)),
+        "train" => Views::Frames(run.ds.split_indices(Split::Train)),
+        "orbit" => Views::Novel(orbit_views(&run.ds, &run.transform, &a.orbit.desc()).map_err(anyhow::Error::msg)?),
+        s if s.ends_with(".json") || Path::new(s).is_file() => {
+            Views::Novel(load_camera_path(Path::new(s), &run.ds, &run.transform).map_err(anyhow::Error::msg)?)
+        }
+        s => anyhow::bail!("--views {s}: expected {VIEWS_CHOICES}"),
+    };
+    match &views {
+        Views::Frames(f) if f.is_empty() => anyhow::bail!("--views {}: no frames", a.views),
+        _ => Ok(views),
+    }
 }
 
 /// Previews and files of one rendered view; returns the tiles for the contact sheet.
@@ -52,13 +119,33 @@ fn stretch(s: &str) -> anyhow::Result<Stretch> {
     }
 }
 
-/// Writes everything for one view into `out` and returns its preview tiles.
+/// Renders dataset frame `frame`, writes everything for it into `out` and returns its preview tiles.
 pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs) -> anyhow::Result<ViewFiles> {
     let rv = run.render_view(frame).map_err(anyhow::Error::msg)?;
     let stem = Path::new(&run.ds.frames[frame].name)
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or(format!("view{frame}"));
+    let gt = ground_truth(run, frame).ok().map(|(gt, _)| gt);
+    write_outputs(run, &rv, &stem, gt.as_ref(), out, a)
+}
+
+/// Renders novel view `k` (set with [`LoadedRun::set_novel_views`]) and writes its files, without an error map.
+pub fn write_novel_view(run: &mut LoadedRun, k: usize, out: &Path, a: &RenderArgs) -> anyhow::Result<ViewFiles> {
+    let rv = run.render_novel_view(k).map_err(anyhow::Error::msg)?;
+    let stem = run.novel[k].name.clone();
+    write_outputs(run, &rv, &stem, None, out, a)
+}
+
+/// Writes the files of one rendered view named `stem`; `gt` (the frame's ground truth) adds the error preview.
+fn write_outputs(
+    run: &LoadedRun,
+    rv: &RenderedView,
+    stem: &str,
+    gt: Option<&SpectralImage>,
+    out: &Path,
+    a: &RenderArgs,
+) -> anyhow::Result<ViewFiles> {
     let img = SpectralImage::from_interleaved(rv.width, rv.height, run.ds.bands.clone(), &rv.colour)?;
     write_geotiff(&out.join(format!("{stem}.tif")), &img, &GeoTiffOptions::default())?;
     if a.exr {
@@ -90,8 +177,8 @@ pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs)
     }
     save("depth", preview::depth_preview(&rv.depth, rv.width, rv.height, None, Colormap::Turbo)?)?;
     save("acc", preview::accumulation_preview(&rv.accumulation, rv.width, rv.height)?)?;
-    if let Ok((gt, _)) = ground_truth(run, frame) {
-        save("error", preview::error_preview(&img, &gt, None)?.0)?;
+    if let Some(gt) = gt {
+        save("error", preview::error_preview(&img, gt, None)?.0)?;
     }
     Ok(ViewFiles { tiles })
 }
@@ -102,23 +189,37 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
         VegetationIndex::parse(name)?;
     }
     stretch(&a.stretch)?;
+    let is_path = a.views.ends_with(".json") || Path::new(&a.views).is_file();
+    if !is_path && !["eval", "train", "all", "orbit"].contains(&a.views.as_str()) {
+        anyhow::bail!("--views {}: expected {VIEWS_CHOICES}", a.views);
+    }
+    if a.orbit.any() && a.views != "orbit" {
+        anyhow::bail!("--orbit-views, --orbit-radius, --orbit-height and --orbit-pitch-deg need --views orbit");
+    }
     let ctx = Context::new(&cli.context_desc())?;
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
-    let frames: Vec<usize> = match a.views.as_str() {
-        "all" => (0..run.ds.frames.len()).collect(),
-        s => run.ds.split_indices(parse_split(s).unwrap_or(Split::Eval)),
-    };
-    anyhow::ensure!(!frames.is_empty(), "--views {}: no frames", a.views);
+    // Every view is known (and a camera path fully checked) before the output folder is touched.
+    let views = parse_views(&run, a)?;
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
     let mut sheet: Vec<(String, Rgb8)> = Vec::new();
-    for (k, &f) in frames.iter().enumerate() {
-        let v = write_view(&mut run, f, &a.out, a)?;
+    let n = match &views {
+        Views::Frames(f) => f.len(),
+        Views::Novel(v) => v.len(),
+    };
+    if let Views::Novel(v) = &views {
+        run.set_novel_views(v).map_err(anyhow::Error::msg)?;
+    }
+    for k in 0..n {
+        let (v, name) = match &views {
+            Views::Frames(f) => (write_view(&mut run, f[k], &a.out, a)?, run.ds.frames[f[k]].name.clone()),
+            Views::Novel(nv) => (write_novel_view(&mut run, k, &a.out, a)?, nv[k].name.clone()),
+        };
         if k < a.sheet_views {
             sheet.extend(v.tiles);
         }
-        println!("rendered {} ({}/{})", run.ds.frames[f].name, k + 1, frames.len());
+        println!("rendered {name} ({}/{n})", k + 1);
     }
-    let per_view = sheet.len() / frames.len().min(a.sheet_views).max(1);
+    let per_view = sheet.len() / n.min(a.sheet_views).max(1);
     let tiles: Vec<Tile> = sheet.iter().map(|(l, i)| Tile { image: i, label: Some(l.as_str()) }).collect();
     contact_sheet(&tiles, per_view.max(1), 4, [32, 32, 32])?.write_png(&a.out.join("contact_sheet.png"))?;
     println!("outputs in {}", a.out.display());

@@ -53,6 +53,12 @@ impl PoseTransform {
         self.rot_t(v)
     }
 
+    /// A normalised-frame direction in the world frame: R⁻¹ v, unit length (directions take no scale or
+    /// translation).
+    pub fn direction_to_world(&self, v: [f64; 3]) -> [f64; 3] {
+        normalize(self.rot_t(v))
+    }
+
     /// A camera-to-world pose in normalised coordinates (rotation R·R_c, position mapped as a point).
     pub fn pose_to_normalized(&self, c2w: &Mat4) -> Mat4 {
         self.map_pose(c2w, true)

@@ -108,6 +108,14 @@ impl Pipeline {
         })
     }
 
+    /// Replaces the camera table. Rendering novel views appends their cameras after the dataset's frames (indices
+    /// `>= model.n_cameras` are valid for [`Pipeline::render`] only: evaluation uses no pose correction and the mean
+    /// appearance embedding, so no per-camera parameter is read for them). Training keeps the dataset's table.
+    pub fn set_cameras(&mut self, cameras: &[GpuCamera]) -> GpuResult<()> {
+        self.cameras = GpuBuffer::from_slice(&self.ctx, "camera table", MemoryCategory::Rays, cameras)?;
+        Ok(())
+    }
+
     /// The pose kernels when poses are refined.
     fn active_pose(&self) -> Option<&PoseKernels> {
         self.pose_kernels.as_ref()

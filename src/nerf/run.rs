@@ -1,10 +1,13 @@
 //! A trained run loaded back from its folder (config.yaml, dataset.json, checkpoints/latest.msnp): the dataset,
-//! the pose normalisation and a [`Pipeline`] with the trained parameters, plus whole-view rendering.
+//! the pose normalisation and a [`Pipeline`] with the trained parameters, plus whole-view rendering of dataset
+//! frames and of novel views (orbits, camera paths).
 
 use super::config::ModelConfig;
 use super::model::Model;
 use super::pipeline::Pipeline;
+use super::rays::GpuCamera;
 use super::trainer::camera_table;
+use super::views::NovelView;
 use crate::data::{load_dataset, Dataset, LoadOptions, PoseTransform};
 use crate::gpu::Context;
 use std::path::{Path, PathBuf};
@@ -17,6 +20,8 @@ pub struct LoadedRun {
     pub transform: PoseTransform,
     pub pipe: Pipeline,
     pub checkpoint: PathBuf,
+    /// Novel views in the camera table after the dataset's frames (see [`LoadedRun::set_novel_views`]).
+    pub novel: Vec<NovelView>,
 }
 
 /// One rendered view (pixel-interleaved, row-major).
@@ -55,19 +60,44 @@ impl LoadedRun {
         model.store.load(&checkpoint).map_err(|e| e.to_string())?;
         let pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
         let transform = ds.pose_transform();
-        Ok(Self { dir: dir.to_path_buf(), cfg, ds, transform, pipe, checkpoint })
+        Ok(Self { dir: dir.to_path_buf(), cfg, ds, transform, pipe, checkpoint, novel: Vec::new() })
     }
 
     /// Renders every pixel of frame `frame` (its own camera and pose).
     pub fn render_view(&mut self, frame: usize) -> Result<RenderedView, String> {
         let (w, h) = (self.ds.width as usize, self.ds.height as usize);
+        self.render_camera(frame, w, h).map_err(|e| format!("rendering frame {frame}: {e}"))
+    }
+
+    /// Puts `views` in the pipeline's camera table after the dataset's frames (replacing earlier novel views), so
+    /// that [`LoadedRun::render_novel_view`] can render them.
+    pub fn set_novel_views(&mut self, views: &[NovelView]) -> Result<(), String> {
+        let mut table = camera_table(&self.ds);
+        for v in views {
+            let c2w: [[f32; 4]; 3] = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| v.c2w[r][c] as f32));
+            table.push(GpuCamera::new(&v.camera, &c2w));
+        }
+        self.pipe.set_cameras(&table).map_err(|e| format!("camera table: {e}"))?;
+        self.novel = views.to_vec();
+        Ok(())
+    }
+
+    /// Renders novel view `k` of the last [`LoadedRun::set_novel_views`] at its own size; `frame` of the result is
+    /// its index in the camera table.
+    pub fn render_novel_view(&mut self, k: usize) -> Result<RenderedView, String> {
+        let v = self.novel.get(k).ok_or_else(|| format!("novel view {k} was not set"))?;
+        let (w, h, name) = (v.camera.width as usize, v.camera.height as usize, v.name.clone());
+        self.render_camera(self.ds.frames.len() + k, w, h).map_err(|e| format!("rendering {name}: {e}"))
+    }
+
+    fn render_camera(&mut self, cam: usize, w: usize, h: usize) -> Result<RenderedView, String> {
         let pixels: Vec<u32> =
-            (0..h as u32).flat_map(|r| (0..w as u32).flat_map(move |c| [frame as u32, r, c])).collect();
+            (0..h as u32).flat_map(|r| (0..w as u32).flat_map(move |c| [cam as u32, r, c])).collect();
         let t = Instant::now();
-        let out = self.pipe.render(&pixels).map_err(|e| format!("rendering frame {frame}: {e}"))?;
+        let out = self.pipe.render(&pixels).map_err(|e| e.to_string())?;
         let scale = 1.0 / self.transform.scale as f32;
         Ok(RenderedView {
-            frame,
+            frame: cam,
             width: w,
             height: h,
             colour: out.colour,

@@ -8,6 +8,8 @@
 //! - Every band not in an RGB/NIR slot (all bands with [`LasOptions::all_bands_as_extra_bytes`]) goes into
 //!   **Extra Bytes** as f32, described by a `LASF_Spec` record-4 VLR of 192-byte descriptors packed here
 //!   (data type 9 = float; name = the PLY property name, e.g. `refl_720`; description "RedEdge1 720nm").
+//! - Normals, when the cloud has them, are three more f32 Extra Bytes named `NormalX`, `NormalY`, `NormalZ`
+//!   (the names PDAL and CloudCompare use for normals in Extra Bytes); [`read_las`] reads them back.
 //! - A VLR `msnerf`/1 holds the band list as JSON (name, centre, FWHM, and where each band is stored), so
 //!   [`read_las`] restores the bands in their original order.
 //! - Coordinates: `scale` (default 1 mm) and an `offset` (default: each axis' minimum rounded down to a
@@ -32,6 +34,8 @@ use crate::output::{atomic::AtomicFile, Band, OutputError, Result};
 
 pub const REFLECTANCE_U16_SCALE: f64 = 65535.0;
 pub const NIR_NM: f64 = 840.0;
+/// Extra Bytes names of the normal components.
+pub const NORMAL_NAMES: [&str; 3] = ["NormalX", "NormalY", "NormalZ"];
 const MSNERF_USER_ID: &str = "msnerf";
 const MSNERF_RECORD_ID: u16 = 1;
 
@@ -199,7 +203,8 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
     // Header.
     let mut builder = Builder::from((1, 4));
     let mut format = Format::new(8).map_err(|e| OutputError::write(path, e))?;
-    format.extra_bytes = u16::try_from(extra.len() * 4).map_err(|_| {
+    let n_normals = if cloud.normals.is_some() { 3 } else { 0 };
+    format.extra_bytes = u16::try_from((extra.len() + n_normals) * 4).map_err(|_| {
         OutputError::invalid("bands", format!("{} extra-bytes bands are too many for LAS", extra.len()))
     })?;
     builder.point_format = format;
@@ -239,11 +244,17 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
         y: Transform { scale: opts.scale[1], offset: offset[1] },
         z: Transform { scale: opts.scale[2], offset: offset[2] },
     };
-    if !extra.is_empty() {
-        let mut data = Vec::with_capacity(192 * extra.len());
+    if !extra.is_empty() || n_normals > 0 {
+        let mut data = Vec::with_capacity(192 * (extra.len() + n_normals));
         for &b in &extra {
             let d = ExtraBytesDescriptor::f32(&names[b], &band_description(&cloud.bands[b]));
             data.extend_from_slice(&d.pack());
+        }
+        if n_normals > 0 {
+            for (name, axis) in NORMAL_NAMES.iter().zip(["x", "y", "z"]) {
+                let d = ExtraBytesDescriptor::f32(name, &format!("unit surface normal, {axis}"));
+                data.extend_from_slice(&d.pack());
+            }
         }
         builder.vlrs.push(Vlr { user_id: "LASF_Spec".into(), record_id: 4, description: "Extra Bytes".into(), data });
     }
@@ -301,7 +312,12 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
             gps_time: Some(0.0),
             color: Some(color),
             nir: Some(nir_band.map(|b| to_u16(v[b])).unwrap_or(0)),
-            extra_bytes: extra.iter().flat_map(|&b| v[b].to_le_bytes()).collect(),
+            extra_bytes: extra
+                .iter()
+                .map(|&b| v[b])
+                .chain(cloud.normals.as_ref().map(|n| n[i]).into_iter().flatten())
+                .flat_map(f32::to_le_bytes)
+                .collect(),
             ..Default::default()
         };
         writer.write_point(point).map_err(|e| OutputError::write(path, e))?;
@@ -377,7 +393,7 @@ pub fn read_las(path: &Path) -> Result<PointCloud> {
         }
         None => {
             for (i, d) in descriptors.iter().enumerate() {
-                if d.size() == 0 || d.data_type == 0 {
+                if d.size() == 0 || d.data_type == 0 || NORMAL_NAMES.contains(&d.name.as_str()) {
                     continue;
                 }
                 let centre = d.name.strip_prefix("refl_").and_then(|s| s.parse::<f64>().ok());
@@ -392,6 +408,8 @@ pub fn read_las(path: &Path) -> Result<PointCloud> {
     let mut positions = Vec::with_capacity(n);
     let mut values = Vec::with_capacity(n * bands.len());
     let mut colours = Vec::with_capacity(n);
+    let normal_idx: Option<Vec<usize>> = NORMAL_NAMES.iter().map(|&nm| extra_by_name(nm)).collect();
+    let mut normals = Vec::with_capacity(if normal_idx.is_some() { n } else { 0 });
     let has_color = header.point_format().has_color;
     for p in data.points() {
         let p = p.map_err(|e| OutputError::read(path, e))?;
@@ -414,11 +432,18 @@ pub fn read_las(path: &Path) -> Result<PointCloud> {
             };
             values.push(v as f32);
         }
+        if let Some(idx) = &normal_idx {
+            normals.push([0, 1, 2].map(|k| {
+                let (d, a) = (&descriptors[idx[k]], at[idx[k]]);
+                p.extra_bytes.get(a..a + d.size()).map_or(f32::NAN, |b| d.decode(b) as f32)
+            }));
+        }
     }
     let eight_bit = colours.iter().all(|c| c.iter().all(|&v| v <= 255));
     let rgb = has_color
         .then(|| colours.iter().map(|c| c.map(|v| if eight_bit { v as u8 } else { (v >> 8) as u8 })).collect());
-    let cloud = PointCloud { positions, bands, values, normals: None, rgb };
+    let normals = normal_idx.map(|_| normals);
+    let cloud = PointCloud { positions, bands, values, normals, rgb };
     cloud.validate().map_err(|e| OutputError::read(path, e))?;
     Ok(cloud)
 }
