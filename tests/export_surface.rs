@@ -6,7 +6,7 @@ mod common;
 
 use common::{gpu, TempDir};
 use msnerf::nerf::config::ModelConfig;
-use msnerf::nerf::trainer::{train, TrainOptions};
+use msnerf::nerf::trainer::train;
 use msnerf::output::pointcloud::read_ply;
 use msnerf::output::{compare_clouds, CompareOptions};
 use msnerf::sim::{simulate, SceneDesc, SimOptions};
@@ -22,19 +22,7 @@ fn exported_points_lie_near_the_ground_truth_surfaces_with_unit_normals() {
         model.trainer.max_steps = 200;
         model.trainer.steps_per_eval = 1000;
         model.trainer.steps_per_save = 1000;
-        let o = TrainOptions {
-            data: data.clone(),
-            model,
-            out: run.clone(),
-            resume: false,
-            time_budget_s: None,
-            host_budget_bytes: 1 << 30,
-            resample_every: 500,
-            eval_pixels: 256,
-            progress: false,
-            stop: None,
-        };
-        train(&g, &o).expect("train");
+        train(&g, &common::train_options(&data, &run, model, 256)).expect("train");
     }
     let ply = tmp.path().join("cloud.ply");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_msnerf"))

@@ -218,27 +218,14 @@ fn malformed_weights_are_errors_that_name_the_tensor() {
 #[test]
 fn eval_reports_lpips_per_view_with_a_weights_file_and_null_without() {
     use msnerf::nerf::config::ModelConfig;
-    use msnerf::nerf::trainer::{train, TrainOptions};
-    use msnerf::sim::{simulate, SceneDesc, SimOptions};
+    use msnerf::nerf::trainer::train;
     let dir = common::TempDir::new("lpips-eval");
     let data = dir.path().join("data");
-    simulate(&SceneDesc::load("ci-small").expect("scene"), &SimOptions::default(), &data).expect("simulate");
+    common::simulate_ci_small(&data);
     let mut model = ModelConfig::resolve("tiny").expect("tiny");
     model.trainer.max_steps = 10;
     let run = dir.path().join("run");
-    let opts = TrainOptions {
-        data: data.clone(),
-        model,
-        out: run.clone(),
-        resume: false,
-        time_budget_s: None,
-        host_budget_bytes: 1 << 30,
-        resample_every: 500,
-        eval_pixels: 256,
-        progress: false,
-        stop: None,
-    };
-    train(&common::gpu(), &opts).expect("train");
+    train(&common::gpu(), &common::train_options(&data, &run, model, 256)).expect("train");
     let weights = dir.path().join("lpips.safetensors");
     write_safetensors(&random_weights(11), &weights);
     let eval = |extra: &[&str]| -> serde_json::Value {

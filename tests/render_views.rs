@@ -10,7 +10,7 @@ use msnerf::data::{load_dataset, LoadOptions, Split};
 use msnerf::nerf::camera_path::load_camera_path;
 use msnerf::nerf::config::ModelConfig;
 use msnerf::nerf::run::LoadedRun;
-use msnerf::nerf::trainer::{train, TrainOptions};
+use msnerf::nerf::trainer::train;
 use msnerf::nerf::views::{orbit_frame, NovelView};
 use msnerf::sim::{simulate, SceneDesc, SimOptions};
 use serde_json::json;
@@ -27,19 +27,7 @@ fn train_briefly(data: &Path, out: &Path) {
     model.trainer.max_steps = 5;
     model.trainer.steps_per_eval = 1000;
     model.trainer.steps_per_save = 1000;
-    let o = TrainOptions {
-        data: data.to_path_buf(),
-        model,
-        out: out.to_path_buf(),
-        resume: false,
-        time_budget_s: None,
-        host_budget_bytes: 1 << 30,
-        resample_every: 500,
-        eval_pixels: 256,
-        progress: false,
-        stop: None,
-    };
-    train(&g, &o).expect("train");
+    train(&g, &common::train_options(data, out, model, 256)).expect("train");
 }
 
 fn msnerf(args: &[&str]) -> (bool, String) {

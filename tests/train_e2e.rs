@@ -25,18 +25,7 @@ fn opts(data: &Path, out: &Path, steps: u64) -> TrainOptions {
     model.trainer.max_steps = steps;
     model.trainer.steps_per_eval = 40;
     model.trainer.steps_per_save = 20;
-    TrainOptions {
-        data: data.to_path_buf(),
-        model,
-        out: out.to_path_buf(),
-        resume: false,
-        time_budget_s: None,
-        host_budget_bytes: 1 << 30,
-        resample_every: 500,
-        eval_pixels: 2048,
-        progress: false,
-        stop: None,
-    }
+    common::train_options(data, out, model, 2048)
 }
 
 #[test]

@@ -17,7 +17,6 @@ use msnerf::data::{load_dataset, LoadOptions, Split};
 use msnerf::nerf::config::{CameraOptMode, ModelConfig};
 use msnerf::nerf::trainer::{train, TrainOptions};
 use msnerf::reference::pose::rotate;
-use msnerf::sim::{simulate, SceneDesc, SimOptions};
 use std::path::{Path, PathBuf};
 
 type Mat4 = [[f64; 4]; 4];
@@ -81,18 +80,7 @@ fn knock(m: &Mat4, deg: f64, dz: f64) -> Mat4 {
 }
 
 fn opts(data: &Path, run: &Path, model: ModelConfig, resume: bool) -> TrainOptions {
-    TrainOptions {
-        data: data.to_path_buf(),
-        model,
-        out: run.to_path_buf(),
-        resume,
-        time_budget_s: None,
-        host_budget_bytes: 1 << 30,
-        resample_every: 500,
-        eval_pixels: 1024,
-        progress: false,
-        stop: None,
-    }
+    TrainOptions { resume, ..common::train_options(data, run, model, 1024) }
 }
 
 #[test]
@@ -100,7 +88,7 @@ fn refinement_brings_knocked_cameras_back_to_their_true_poses() {
     let g = gpu();
     let root = temp("refine");
     let data = root.join("data");
-    simulate(&SceneDesc::load("ci-small").expect("scene"), &SimOptions::default(), &data).expect("simulate");
+    common::simulate_ci_small(&data);
     let ds = load_dataset(&data, &LoadOptions::default()).expect("dataset");
     let train_frames = ds.split_indices(Split::Train);
     let truth: Vec<Mat4> = ds.frames.iter().map(|f| f.c2w).collect();

@@ -117,3 +117,31 @@ impl Drop for TempDir {
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
+
+/// Simulates the built-in `ci-small` scene (12 views of 64x48, 6 bands) into `dir`.
+pub fn simulate_ci_small(dir: &std::path::Path) {
+    let scene = msnerf::sim::SceneDesc::load("ci-small").expect("built-in scene");
+    msnerf::sim::simulate(&scene, &msnerf::sim::SimOptions::default(), dir).expect("simulate");
+}
+
+/// Training options for tests: `model` on `data` into `out`, 1 GiB of image cache, `eval_pixels` held-out pixels,
+/// no progress bar, no time budget.
+pub fn train_options(
+    data: &std::path::Path,
+    out: &std::path::Path,
+    model: msnerf::nerf::config::ModelConfig,
+    eval_pixels: usize,
+) -> msnerf::nerf::trainer::TrainOptions {
+    msnerf::nerf::trainer::TrainOptions {
+        data: data.to_path_buf(),
+        model,
+        out: out.to_path_buf(),
+        resume: false,
+        time_budget_s: None,
+        host_budget_bytes: 1 << 30,
+        resample_every: 500,
+        eval_pixels,
+        progress: false,
+        stop: None,
+    }
+}
