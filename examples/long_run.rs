@@ -69,6 +69,7 @@ fn run(steps: u64, budget: Option<f64>, eval_every: u64, rays: usize, out: &std:
         eval_pixels: 4096,
         progress: false,
         stop: None,
+        bands: None,
     };
     let result = train(&ctx, &opts);
     let log = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap_or_default();

@@ -36,6 +36,7 @@ fn opts(data: &Path, out: &Path, steps: u64) -> TrainOptions {
         eval_pixels: 2048,
         progress: false,
         stop: None,
+        bands: None,
     }
 }
 
