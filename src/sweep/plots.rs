@@ -105,7 +105,7 @@ fn draw_psnr_vs_time<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, results:
         chart
             .draw_series(LineSeries::new(front.clone(), BLACK.stroke_width(1)))
             .map_err(err)?
-            .label("Pareto front (best PSNR for the time)")
+            .label("Pareto front (models of every band)")
             .legend(|(x, y)| Circle::new((x + 9, y), 7, BLACK.stroke_width(2)));
         chart.draw_series(front.iter().map(|&p| Circle::new(p, 9, BLACK.stroke_width(2)))).map_err(err)?;
     }
@@ -265,7 +265,7 @@ fn draw_memory_vs_psnr<DB: DrawingBackend>(
         chart
             .draw_series(LineSeries::new(front.clone(), BLACK.stroke_width(1)))
             .map_err(err)?
-            .label("Pareto front (best PSNR for the memory)")
+            .label("Pareto front (models of every band)")
             .legend(|(x, y)| Circle::new((x + 9, y), 7, BLACK.stroke_width(2)));
         chart.draw_series(front.iter().map(|&p| Circle::new(p, 10, BLACK.stroke_width(2)))).map_err(err)?;
     }

@@ -298,9 +298,15 @@ pub fn report_markdown(ctx: &ReportContext, results: &[CellResult]) -> String {
     let p = &ctx.plots_rel;
     let _ = writeln!(s, "## Plots\n");
     for (stem, what) in [
-        ("psnr_vs_time", "Held-out PSNR against training time; black rings: the Pareto front."),
+        (
+            "psnr_vs_time",
+            "Held-out PSNR against training time; black rings: the Pareto front of the models of every band.",
+        ),
         ("kernel_times", "GPU time per training step, stacked by kernel."),
-        ("memory_vs_psnr", "Final held-out PSNR against peak GPU memory; black rings: the Pareto front."),
+        (
+            "memory_vs_psnr",
+            "Final held-out PSNR against peak GPU memory; black rings: the Pareto front of the models of every band.",
+        ),
     ] {
         let _ = writeln!(s, "![{what}]({p}/{stem}.svg)\n\n{what} ([PNG]({p}/{stem}.png))\n");
     }
