@@ -44,6 +44,7 @@ const VARIANTS: &[Variant] = &[
     vd("scan_segmented_u32", "util/scan_segmented.comp", &[("VALUE_U32", "1")]),
     v("large_array_iota", "util/large_array_iota.comp"),
     v("copy_cols", "util/copy_cols.comp"),
+    v("check_finite", "util/check_finite.comp"),
     // encoding: multiresolution hash grid (src/nn/hashgrid.rs)
     v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
@@ -66,6 +67,11 @@ const VARIANTS: &[Variant] = &[
     v("composite", "render/composite.comp"),
     v("interlevel", "render/interlevel.comp"),
     v("appearance_grad", "render/appearance_grad.comp"),
+    // pose: SO3xR3 camera pose refinement (src/nerf/pose.rs)
+    v("pose_apply", "pose/pose_apply.comp"),
+    v("pose_ray_grad", "pose/pose_ray_grad.comp"),
+    v("pose_reduce", "pose/pose_reduce.comp"),
+    v("pose_regularizer", "pose/pose_regularizer.comp"),
 ];
 
 fn main() {

@@ -137,12 +137,43 @@ fn forward_matches_twin_with_padding() {
 
 #[test]
 fn backward_params_matches_twin_at_99th_percentile() {
+    let cfg = small();
+    check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4);
+}
+
+#[test]
+fn backward_params_with_run_combining_matches_twin() {
+    // hashgrid_bwd with RUN = 8 on ray-ordered points (runs of equal coarse cells), n not a multiple of 8, and
+    // masked-out points (zero dL/dy) inside runs: the same sums as one point per invocation.
+    let mut pts = Vec::new();
+    let mut r = common::rng(21);
+    while pts.len() < 3001 {
+        let o: [f32; 3] = std::array::from_fn(|_| r.random_range(0.3f32..0.7));
+        let d: [f32; 3] = std::array::from_fn(|_| r.random_range(-0.2f32..0.2));
+        for i in 0..24 {
+            pts.push(std::array::from_fn(|k| (o[k] + d[k] * i as f32 / 24.0).clamp(0.0, 1.0)));
+        }
+    }
+    pts.truncate(3001);
+    let masked = [5, 6, 7, 8, 9, 100, 2999];
+    // Ray-ordered points pile hundreds of contributions onto the coarse levels' entries: fp32 sums of that length
+    // (in either kernel) sit at a 99th-percentile error of about 1.2e-4 here, hence 3e-4.
+    let one = check_backward_params(1, pts.clone(), &masked, 3e-4);
+    let eight = check_backward_params(8, pts, &masked, 3e-4);
+    assert!(eight <= 2.0 * one + 1e-5, "run combining adds rounding: p99 {eight:e} against {one:e}");
+}
+
+/// The parameter gradient of `pts` (with dL/dy zeroed for the points in `masked`) against the twin; returns the
+/// 99th-percentile relative error after asserting it is below `tol`.
+fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f64) -> f64 {
     let g = gpu();
     let cfg = small();
-    let s = setup(&g, &cfg, 0, 7);
-    let n = 3001;
-    let pts = points(&cfg, n, 8, 0.0);
-    let dy_host = random_params(n * 12, 9, 1.0);
+    let grid = HashGrid::with_backward_run(&g, &cfg, run).expect("grid");
+    let n = pts.len();
+    let mut dy_host = random_params(n * 12, 9, 1.0);
+    for &m in masked {
+        dy_host[m * 12..(m + 1) * 12].fill(0.0);
+    }
     let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
     let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
     let grads = LargeArray::<f32>::new(&g, "grads", cfg.n_params(), MemoryCategory::Gradients).expect("grads");
@@ -150,15 +181,14 @@ fn backward_params_matches_twin_at_99th_percentile() {
     for c in grads.chunks() {
         ops::fill(&mut rec, c, 0.0f32, 0, c.len()).expect("zero");
     }
-    s.grid
-        .backward_params(
-            &mut rec,
-            ParamSlice { array: &grads, offset: 0 },
-            &pos,
-            n,
-            RowSlice { buf: &dy, stride: 12, col: 0 },
-        )
-        .expect("bwd");
+    grid.backward_params(
+        &mut rec,
+        ParamSlice { array: &grads, offset: 0 },
+        &pos,
+        n,
+        RowSlice { buf: &dy, stride: 12, col: 0 },
+    )
+    .expect("bwd");
     rec.submit_and_wait().expect("submit");
     let got = grads.download(&g).expect("download");
     let levels = cfg.levels();
@@ -173,9 +203,11 @@ fn backward_params_matches_twin_at_99th_percentile() {
     let mut rel: Vec<f64> = touched.iter().map(|&i| (got[i] as f64 - want[i]).abs() / (want[i].abs() + 1e-3)).collect();
     rel.sort_by(f64::total_cmp);
     let p99 = rel[(rel.len() * 99) / 100];
-    assert!(p99 < 1e-4, "99th percentile relative error {p99:e}");
-    assert!(rel.last().copied().unwrap_or(0.0) < 1e-2, "worst relative error {:e}", rel.last().copied().unwrap_or(0.0));
+    assert!(p99 < tol, "run {run}: 99th percentile relative error {p99:e}");
+    let worst = rel.last().copied().unwrap_or(0.0);
+    assert!(worst < 1e-2, "run {run}: worst relative error {worst:e}");
     assert!((0..want.len()).filter(|&i| want[i] == 0.0).all(|i| got[i] == 0.0), "untouched entries stay zero");
+    p99
 }
 
 #[test]

@@ -134,3 +134,38 @@ fn segmented_scan_matches_twin() {
     assert_eq!(wft[0], 0.0, "an empty segment sums to zero");
     assert_eq!(wf[starts[2] as usize], 0.0, "each segment restarts at zero");
 }
+
+#[test]
+fn check_finite_flags_every_kind_of_non_finite_value_anywhere() {
+    // Sizes off the workgroup and a large one (4 M floats: 1024 groups of 256 invocations reading 16 each); one NaN,
+    // +Inf or -Inf at the first, a middle and the last element (only inside 0..n counts), or none at all.
+    let g = gpu();
+    let mut r = rng(9);
+    let big = (1 << 22) + 3;
+    let flag = buf(&g, "flag", &[0u32]);
+    for &n in SIZES.iter().chain([big].iter()) {
+        let clean = random_f32(&mut r, n + 5, -1e30, 1e30);
+        let cases: Vec<(Option<usize>, f32)> = std::iter::once((None, 0.0))
+            .chain(
+                [0, n / 2, n - 1]
+                    .into_iter()
+                    .flat_map(|i| [f32::NAN, f32::INFINITY, f32::NEG_INFINITY].map(|v| (Some(i), v))),
+            )
+            .chain([(Some(n), f32::NAN)]) // past n: not looked at
+            .collect();
+        let data = buf(&g, "data", &clean);
+        for (at, v) in cases {
+            let mut host = clean.clone();
+            if let Some(i) = at {
+                host[i] = v;
+            }
+            g.upload(&data, 0, &host).expect("upload");
+            let mut rec = g.recorder("check").expect("rec");
+            ops::fill(&mut rec, &flag, 0u32, 0, 1).expect("zero flag");
+            ops::record_check_finite(&mut rec, &data, n, &flag).expect("check");
+            rec.submit_and_wait().expect("submit");
+            let got = g.download(&flag).expect("flag")[0] == 1;
+            assert_eq!(got, twin::any_non_finite(&host[..n]), "n {n}, {v} at {at:?}");
+        }
+    }
+}

@@ -71,7 +71,7 @@ fn plan_prints_every_part_json_and_fit() {
         "training chunk",
         "evaluation chunk",
         "staging",
-        "NaN-guard scratch",
+        "NaN/Inf guard flag",
         "proposal 1 MLP activations",
         "nerf MLP activations",
         "colour MLP deltas",

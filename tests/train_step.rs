@@ -1,5 +1,6 @@
 //! One whole training step on the GPU against the CPU reference pipeline (`msnerf::reference::pipeline`): the loss
-//! terms and every parameter gradient (hash grids, MLPs, appearance embeddings; proposals on update steps only).
+//! terms and every parameter gradient (hash grids, MLPs, appearance embeddings, camera pose corrections; proposals on
+//! update steps only).
 //! Gradients are judged per slot on the 99th percentile of |gpu - ref| / (|ref| + 1e-3 max|ref|) (2e-3 for the NeRF
 //! field, 1e-2 for proposals): fp32 against f64, atomics in any order, and sample positions that move by float rounding
 //! across hash cells make a few outliers.
@@ -9,7 +10,7 @@ mod common;
 use common::{gpu, rng};
 use msnerf::data::camera::{Camera, CameraModel, Distortion};
 use msnerf::nerf::config::ModelConfig;
-use msnerf::nerf::model::Model;
+use msnerf::nerf::model::{Model, POSE_SLOT};
 use msnerf::nerf::pipeline::{Batch, Pipeline};
 use msnerf::nerf::rays::GpuCamera;
 use msnerf::reference::pipeline::{train_step, RefRay};
@@ -85,6 +86,15 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
             let v: Vec<f32> = (0..slot.len).map(|_| r.random_range(-a..a)).collect();
             model.store.upload_slot(model.store.params(), &slot, &v).expect("upload");
         }
+        if slot.name == POSE_SLOT {
+            // Corrections of a few centimetres and degrees; the last camera's rotation sits under the exp map's
+            // theta floor of 0.01 (its coefficients are constants there).
+            let mut v: Vec<f32> =
+                (0..slot.len).map(|i| r.random_range(-0.05f32..0.05) * [0.6, 1.0][i % 6 / 3]).collect();
+            let last = v.len() - 3;
+            v[last..].copy_from_slice(&[0.004, -0.003, 0.005]);
+            model.store.upload_slot(model.store.params(), &slot, &v).expect("upload");
+        }
     }
     let params: Vec<f64> = model.store.params().download(&g).expect("params").iter().map(|&v| v as f64).collect();
     let table: Vec<GpuCamera> = cams.iter().zip(&poses).map(|(c, p)| GpuCamera::new(c, p)).collect();
@@ -120,6 +130,8 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
     close(stats.loss_rgb, want.loss_rgb, "rgb loss");
     close(stats.loss_distortion, want.loss_distortion, "distortion loss");
     close(stats.loss_interlevel, want.loss_interlevel, "interlevel loss");
+    close(stats.loss_pose, want.loss_pose, "pose regulariser");
+    assert_eq!(want.loss_pose > 0.0, cfg.camera_optimizer.enabled());
     assert_eq!(want.loss_interlevel > 0.0, update);
     let grads = pipe.model.store.grads().download(&g).expect("grads");
     let mut zero_slots = Vec::new();
@@ -182,4 +194,12 @@ fn whole_step_matches_reference_with_gradient_scaling() {
 #[test]
 fn whole_step_matches_reference_with_random_background() {
     check_step_with(false, 12, |c| c.rendering.background = msnerf::nerf::config::Background::Random);
+}
+
+#[test]
+fn whole_step_matches_reference_with_pose_refinement() {
+    use msnerf::nerf::config::CameraOptMode;
+    for (update, seed) in [(true, 13), (false, 12)] {
+        check_step_with(update, seed, |c| c.camera_optimizer.mode = CameraOptMode::SO3xR3);
+    }
 }

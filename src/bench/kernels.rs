@@ -23,6 +23,10 @@ pub struct HashResult {
     pub backward_mpts_per_s: f64,
     /// Hash-gradient atomic updates per second (8 corners x F features per point and level).
     pub backward_matomics_per_s: f64,
+    /// The parameter backward on ray-ordered points (48 consecutive samples along each ray, as training produces
+    /// them): one point per invocation, and with run combining over 8 consecutive points (hashgrid_bwd.comp).
+    pub backward_rays_mpts_per_s: f64,
+    pub backward_rays_run8_mpts_per_s: f64,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -95,6 +99,10 @@ pub fn bench_hash(
     let g = ParamSlice { array: &grads, offset: 0 };
     let dys = RowSlice { buf: &dy, stride: w, col: 0 };
     let bwd = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &pos, points, dys)))?;
+    let rays = GpuBuffer::from_slice(ctx, "bench ray points", MemoryCategory::Activations, &ray_points(points, 48))?;
+    let bwd_rays = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &rays, points, dys)))?;
+    let grid8 = HashGrid::with_backward_run(ctx, cfg, 8)?;
+    let bwd_run8 = time_ms(repeats, || run_recorded(ctx, &|rec| grid8.backward_params(rec, g, &rays, points, dys)))?;
     let atomics = (points * cfg.n_levels as usize * 8 * cfg.features_per_level as usize) as f64;
     Ok(HashResult {
         name: name.into(),
@@ -103,7 +111,27 @@ pub fn bench_hash(
         forward_mpts_per_s: points as f64 / fwd / 1e3,
         backward_mpts_per_s: points as f64 / bwd / 1e3,
         backward_matomics_per_s: atomics / bwd / 1e3,
+        backward_rays_mpts_per_s: points as f64 / bwd_rays / 1e3,
+        backward_rays_run8_mpts_per_s: points as f64 / bwd_run8 / 1e3,
     })
+}
+
+/// `points` hash-grid inputs in [0,1]^3 ordered as training produces them: `per_ray` consecutive samples, evenly
+/// spaced over half the cube's width along a random ray.
+fn ray_points(points: usize, per_ray: usize) -> Vec<f32> {
+    let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let mut out = Vec::with_capacity(points * 3);
+    while out.len() < points * 3 {
+        let o: [f32; 3] = std::array::from_fn(|_| r.random_range(0.25..0.75));
+        let d: [f32; 3] = std::array::from_fn(|_| r.random_range(-1.0f32..1.0));
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-6);
+        for i in 0..per_ray {
+            let t = 0.5 * i as f32 / per_ray as f32 - 0.25;
+            out.extend((0..3).map(|k| (o[k] + t * d[k] / n).clamp(0.0, 1.0)));
+        }
+    }
+    out.truncate(points * 3);
+    out
 }
 
 pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeats: usize) -> GpuResult<MlpResult> {
@@ -303,13 +331,27 @@ impl KernelBench {
     pub fn table(&self) -> String {
         let mut s = format!("device: {} ({}), host threads: {}\n\n", self.device, self.driver, self.host_threads);
         s += &format!(
-            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14}\n",
-            "hash grid", "points", "params", "fwd Mpt/s", "bwd Mpt/s", "bwd Matomic/s"
+            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14} {:>14} {:>14}\n",
+            "hash grid",
+            "points",
+            "params",
+            "fwd Mpt/s",
+            "bwd Mpt/s",
+            "bwd Matomic/s",
+            "rays bwd Mpt/s",
+            "rays run8 Mpt/s"
         );
         for h in &self.hash {
             s += &format!(
-                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1}\n",
-                h.name, h.points, h.params, h.forward_mpts_per_s, h.backward_mpts_per_s, h.backward_matomics_per_s
+                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1} {:>14.2} {:>14.2}\n",
+                h.name,
+                h.points,
+                h.params,
+                h.forward_mpts_per_s,
+                h.backward_mpts_per_s,
+                h.backward_matomics_per_s,
+                h.backward_rays_mpts_per_s,
+                h.backward_rays_run8_mpts_per_s
             );
         }
         s += &format!(

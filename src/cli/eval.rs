@@ -1,13 +1,16 @@
 //! `msnerf eval RUN [--split eval|train]`: renders every view of a split and reports PSNR (data range 1, stated in the
 //! output) and SSIM (scikit-image's Gaussian convention) per band, per view and overall, with the render time; JSON in
-//! nerfstudio's `ns-eval` layout plus per-band entries. LPIPS is reported as not computed.
+//! nerfstudio's `ns-eval` layout plus per-band entries. LPIPS (AlexNet, on natural-colour composites) when
+//! `--lpips-weights` names a weights file; otherwise it is reported as not computed.
 
 use super::Cli;
 use crate::data::Split;
 use crate::gpu::Context;
 use crate::nerf::run::LoadedRun;
 use crate::output::image::SpectralImage;
+use crate::output::metrics::lpips::Lpips;
 use crate::output::metrics::{image_metrics, EvalReport, MetricOptions, ViewEval};
+use crate::output::raster::preview::{COMPOSITE_TOLERANCE_NM, NATURAL_COLOUR_NM};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -23,6 +26,10 @@ pub struct EvalArgs {
     /// Print the JSON instead of the table
     #[arg(long)]
     pub json: bool,
+    /// AlexNet-LPIPS weights (safetensors; `tools/export_lpips_weights.py` writes them): computes LPIPS on the
+    /// natural-colour composites (bands nearest 660, 555, 450 nm)
+    #[arg(long)]
+    pub lpips_weights: Option<PathBuf>,
 }
 
 pub fn parse_split(s: &str) -> anyhow::Result<Split> {
@@ -42,19 +49,51 @@ pub fn ground_truth(run: &LoadedRun, frame: usize) -> anyhow::Result<(SpectralIm
     Ok((img, mask))
 }
 
-/// Evaluates the views of `split` (at most `max_views`, evenly spread, when given).
-pub fn evaluate(run: &mut LoadedRun, split: Split, max_views: Option<usize>) -> anyhow::Result<EvalReport> {
+/// The natural-colour composite (bands nearest 660, 555, 450 nm; a 3-band image without wavelengths as R, G, B) as
+/// 3 planes clamped to [0, 1], and the band indices used.
+pub fn natural_colour_planes(img: &SpectralImage) -> anyhow::Result<(Vec<f32>, [usize; 3])> {
+    let idx = if img.n_bands() == 3 && img.bands.iter().all(|b| b.center_nm.is_none()) {
+        [0, 1, 2]
+    } else {
+        let mut idx = [0; 3];
+        for (i, &nm) in NATURAL_COLOUR_NM.iter().enumerate() {
+            idx[i] = crate::output::image::nearest_band(&img.bands, nm, COMPOSITE_TOLERANCE_NM, "LPIPS composite")?;
+        }
+        idx
+    };
+    let px = img.width * img.height;
+    let planes = idx.iter().flat_map(|&b| img.data[b * px..(b + 1) * px].iter().map(|v| v.clamp(0.0, 1.0))).collect();
+    Ok((planes, idx))
+}
+
+/// Evaluates the views of `split` (at most `max_views`, evenly spread, when given), with LPIPS when `lpips` is given.
+pub fn evaluate(
+    run: &mut LoadedRun,
+    split: Split,
+    max_views: Option<usize>,
+    lpips: Option<&Lpips>,
+) -> anyhow::Result<EvalReport> {
     let mut frames = run.ds.split_indices(split);
     if let Some(m) = max_views.filter(|&m| m > 0 && m < frames.len()) {
         frames = (0..m).map(|k| frames[k * frames.len() / m]).collect();
     }
     anyhow::ensure!(!frames.is_empty(), "{}: the {split:?} split has no frames", run.ds.transforms_path.display());
     let mut views = Vec::new();
+    let mut lpips_values = Vec::new();
+    let mut lpips_bands = [0usize; 3];
     for f in frames {
         let rv = run.render_view(f).map_err(anyhow::Error::msg)?;
         let pred = SpectralImage::from_interleaved(rv.width, rv.height, run.ds.bands.clone(), &rv.colour)?;
         let (gt, mask) = ground_truth(run, f)?;
         let metrics = image_metrics(&pred, &gt, mask.as_deref(), &MetricOptions { data_range: 1.0 })?;
+        if let Some(net) = lpips {
+            let (a, idx) = natural_colour_planes(&pred)?;
+            let (b, _) = natural_colour_planes(&gt)?;
+            let name = &run.ds.frames[f].name;
+            lpips_values
+                .push(net.distance(&a, &b, pred.width, pred.height).map_err(|e| anyhow::anyhow!("{name}: {e}"))?);
+            lpips_bands = idx;
+        }
         views.push(ViewEval {
             name: run.ds.frames[f].name.clone(),
             metrics,
@@ -63,21 +102,28 @@ pub fn evaluate(run: &mut LoadedRun, split: Split, max_views: Option<usize>) -> 
         });
     }
     let exp = run.ds.root.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    Ok(EvalReport::new(
+    let mut report = EvalReport::new(
         &exp,
         &format!("msnerf-{}", run.cfg.name),
         &run.checkpoint.display().to_string(),
         &run.ds.bands,
         &views,
         1.0,
-    )?)
+    )?;
+    if lpips.is_some() {
+        let names: Vec<String> = lpips_bands.iter().map(|&b| run.ds.bands[b].name.clone()).collect();
+        let note = format!("AlexNet LPIPS v0.1 on natural-colour composites (R, G, B = {})", names.join(", "));
+        report.set_lpips_with_note(&lpips_values, &note)?;
+    }
+    Ok(report)
 }
 
 pub fn run(cli: &Cli, a: &EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
     let ctx = Context::new(&cli.context_desc())?;
+    let lpips = a.lpips_weights.as_deref().map(Lpips::load).transpose().map_err(anyhow::Error::msg)?;
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
-    let report = evaluate(&mut run, split, None)?;
+    let report = evaluate(&mut run, split, None, lpips.as_ref())?;
     let out = a.output.clone().unwrap_or_else(|| a.run.join("eval.json"));
     report.write(&out)?;
     if a.json {

@@ -83,6 +83,15 @@ pub struct ColourBuffers<A: Alloc> {
     pub dx: Option<A::F>,
 }
 
+/// Camera pose refinement (training with the camera optimiser on): the uncorrected ray directions, the hash-input
+/// gradient of one level at a time, each ray's (dL/dorigin, dL/ddirection) and the regulariser's per-camera loss.
+pub struct PoseBuffers<A: Alloc> {
+    pub raw_dirs: A::F,
+    pub dpos: A::F,
+    pub ray_grads: A::F,
+    pub reg_losses: A::F,
+}
+
 pub struct ChunkBuffers<A: Alloc> {
     pub rays: usize,
     pub pixels: A::U,
@@ -97,6 +106,7 @@ pub struct ChunkBuffers<A: Alloc> {
     pub proposals: Vec<LevelBuffers<A>>,
     pub nerf: LevelBuffers<A>,
     pub colour: ColourBuffers<A>,
+    pub pose: Option<PoseBuffers<A>>,
     /// Bound where a kernel's optional input is absent (e.g. no appearance embedding).
     pub dummy: A::F,
 }
@@ -187,6 +197,17 @@ impl<A: Alloc> ChunkBuffers<A> {
             dy: if train { Some(a.f32("colour dL/dc", act, s * bands)?) } else { None },
             dx: if train { Some(a.f32("colour dL/dinput", act, s * cm.in_pad())?) } else { None },
         };
+        let pose = if train && cfg.camera_optimizer.enabled() {
+            let most = cfg.proposals.iter().map(|p| p.samples).chain([n]).max().unwrap_or(n);
+            Some(PoseBuffers {
+                raw_dirs: a.f32("uncorrected ray directions", ray, rays * 3)?,
+                dpos: a.f32("pose dL/dposition", act, rays * most * 3)?,
+                ray_grads: a.f32("pose dL/dray", ray, rays * 6)?,
+                reg_losses: a.f32("pose regulariser losses", MemoryCategory::Other, model.n_cameras.max(1))?,
+            })
+        } else {
+            None
+        };
         Ok(Self {
             rays,
             pixels: a.u32("ray pixels", ray, rays * 3)?,
@@ -200,6 +221,7 @@ impl<A: Alloc> ChunkBuffers<A> {
             proposals,
             nerf,
             colour,
+            pose,
             dummy: a.f32("dummy binding", MemoryCategory::Other, 4)?,
         })
     }

@@ -19,6 +19,9 @@ pub struct ModelConfig {
     #[serde(default)]
     pub loss: LossConfig,
     pub optimizer: OptimizerConfig,
+    /// Camera pose refinement (off unless asked for; then one 6-vector per camera in its own optimiser group).
+    #[serde(default)]
+    pub camera_optimizer: CameraOptimizerConfig,
     pub trainer: TrainerConfig,
 }
 
@@ -131,6 +134,74 @@ pub struct OptimizerConfig {
     pub proposals: GroupConfig,
 }
 
+/// How camera poses are refined during training (nerfstudio's `camera_optimizer.mode`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Default)]
+pub enum CameraOptMode {
+    /// Poses are used as given: no parameters, no memory, no dispatch.
+    #[default]
+    #[serde(rename = "off")]
+    Off,
+    /// Per camera a translation t and an axis-angle w: origin + t, direction rotated by exp(w) (spec §2.4).
+    SO3xR3,
+}
+
+/// nerfstudio's camera optimiser: mode, its Adam group (lr 1e-3 decaying to 1e-4 over 5000 steps, eps 1e-15) and the
+/// regulariser weights (0.01 mean |t| + 0.001 mean |w|).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraOptimizerConfig {
+    #[serde(default)]
+    pub mode: CameraOptMode,
+    #[serde(default = "cam_lr")]
+    pub lr: f64,
+    #[serde(default = "cam_lr_final")]
+    pub lr_final: f64,
+    #[serde(default = "cam_max_steps")]
+    pub max_steps: u64,
+    #[serde(default = "eps")]
+    pub eps: f64,
+    #[serde(default = "cam_trans_penalty")]
+    pub trans_l2_penalty: f32,
+    #[serde(default = "cam_rot_penalty")]
+    pub rot_l2_penalty: f32,
+}
+
+fn cam_lr() -> f64 {
+    1e-3
+}
+fn cam_lr_final() -> f64 {
+    1e-4
+}
+fn cam_max_steps() -> u64 {
+    5000
+}
+fn cam_trans_penalty() -> f32 {
+    1e-2
+}
+fn cam_rot_penalty() -> f32 {
+    1e-3
+}
+
+impl Default for CameraOptimizerConfig {
+    fn default() -> Self {
+        Self {
+            mode: CameraOptMode::Off,
+            lr: cam_lr(),
+            lr_final: cam_lr_final(),
+            max_steps: cam_max_steps(),
+            eps: eps(),
+            trans_l2_penalty: cam_trans_penalty(),
+            rot_l2_penalty: cam_rot_penalty(),
+        }
+    }
+}
+
+impl CameraOptimizerConfig {
+    pub fn enabled(&self) -> bool {
+        self.mode != CameraOptMode::Off
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainerConfig {
@@ -194,6 +265,10 @@ impl ModelConfig {
         }
         if s.num_nerf_samples == 0 {
             return Err("sampling.num_nerf_samples must be > 0".into());
+        }
+        let co = &self.camera_optimizer;
+        if !(co.lr >= 0.0 && co.lr_final >= 0.0 && co.trans_l2_penalty >= 0.0 && co.rot_l2_penalty >= 0.0) {
+            return Err("camera_optimizer: lr, lr_final and the penalties must be >= 0".into());
         }
         let t = &self.trainer;
         if t.rays_per_batch == 0 || t.rays_per_chunk == 0 || t.eval_rays_per_chunk == 0 {

@@ -2,11 +2,13 @@
 //! losses and training (spec/nerfacto.md §2; Multispectral-NeRF §3).
 
 pub mod buffers;
+pub mod camera_poses;
 pub mod config;
 pub mod export;
 pub mod kernels;
 pub mod model;
 pub mod pipeline;
+pub mod pose;
 pub mod rays;
 pub mod run;
 pub mod schedule;

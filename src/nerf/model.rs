@@ -8,6 +8,10 @@ use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
 use crate::nn::mlp::{Activation, Mlp, MlpConfig};
 use crate::nn::params::{MatrixShape, ParamError, ParamGroup, ParamStore, ParamStoreDesc, SlotDesc, SlotKind};
 
+/// The parameter slot of the camera pose corrections (6 floats per camera) and its optimiser group.
+pub const POSE_SLOT: &str = "camera.pose";
+pub const CAMERA_GROUP: &str = "camera";
+
 /// Widths of one density field (a proposal or the NeRF density part).
 pub struct DensityField {
     pub grid: HashGrid,
@@ -80,20 +84,27 @@ impl ModelShapes {
         std::iter::once(&self.cfg.field.grid).chain(self.cfg.proposals.iter().map(|p| &p.grid)).collect()
     }
 
-    /// The optimiser groups (`fields`, `proposals`) with the configured schedules.
+    /// The optimiser groups (`fields`, `proposals`, and `camera` when poses are refined) with the configured schedules.
     pub fn param_groups(&self) -> Vec<ParamGroup> {
         let o = &self.cfg.optimizer;
-        vec![
-            ParamGroup::new("fields", o.fields.lr, o.fields.lr_final, o.fields.max_steps),
-            ParamGroup::new("proposals", o.proposals.lr, o.proposals.lr_final, o.proposals.max_steps),
-        ]
-        .into_iter()
-        .zip([o.fields.eps, o.proposals.eps])
-        .map(|(mut g, eps)| {
-            g.adam.eps = eps;
-            g
-        })
-        .collect()
+        let co = &self.cfg.camera_optimizer;
+        let mut groups = vec![
+            (ParamGroup::new("fields", o.fields.lr, o.fields.lr_final, o.fields.max_steps), o.fields.eps),
+            (
+                ParamGroup::new("proposals", o.proposals.lr, o.proposals.lr_final, o.proposals.max_steps),
+                o.proposals.eps,
+            ),
+        ];
+        if co.enabled() {
+            groups.push((ParamGroup::new(CAMERA_GROUP, co.lr, co.lr_final, co.max_steps), co.eps));
+        }
+        groups
+            .into_iter()
+            .map(|(mut g, eps)| {
+                g.adam.eps = eps;
+                g
+            })
+            .collect()
     }
 
     /// The parameter store's slots, in store order.
@@ -111,6 +122,10 @@ impl ModelShapes {
                 SlotKind::Embedding { rows: self.n_cameras + 1, dim: f.appearance_embed_dim },
                 "fields",
             ));
+        }
+        if self.cfg.camera_optimizer.enabled() {
+            // [t(3), w(3)] per camera, zero = the poses as given.
+            slots.push(SlotDesc::new(POSE_SLOT, SlotKind::Zeros { len: 6 * self.n_cameras }, CAMERA_GROUP));
         }
         for (i, (pc, m)) in self.cfg.proposals.iter().zip(&self.proposal_mlps).enumerate() {
             slots.push(SlotDesc::new(

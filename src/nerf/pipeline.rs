@@ -12,7 +12,8 @@ use super::config::Background;
 use super::kernels::{
     BackgroundMode, CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
 };
-use super::model::Model;
+use super::model::{Model, POSE_SLOT};
+use super::pose::{LevelGrad, PoseKernels, PoseSlot};
 use super::rays::GpuCamera;
 use super::schedule::{anneal_at, ProposalSchedule};
 use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, MemoryCategory, Recorder, TimingReport};
@@ -38,6 +39,8 @@ pub struct StepStats {
     pub loss_rgb: f64,
     pub loss_distortion: f64,
     pub loss_interlevel: f64,
+    /// Camera pose regulariser (0 without pose refinement).
+    pub loss_pose: f64,
     /// PSNR of the batch (data range 1) from the unweighted squared error.
     pub psnr: f64,
     pub proposals_updated: bool,
@@ -65,11 +68,17 @@ pub struct Pipeline {
     pub ctx: Context,
     pub model: Model,
     kernels: RenderKernels,
+    /// Present when the camera optimiser is on.
+    pose_kernels: Option<PoseKernels>,
     cameras: GpuBuffer<GpuCamera>,
+    /// The NaN/Inf guard's flag (1 when a gradient chunk holds a non-finite value).
+    guard_flag: GpuBuffer<u32>,
     train_bufs: Option<ChunkBuffers<GpuAlloc>>,
     eval_bufs: Option<ChunkBuffers<GpuAlloc>>,
     pub schedule: ProposalSchedule,
     pub step: u64,
+    /// Cameras the pose regulariser averages over (the training split; defaults to every camera).
+    pub n_train_cameras: usize,
 }
 
 fn need<T>(o: &Option<T>) -> &T {
@@ -81,16 +90,34 @@ impl Pipeline {
     pub fn new(ctx: &Context, model: Model, cameras: &[GpuCamera]) -> GpuResult<Self> {
         let kernels = RenderKernels::new(ctx)?;
         let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;
+        let pose_kernels = if model.cfg.camera_optimizer.enabled() { Some(PoseKernels::new(ctx)?) } else { None };
+        let n_train_cameras = model.n_cameras;
+        let guard_flag = GpuBuffer::from_slice(ctx, "NaN guard flag", MemoryCategory::Other, &[0u32])?;
         Ok(Self {
             ctx: ctx.clone(),
             model,
             kernels,
+            pose_kernels,
             cameras,
+            guard_flag,
             train_bufs: None,
             eval_bufs: None,
             schedule: ProposalSchedule::default(),
             step: 0,
+            n_train_cameras,
         })
+    }
+
+    /// The pose kernels when poses are refined.
+    fn active_pose(&self) -> Option<&PoseKernels> {
+        self.pose_kernels.as_ref()
+    }
+
+    /// The pose slot, when poses are refined.
+    fn pose_slot(&self) -> Option<PoseSlot<'_>> {
+        let store = &self.model.store;
+        let slot = store.slot(POSE_SLOT)?;
+        Some(PoseSlot { params: store.params(), grads: store.grads(), offset: slot.offset })
     }
 
     fn geometry(&self, eval: bool) -> Geometry {
@@ -149,6 +176,9 @@ impl Pipeline {
         let anneal = if train { anneal_at(&m.cfg.sampling, self.step) } else { 1.0 };
         let scale = m.cfg.field.average_init_density;
         k.ray_gen(rec, &self.cameras, &b.pixels, rb, &b.norms)?;
+        if let (true, Some(pk), Some(slot), Some(pb)) = (train, self.active_pose(), self.pose_slot(), &b.pose) {
+            pk.apply(rec, slot, &b.cam_idx, rb, &pb.raw_dirs)?;
+        }
         // Proposal levels.
         let mut prev: Option<(&GpuBuffer<f32>, &GpuBuffer<f32>, usize)> = None;
         for (p, (lv, field)) in b.proposals.iter().zip(&m.proposals).enumerate() {
@@ -326,8 +356,10 @@ impl Pipeline {
             )?;
         }
         self.record_density_backward(rec, f, lv, s)?;
+        let cdx = (need(&b.colour.dx), cm.in_pad());
+        self.record_pose_level(rec, b, rb, f, lv, Some(cdx), false)?;
         if !update_props {
-            return Ok(());
+            return self.record_pose_reduce(rec, b, r);
         }
         for (pl, field) in b.proposals.iter().zip(&m.proposals) {
             let ib = InterlevelBuffers {
@@ -341,8 +373,54 @@ impl Pipeline {
             };
             k.interlevel(rec, rb, geo, (lv.n, pl.n), 1, scale, inter_norm, &ib)?;
             self.record_density_backward(rec, field, pl, r * pl.n)?;
+            self.record_pose_level(rec, b, rb, field, pl, None, true)?;
         }
-        Ok(())
+        self.record_pose_reduce(rec, b, r)
+    }
+
+    /// Pose refinement, one level: dL/dhash input of its samples, then each ray's (dL/dorigin, dL/ddirection).
+    #[allow(clippy::too_many_arguments)]
+    fn record_pose_level(
+        &self,
+        rec: &mut Recorder,
+        b: &ChunkBuffers<GpuAlloc>,
+        rb: RayBuffers,
+        field: &super::model::DensityField,
+        lv: &super::buffers::LevelBuffers<GpuAlloc>,
+        colour_dx: Option<(&GpuBuffer<f32>, usize)>,
+        accumulate: bool,
+    ) -> GpuResult<()> {
+        let (Some(pk), Some(pb)) = (self.active_pose(), &b.pose) else { return Ok(()) };
+        let m = &self.model;
+        let s = rb.n_rays * lv.n;
+        let gp = ParamSlice { array: m.store.params(), offset: m.offset(&field.grid_slot) };
+        let dx = RowSlice { buf: need(&lv.dx), stride: field.mlp.config.in_pad(), col: 0 };
+        field.grid.backward_input(rec, gp, &lv.positions, s, dx, &pb.dpos)?;
+        let level = LevelGrad { n: lv.n, edges: &lv.edges, dpos: &pb.dpos, colour_dx, accumulate };
+        pk.ray_grad(rec, rb, self.geometry(false), &level, &b.dummy, &pb.ray_grads)
+    }
+
+    /// Pose refinement: adds every ray's share to its camera's gradient.
+    fn record_pose_reduce(&self, rec: &mut Recorder, b: &ChunkBuffers<GpuAlloc>, r: usize) -> GpuResult<()> {
+        let (Some(pk), Some(slot), Some(pb)) = (self.active_pose(), self.pose_slot(), &b.pose) else { return Ok(()) };
+        pk.reduce(rec, slot, (&pb.ray_grads, &pb.raw_dirs, &b.cam_idx), r)
+    }
+
+    /// Pose refinement: the regulariser's loss (its gradient is added to the pose slot); 0 without refinement.
+    fn pose_regularizer(&self, b: &ChunkBuffers<GpuAlloc>, timing: &mut TimingReport) -> GpuResult<f64> {
+        let (Some(pk), Some(slot), Some(pb)) = (self.active_pose(), self.pose_slot(), &b.pose) else { return Ok(0.0) };
+        let co = &self.model.cfg.camera_optimizer;
+        let n = self.model.n_cameras;
+        let mut rec = self.ctx.recorder("pose regulariser")?;
+        pk.regularizer(
+            &mut rec,
+            slot,
+            (n, self.n_train_cameras),
+            (co.trans_l2_penalty, co.rot_l2_penalty),
+            &pb.reg_losses,
+        )?;
+        timing.accumulate(&rec.submit_and_wait()?);
+        Ok(self.ctx.download_range(&pb.reg_losses, 0, n)?.iter().map(|&v| v as f64).sum())
     }
 
     fn upload_rays(&self, b: &ChunkBuffers<GpuAlloc>, pixels: &[u32], targets: Option<&[f32]>) -> GpuResult<()> {
@@ -410,37 +488,54 @@ impl Pipeline {
                 }
             }
         }
+        if result.is_ok() {
+            match self.pose_regularizer(&b, &mut stats.timing) {
+                Ok(l) => stats.loss_pose = l,
+                Err(e) => result = Err(e),
+            }
+        }
         // NaN/Inf guard: a non-finite loss or gradient skips the step and names the first poisoned buffer.
         let finite = result.is_ok()
             && stats.loss_rgb.is_finite()
             && stats.loss_distortion.is_finite()
-            && stats.loss_interlevel.is_finite();
-        let grads_finite = finite && self.grads_finite()?;
+            && stats.loss_interlevel.is_finite()
+            && stats.loss_pose.is_finite();
+        let grads_finite = finite && self.grads_finite(&mut stats.timing)?;
         if result.is_ok() && !grads_finite {
             stats.skipped = true;
             stats.poisoned = Some(self.first_poisoned(&b)?);
         }
         self.train_bufs = Some(b);
         result?;
-        stats.loss = stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel;
+        stats.loss = stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel + stats.loss_pose;
         stats.psnr = -10.0 * (sq / (total_w.max(1.0) * bands as f64)).max(1e-20).log10();
         if !stats.skipped {
             let mut rec = self.ctx.recorder("adam")?;
-            crate::nn::adam::step(&mut rec, &mut self.model.store, &[true, update_props], 1.0)?;
+            // Fields and camera corrections get gradients every step, the proposals on update steps.
+            let pose_on = self.active_pose().is_some();
+            let has_grad: Vec<bool> = (self.model.store.groups().iter())
+                .map(|g| match g.name.as_str() {
+                    "proposals" => update_props,
+                    super::model::CAMERA_GROUP => pose_on,
+                    _ => true,
+                })
+                .collect();
+            crate::nn::adam::step(&mut rec, &mut self.model.store, &has_grad, 1.0)?;
             stats.timing.accumulate(&rec.submit_and_wait()?);
         }
         self.step += 1;
         Ok(stats)
     }
 
-    /// Sum of the gradients of each chunk is finite (a NaN or Inf anywhere makes it non-finite).
-    fn grads_finite(&self) -> GpuResult<bool> {
+    /// No gradient chunk holds a NaN or Inf (`check_finite` over each, one submission, one readback).
+    fn grads_finite(&self, timing: &mut TimingReport) -> GpuResult<bool> {
+        let mut rec = self.ctx.recorder("gradient check")?;
+        crate::ops::fill(&mut rec, &self.guard_flag, 0u32, 0, 1)?;
         for c in self.model.store.grads().chunks() {
-            if !crate::ops::sum(&self.ctx, c, c.len())?.is_finite() {
-                return Ok(false);
-            }
+            crate::ops::record_check_finite(&mut rec, c, c.len(), &self.guard_flag)?;
         }
-        Ok(true)
+        timing.accumulate(&rec.submit_and_wait()?);
+        Ok(self.ctx.download(&self.guard_flag)?[0] == 0)
     }
 
     /// Name of the first buffer, in pipeline order, that holds a NaN or Inf.

@@ -8,6 +8,7 @@
 //! RUN/dataset.json                   dataset path, bands, splits
 //! RUN/checkpoints/latest.msnp        parameters + Adam state (atomic), and latest.json (trainer state)
 //! RUN/metrics.jsonl                  one JSON object per logged step and per evaluation
+//! RUN/camera_poses.json              refined camera poses (with pose refinement on; `super::camera_poses`)
 //! ```
 //! Ctrl-C saves a checkpoint and stops; `--resume` continues from the latest one; `--time-budget` stops in time.
 
@@ -145,11 +146,19 @@ fn ckpt_paths(run: &Path) -> (PathBuf, PathBuf) {
     (d.join("latest.msnp"), d.join("latest.json"))
 }
 
-fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState) -> Result<(), String> {
+fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState, ds: &Dataset) -> Result<(), String> {
     let (p, s) = ckpt_paths(run);
     std::fs::create_dir_all(p.parent().expect("has parent")).map_err(|e| format!("{}: {e}", run.display()))?;
     pipe.model.store.save(&p).map_err(|e| e.to_string())?;
-    write_atomic_str(&s, serde_json::to_string_pretty(state).expect("serialisable").as_bytes())
+    write_atomic_str(&s, serde_json::to_string_pretty(state).expect("serialisable").as_bytes())?;
+    let store = &pipe.model.store;
+    if let Some(slot) = store.slot(super::model::POSE_SLOT) {
+        let poses = store.download_slot(store.params(), slot).map_err(|e| e.to_string())?;
+        let doc =
+            super::camera_poses::camera_poses_json(ds, &ds.pose_transform(), &ds.split_indices(Split::Train), &poses);
+        write_atomic_str(&run.join("camera_poses.json"), serde_json::to_string_pretty(&doc).expect("json").as_bytes())?;
+    }
+    Ok(())
 }
 
 /// Adds one step's timestamps to per-kernel totals (kept by name; the dispatch list itself is not kept).
@@ -196,6 +205,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
 
     let model = Model::new(ctx, cfg, bands, ds.frames.len()).map_err(|e| e.to_string())?;
     let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
+    pipe.n_train_cameras = train_frames.len();
     let mut state =
         TrainerState { step: 0, schedule: ProposalSchedule::default(), best_eval_psnr: None, elapsed_s: 0.0 };
     if opts.resume {
@@ -295,7 +305,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
             log(serde_json::json!({
                 "step": stats.step, "loss": stats.loss, "loss_rgb": stats.loss_rgb, "loss_distortion": stats.loss_distortion,
                 "loss_interlevel": stats.loss_interlevel, "psnr": stats.psnr, "step_ms": ms, "rays_per_s": rays_per_s,
-                "proposals_updated": stats.proposals_updated,
+                "proposals_updated": stats.proposals_updated, "loss_pose": stats.loss_pose,
             }))?;
         }
         if let Some(b) = &bar {
@@ -322,7 +332,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         }
         if state.step % cfg.trainer.steps_per_save == 0 && !is_last {
             state.elapsed_s = elapsed0 + start.elapsed().as_secs_f64();
-            save_checkpoint(&pipe, run, &state)?;
+            save_checkpoint(&pipe, run, &state, &ds)?;
         }
         last = stats;
     }
@@ -330,7 +340,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         b.finish_and_clear();
     }
     state.elapsed_s = elapsed0 + start.elapsed().as_secs_f64();
-    save_checkpoint(&pipe, run, &state)?;
+    save_checkpoint(&pipe, run, &state, &ds)?;
     summary.steps = state.step;
     summary.final_loss = last.loss;
     summary.final_train_psnr = last.psnr;

@@ -163,6 +163,13 @@ pub struct HashGrid {
     fwd: Kernel<FwdPush>,
     bwd: Kernel<BwdPush>,
     bwd_input: Kernel<BwdInputPush>,
+    /// Consecutive points one `hashgrid_bwd` invocation combines (1: one point per invocation).
+    bwd_run: u32,
+}
+
+/// Points per `hashgrid_bwd` invocation: `MSNERF_HASH_BWD_RUN` when set (benchmarks), else 1.
+pub fn default_backward_run() -> u32 {
+    std::env::var("MSNERF_HASH_BWD_RUN").ok().and_then(|v| v.parse().ok()).unwrap_or(1)
 }
 
 fn check_array(a: &LargeArray<f32>, offset: usize, n_params: usize) -> GpuResult<()> {
@@ -177,15 +184,27 @@ fn check_array(a: &LargeArray<f32>, offset: usize, n_params: usize) -> GpuResult
 
 impl HashGrid {
     pub fn new(ctx: &crate::gpu::Context, config: &HashGridConfig) -> GpuResult<Self> {
+        Self::with_backward_run(ctx, config, default_backward_run())
+    }
+
+    /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (see hashgrid_bwd.comp).
+    pub fn with_backward_run(ctx: &crate::gpu::Context, config: &HashGridConfig, run: u32) -> GpuResult<Self> {
         config.validate().map_err(|msg| GpuError::Buffer { name: "hash grid config".into(), msg })?;
+        if !(1..=64).contains(&run) {
+            return Err(GpuError::Buffer {
+                name: "hash grid".into(),
+                msg: format!("backward run {run} not in 1..=64"),
+            });
+        }
         let levels = GpuBuffer::from_slice(ctx, "hash grid levels", MemoryCategory::Other, &config.levels())?;
         let spec = [(0, config.features_per_level)];
         Ok(Self {
             config: config.clone(),
             levels,
             fwd: Kernel::with_spec(ctx, &shaders::HASHGRID_FWD, &spec)?,
-            bwd: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD, &spec)?,
+            bwd: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD, &[(0, config.features_per_level), (1, run)])?,
             bwd_input: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD_INPUT, &spec)?,
+            bwd_run: run,
         })
     }
 
@@ -253,7 +272,7 @@ impl HashGrid {
             dy_col: dy_col as u32,
             pad: 0,
         };
-        let grid = self.grid(rec, n)?;
+        let grid = self.grid(rec, n.div_ceil(self.bwd_run as usize))?;
         let bindings = [positions.binding(), self.levels.binding(), dy.binding()];
         rec.dispatch_groups("hashgrid_bwd", &self.bwd, &bindings, &grads.deps(), &push, grid)
     }

@@ -1,11 +1,13 @@
-//! Generic compute operations built on the runtime: fill, copy, sum reduction and exclusive prefix scans
+//! Generic compute operations built on the runtime: fill, copy, a NaN/Inf check, sum reduction and exclusive prefix scans
 //! (whole-array and segmented per ray). Each records into a [`Recorder`](crate::gpu::Recorder) and has a CPU
 //! twin in [`crate::reference::util`].
 
+mod check;
 mod fill_copy;
 mod reduce;
 mod scan;
 
+pub use check::record_check_finite;
 pub use fill_copy::{copy, fill};
 pub use reduce::{partial_lens, reduce_sum, sum};
 pub use scan::{exclusive_scan, segmented_exclusive_scan};

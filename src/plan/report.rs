@@ -69,7 +69,7 @@ pub fn text(p: &Plan) -> String {
         Part::TrainChunk,
         Part::EvalChunk,
         Part::Staging,
-        Part::NanGuardScratch,
+        Part::NanGuard,
     ] {
         let _ = writeln!(s, "    {:<42} {:>49}", part.name(), mib(v.part_bytes(part)));
     }

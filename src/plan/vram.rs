@@ -9,7 +9,7 @@
 //! - The two staging buffers at the size of the largest upload and readback the trainer makes
 //!   ([`staging_bytes`]): parameter pieces of [`PIECE`] elements at initialisation, checkpoint and resume,
 //!   level/chunk/camera tables, per-chunk rays, targets and outputs.
-//! - Transient: the NaN guard's reduction over the largest gradient chunk ([`partial_lens`]).
+//! - The NaN/Inf guard's flag (one u32, allocated by `Pipeline::new`).
 //!
 //! The total is the persistent buffers plus the largest transient set: an upper bound of the ledger's peak
 //! (the peak reaches it once a checkpoint has been written and a step follows, as in any run longer than
@@ -25,7 +25,6 @@ use crate::nerf::model::ModelShapes;
 use crate::nerf::rays::GpuCamera;
 use crate::nn::hashgrid::{HashGridConfig, HashLevel};
 use crate::nn::params::{ParamLayout, PIECE};
-use crate::ops::partial_lens;
 use serde::Serialize;
 
 /// Which part of the trainer a buffer belongs to.
@@ -39,7 +38,7 @@ pub enum Part {
     EvalChunk,
     Staging,
     /// Alive only during the NaN guard's reduction.
-    NanGuardScratch,
+    NanGuard,
 }
 
 impl Part {
@@ -51,7 +50,7 @@ impl Part {
             Part::TrainChunk => "training chunk",
             Part::EvalChunk => "evaluation chunk",
             Part::Staging => "staging",
-            Part::NanGuardScratch => "NaN-guard scratch (transient)",
+            Part::NanGuard => "NaN/Inf guard flag",
         }
     }
 }
@@ -176,17 +175,8 @@ pub fn plan_vram(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule) -> Re
     push("staging upload".into(), MemoryCategory::Staging, Part::Staging, up, false);
     push("staging readback".into(), MemoryCategory::Staging, Part::Staging, down, false);
 
-    // Transient: the NaN guard sums each gradient chunk (one output value plus the partial sums).
-    let guard = chunks
-        .iter()
-        .map(|&n| (n, dev.bytes(f32s) + partial_lens(n).iter().map(|&p| dev.bytes(p as u64 * f32s)).sum::<u64>()))
-        .max_by_key(|&(_, b)| b);
-    if let Some((n, _)) = guard {
-        push("sum".into(), MemoryCategory::Other, Part::NanGuardScratch, f32s, true);
-        for p in partial_lens(n) {
-            push("reduce partials".into(), MemoryCategory::Other, Part::NanGuardScratch, p as u64 * f32s, true);
-        }
-    }
+    // The NaN/Inf guard's flag (check_finite needs no scratch).
+    push("NaN guard flag".into(), MemoryCategory::Other, Part::NanGuard, 4, false);
 
     let persistent_bytes: u64 = entries.iter().filter(|e| !e.transient).map(|e| e.bytes).sum();
     let transient_bytes: u64 = entries.iter().filter(|e| e.transient).map(|e| e.bytes).sum();

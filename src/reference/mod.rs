@@ -5,6 +5,7 @@ pub mod adam;
 pub mod hashgrid;
 pub mod mlp;
 pub mod pipeline;
+pub mod pose;
 pub mod real;
 pub mod render;
 pub mod sh;

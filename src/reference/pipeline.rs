@@ -1,12 +1,14 @@
 //! CPU reference of one whole nerfacto training step (f64), composed from the kernel twins: proposal sampling,
 //! fields, compositing with the per-band MSE and distortion loss, the interlevel loss, and the backward pass into
-//! every parameter slot. The GPU pipeline (`crate::nerf::pipeline`) is tested against it.
+//! every parameter slot, including the camera pose corrections when the model refines poses (the regulariser
+//! averages over all of the model's cameras, as the GPU pipeline does by default). The GPU pipeline (`crate::nerf::pipeline`) is tested against it.
 
-use super::{hashgrid, mlp, render, sh};
-use crate::nerf::model::Model;
+use super::{hashgrid, mlp, pose, render, sh};
+use crate::nerf::model::{Model, POSE_SLOT};
 use crate::nerf::schedule::anneal_at;
 
-/// One ray of the batch, already generated (origin, unit direction), with its camera, targets and weight.
+/// One ray of the batch, already generated (origin, unit direction; before any pose correction), with its camera,
+/// targets and weight.
 pub struct RefRay {
     pub origin: [f64; 3],
     pub dir: [f64; 3],
@@ -20,6 +22,7 @@ pub struct RefStep {
     pub loss_rgb: f64,
     pub loss_distortion: f64,
     pub loss_interlevel: f64,
+    pub loss_pose: f64,
     /// dLoss/dparams over the whole store (same layout as the GPU arrays).
     pub grads: Vec<f64>,
 }
@@ -53,14 +56,15 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
     let mut out = RefStep { grads: vec![0.0; params.len()], ..Default::default() };
     let slice = |name: &str, len: usize| model.offset(name)..model.offset(name) + len;
 
+    let pose_off = model.store.slot(POSE_SLOT).map(|sl| sl.offset);
     for (gi, ray) in rays.iter().enumerate() {
-        let geom = render::RayGeom {
-            origin: ray.origin,
-            dir: ray.dir,
-            near: s.near as f64,
-            far: s.far as f64,
-            contraction: s.scene_contraction,
+        // Pose correction (training): origin + t, direction rotated by exp(w).
+        let (origin, dir) = match pose_off {
+            Some(o) => pose::apply(&params[o + 6 * ray.camera..o + 6 * ray.camera + 6], ray.origin, ray.dir),
+            None => (ray.origin, ray.dir),
         };
+        let geom =
+            render::RayGeom { origin, dir, near: s.near as f64, far: s.far as f64, contraction: s.scene_contraction };
         let jitter = |level: u32| render::ray_uniform(seed, step as u32, gi as u32, level) as f64;
         // Proposal levels: forward, keeping what the interlevel backward needs.
         let mut levels: Vec<ProposalLevel> = Vec::new();
@@ -102,7 +106,7 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         let cm = &model.colour.config;
         let w_colour = &params[slice("field.colour_mlp", cm.n_params())];
         let (geo_dim, app_dim) = (cfg.field.geo_feat_dim, cfg.field.appearance_embed_dim);
-        let shv = sh::encode(ray.dir);
+        let shv = sh::encode(dir);
         let app: Vec<f64> = if app_dim > 0 {
             let o = model.offset("field.appearance") + ray.camera * app_dim;
             params[o..o + app_dim].to_vec()
@@ -149,6 +153,8 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         out.loss_distortion += comp.loss_dist;
         // Backward through the colour MLP, then the density MLP and the hash grid.
         let (co, fo, go) = (model.offset("field.colour_mlp"), model.offset(&f.mlp_slot), model.offset(&f.grid_slot));
+        let mut dpos = vec![0.0; 3 * n];
+        let mut dsh = [0.0; sh::SH_DIM];
         for k in 0..n {
             let dy_c = &comp.d_colour[k * bands..(k + 1) * bands];
             let dx = mlp::backward(cm, w_colour, &cin[k], dy_c, &mut out.grads[co..co + cm.n_params()]);
@@ -161,6 +167,14 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
             let mut dy_d = vec![comp.d_raw[k]];
             dy_d.extend_from_slice(&dx[16..16 + geo_dim]);
             let dx_enc = mlp::backward(fm, w_density, &encs[k], &dy_d, &mut out.grads[fo..fo + fm.n_params()]);
+            if pose_off.is_some() {
+                let fpl = fg.features_per_level as usize;
+                let gh = hashgrid::backward_input(&grid_levels, fpl, grid, positions[k], &dx_enc);
+                dpos[3 * k..3 * k + 3].copy_from_slice(&gh);
+                for (a, v) in dsh.iter_mut().zip(&dx[..sh::SH_DIM]) {
+                    *a += v;
+                }
+            }
             hashgrid::backward_params(
                 &grid_levels,
                 fg.features_per_level as usize,
@@ -169,34 +183,74 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
                 &mut out.grads[go..go + fg.n_params()],
             );
         }
-        if !update_props {
-            continue;
+        let near_far = (s.near as f64, s.far as f64, s.scene_contraction);
+        let (mut g_o, mut g_d) = pose::ray_grad(origin, dir, &edges, near_far, &dpos, Some(&dsh));
+        if update_props {
+            for ((field, pc), lv) in model.proposals.iter().zip(&cfg.proposals).zip(&levels) {
+                let ld = proposal_backward(
+                    model,
+                    params,
+                    &geom,
+                    (field, pc),
+                    lv,
+                    (&edges, &comp.weights, inter_norm),
+                    &mut out,
+                );
+                if pose_off.is_some() {
+                    let (po, pd) = pose::ray_grad(origin, dir, &lv.edges, near_far, &ld, None);
+                    g_o = [0, 1, 2].map(|i| g_o[i] + po[i]);
+                    g_d = [0, 1, 2].map(|i| g_d[i] + pd[i]);
+                }
+            }
         }
-        for ((field, pc), lv) in model.proposals.iter().zip(&cfg.proposals).zip(&levels) {
-            let (pedges, pencs, praw) = (&lv.edges, &lv.encodings, &lv.raw);
-            let (loss, d_raw) = render::interlevel(&geom, &edges, &comp.weights, pedges, praw, scale, inter_norm);
-            out.loss_interlevel += loss;
-            let (mo, go) = (model.offset(&field.mlp_slot), model.offset(&field.grid_slot));
-            let w_mlp = &params[mo..mo + field.mlp.config.n_params()];
-            let plevels = pc.grid.levels();
-            let ppos = geom.positions(pedges);
-            for k in 0..praw.len() {
-                let dx = mlp::backward(
-                    &field.mlp.config,
-                    w_mlp,
-                    &pencs[k],
-                    &[d_raw[k]],
-                    &mut out.grads[mo..mo + field.mlp.config.n_params()],
-                );
-                hashgrid::backward_params(
-                    &plevels,
-                    pc.grid.features_per_level as usize,
-                    ppos[k],
-                    &dx,
-                    &mut out.grads[go..go + pc.grid.n_params()],
-                );
+        if let Some(o) = pose_off {
+            let p = &params[o + 6 * ray.camera..o + 6 * ray.camera + 6];
+            let g = pose::camera_grad([p[3], p[4], p[5]], ray.dir, g_o, g_d);
+            for (i, v) in g.iter().enumerate() {
+                out.grads[o + 6 * ray.camera + i] += v;
             }
         }
     }
+    if let Some(o) = pose_off {
+        let co = &cfg.camera_optimizer;
+        let poses = &params[o..o + 6 * model.n_cameras];
+        let (losses, g) =
+            pose::regularizer(poses, model.n_cameras, co.trans_l2_penalty as f64, co.rot_l2_penalty as f64);
+        out.loss_pose = losses.iter().sum();
+        for (i, v) in g.iter().enumerate() {
+            out.grads[o + i] += v;
+        }
+    }
     out
+}
+
+/// Interlevel loss of one proposal level (added to `out`) and its backward into the proposal's MLP and grid; returns
+/// the hash-input gradient of the level's samples (3 per sample, for pose refinement).
+fn proposal_backward(
+    model: &Model,
+    params: &[f64],
+    geom: &render::RayGeom<f64>,
+    (field, pc): (&crate::nerf::model::DensityField, &crate::nerf::config::ProposalConfig),
+    lv: &ProposalLevel,
+    (nerf_edges, nerf_weights, inter_norm): (&[f64], &[f64], f64),
+    out: &mut RefStep,
+) -> Vec<f64> {
+    let scale = model.cfg.field.average_init_density as f64;
+    let (pedges, pencs, praw) = (&lv.edges, &lv.encodings, &lv.raw);
+    let (loss, d_raw) = render::interlevel(geom, nerf_edges, nerf_weights, pedges, praw, scale, inter_norm);
+    out.loss_interlevel += loss;
+    let (mo, go) = (model.offset(&field.mlp_slot), model.offset(&field.grid_slot));
+    let w_mlp = &params[mo..mo + field.mlp.config.n_params()];
+    let grid = &params[go..go + pc.grid.n_params()];
+    let plevels = pc.grid.levels();
+    let fpl = pc.grid.features_per_level as usize;
+    let ppos = geom.positions(pedges);
+    let mut dpos = Vec::with_capacity(3 * praw.len());
+    for k in 0..praw.len() {
+        let mlp_grads = &mut out.grads[mo..mo + field.mlp.config.n_params()];
+        let dx = mlp::backward(&field.mlp.config, w_mlp, &pencs[k], &[d_raw[k]], mlp_grads);
+        hashgrid::backward_params(&plevels, fpl, ppos[k], &dx, &mut out.grads[go..go + pc.grid.n_params()]);
+        dpos.extend(hashgrid::backward_input(&plevels, fpl, grid, ppos[k], &dx));
+    }
+    dpos
 }

@@ -15,6 +15,11 @@ pub fn copy<T: Copy>(src: &[T], src_start: usize, dst: &mut [T], dst_start: usiz
 }
 
 /// Twin of `ops::reduce_sum`: tree-reduce 256-element blocks, repeat until one value is left.
+/// Twin of `check_finite`: whether any element is NaN or +-Inf (all-ones exponent).
+pub fn any_non_finite(data: &[f32]) -> bool {
+    data.iter().any(|v| v.to_bits() & 0x7f80_0000 == 0x7f80_0000)
+}
+
 pub fn reduce_sum<V: Copy + Default + WrappingAdd>(input: &[V]) -> V {
     if input.is_empty() {
         return V::default();

@@ -262,7 +262,8 @@ fn evaluate_point(
     step: u64,
 ) -> Result<(TimePoint, Vec<String>, u64), String> {
     let mut run = LoadedRun::load(ctx, dir)?;
-    let rep = crate::cli::eval::evaluate(&mut run, Split::Eval, Some(views)).map_err(|e| format!("evaluating: {e}"))?;
+    let rep =
+        crate::cli::eval::evaluate(&mut run, Split::Eval, Some(views), None).map_err(|e| format!("evaluating: {e}"))?;
     let bands =
         rep.bands.iter().map(|b| BandScore { name: b.name.clone(), psnr: b.psnr, ssim: b.ssim }).collect::<Vec<_>>();
     let names = bands.iter().map(|b| b.name.clone()).collect();

@@ -10,6 +10,7 @@
 //!   pixels of the cropped SSIM map (the local windows still see unmasked neighbours).
 //! - Computed in f64 from the f32 inputs.
 
+pub mod lpips;
 pub mod report;
 pub mod ssim;
 

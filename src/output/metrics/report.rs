@@ -6,7 +6,8 @@
 //! - JSON has no infinity: a non-finite number (PSNR of identical images, std of infinite PSNRs, a mask that
 //!   keeps nothing) is written as `null`.
 //! - LPIPS is not computed here: `lpips` and `lpips_std` are `null` and `lpips_note` says why, unless a caller
-//!   supplies per-view values through [`EvalReport::set_lpips`] (the hook for an AlexNet-LPIPS on 3-band composites).
+//!   supplies per-view values through [`EvalReport::set_lpips`] (`msnerf eval --lpips-weights` does, with
+//!   `super::lpips` on natural-colour composites).
 //! - `num_rays_per_sec` = pixels / render seconds and `fps` = 1 / render seconds, per view, when timings are given;
 //!   otherwise `null`.
 
@@ -131,7 +132,8 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
-const LPIPS_NOTE: &str = "not computed: LPIPS needs a pretrained AlexNet on 3-band composites; msnerf ships none";
+const LPIPS_NOTE: &str =
+    "not computed: LPIPS needs pretrained AlexNet weights (msnerf ships none): pass --lpips-weights FILE, see tools/export_lpips_weights.py";
 
 impl EvalReport {
     /// Builds the report; every view must have one metric per band of `bands`.
@@ -222,6 +224,13 @@ impl EvalReport {
 
     /// The LPIPS hook: per-view LPIPS values (in view order) fill `lpips`, `lpips_std` and the view entries, and
     /// drop `lpips_note`.
+    /// Sets per-view LPIPS values (and their mean and standard deviation); `note` says how they were computed.
+    pub fn set_lpips_with_note(&mut self, per_view: &[f64], note: &str) -> Result<()> {
+        self.set_lpips(per_view)?;
+        self.results.lpips_note = Some(note.to_string());
+        Ok(())
+    }
+
     pub fn set_lpips(&mut self, per_view: &[f64]) -> Result<()> {
         if per_view.len() != self.views.len() {
             return Err(OutputError::invalid(
