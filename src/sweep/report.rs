@@ -317,7 +317,7 @@ pub fn report_markdown(ctx: &ReportContext, results: &[CellResult]) -> String {
     }
     let _ = writeln!(
         s,
-        "- One run per configuration and one seed: differences under about {NOISE_DB} dB are within run-to-run noise.\n\
+        "- One run per configuration and one seed: at a fixed step count, differences under about {NOISE_DB} dB are seed noise; at a fixed wall-clock time the machine's load adds more.\n\
          - Wall-clock budgets measure this machine under its load at the time; steps per second move with it.\n\
          - PSNR is over {} held-out views, not the whole eval split (`msnerf eval RUN` scores them all).",
         g.eval_views
