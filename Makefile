@@ -3,7 +3,7 @@ CARGO ?= cargo
 # The suite runs with the Khronos validation layer and fails on any message it prints.
 export MSNERF_REQUIRE_VALIDATION ?= 1
 
-.PHONY: setup test lint build demo devices bench clean
+.PHONY: setup test lint build demo devices bench clean accuracy-report
 
 setup:
 	@bash tools/setup-debian.sh
@@ -23,6 +23,12 @@ devices: build
 
 demo: build
 	./target/release/msnerf demo
+
+# docs/accuracy-vs-time.md and its plots: the configs/sweeps/accuracy-report.yaml sweep on the built-in campus scene
+# (~16 min on 2 cores with lavapipe). Resumable: rerunning skips the cells already in accuracy-report-output/.
+accuracy-report: build
+	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/accuracy-report.yaml \
+		--out accuracy-report-output --report docs/accuracy-vs-time.md
 
 clean:
 	$(CARGO) clean

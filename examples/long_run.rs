@@ -80,6 +80,7 @@ fn run(
         eval_pixels: 4096,
         progress: false,
         stop: None,
+        bands: None,
     };
     let result = train(&ctx, &opts);
     let log = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap_or_default();

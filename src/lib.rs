@@ -3,7 +3,7 @@
 //! Layers, one folder each: [`gpu`] (the Vulkan runtime), [`ops`] (generic compute operations), [`nn`] (neural
 //! modules: hash grid, MLP, SH, Adam, parameter store), [`data`] (datasets, image readers, poses, cameras, the host image cache),
 //! [`reference`] (CPU twins of every kernel), [`output`] (metrics, rasters, previews, point clouds, cloud
-//! comparison), [`cli`] (the `msnerf` subcommands).
+//! comparison), [`sweep`] (accuracy against training time), [`cli`] (the `msnerf` subcommands).
 
 pub mod bench;
 pub mod cli;
@@ -17,4 +17,5 @@ pub mod plan;
 pub mod reference;
 pub mod shaders;
 pub mod sim;
+pub mod sweep;
 pub mod util;

@@ -149,6 +149,7 @@ fn five_poisoned_steps_in_a_row_stop_training_with_a_clear_error() {
         eval_pixels: 64,
         progress: false,
         stop: None,
+        bands: None,
     };
     let err = trainer::train(&g, &opts).expect_err("training must stop");
     assert!(err.contains("5 steps in a row produced NaN/Inf"), "{err}");

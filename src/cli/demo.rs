@@ -83,6 +83,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         eval_pixels: 4096,
         progress: true,
         stop: None,
+        bands: None,
     };
     let ts = train(&ctx, &opts).map_err(anyhow::Error::msg)?;
 

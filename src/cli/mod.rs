@@ -10,6 +10,7 @@ pub mod export;
 pub mod plan;
 pub mod render;
 pub mod simulate;
+pub mod sweep;
 pub mod train;
 
 use clap::{Parser, Subcommand};
@@ -54,6 +55,8 @@ pub enum Command {
     Plan(plan::PlanArgs),
     /// Compare a point cloud against a reference (accuracy, completeness, F-score, per-band error)
     CompareCloud(compare_cloud::CompareCloudArgs),
+    /// Train a grid of configurations under one budget: accuracy against time, CSV, plots and a report
+    Sweep(sweep::SweepArgs),
 }
 
 impl Cli {
@@ -83,5 +86,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),
         Command::Plan(a) => plan::run(&cli, a),
+        Command::Sweep(a) => sweep::run(&cli, a),
     }
 }

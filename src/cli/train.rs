@@ -34,6 +34,9 @@ pub struct TrainArgs {
     /// Stop after this many seconds of training (the best held-out PSNR is reported)
     #[arg(long)]
     pub time_budget: Option<f64>,
+    /// Train on these bands only: 0-based indices into the dataset's bands, comma-separated (e.g. 0,1,2)
+    #[arg(long, value_delimiter = ',')]
+    pub bands: Option<Vec<usize>>,
     /// Evaluate held-out PSNR every N steps
     #[arg(long)]
     pub eval_every: Option<u64>,
@@ -103,7 +106,7 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         ((a.host_budget_gib * (1u64 << 30) as f64) as u64, a.resample_every);
     if let Some(h) = &a.hardware {
         use crate::plan::{train as pt, DatasetShape};
-        let ds = crate::data::load_dataset(&a.data, &Default::default()).map_err(anyhow::Error::msg)?;
+        let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref()).map_err(anyhow::Error::msg)?;
         let shape = DatasetShape::from_dataset(&ds);
         let base = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
         let profile = pt::resolve_profile(&ctx, h, &base, &shape).map_err(anyhow::Error::msg)?;
@@ -138,16 +141,19 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         eval_pixels: a.eval_pixels,
         progress: !a.quiet,
         stop: Some(stop),
+        bands: a.bands.clone(),
     };
     let s = train(&ctx, &opts).map_err(anyhow::Error::msg)?;
     println!(
-        "trained {} steps in {:.1} s ({:.0} rays/s); train PSNR {:.2} dB; held-out PSNR {} -> best {}{}",
+        "trained {} steps in {:.1} s ({:.0} rays/s, {:.0} ms/step); train PSNR {:.2} dB; held-out PSNR {} -> best {}{}{}",
         s.steps,
         s.elapsed_s,
         s.rays_per_s,
+        s.mean_step_ms,
         s.final_train_psnr,
         s.first_eval_psnr.map(|v| format!("{v:.2} dB")).unwrap_or_else(|| "n/a".into()),
         s.best_eval_psnr.map(|v| format!("{v:.2} dB")).unwrap_or_else(|| "n/a".into()),
+        s.best_eval_step.map(|v| format!(" at step {v}")).unwrap_or_default(),
         s.stopped_early.map(|w| format!(" (stopped: {w})")).unwrap_or_default()
     );
     println!("run folder: {}", s.run_dir.display());

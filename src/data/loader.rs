@@ -75,6 +75,16 @@ pub struct Dataset {
     /// `depth_type`: true for `z`, false for `ray_distance`.
     pub depth_is_z: bool,
     pub options: LoadOptions,
+    /// Set by [`Dataset::select_bands`]: the dataset then reads and reports only these bands of its files.
+    pub band_selection: Option<BandSelection>,
+}
+
+/// A subset of a dataset's bands (`msnerf train --bands`, sweep axis `bands`): the indices kept, in order, into
+/// `all`, the bands the files hold.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BandSelection {
+    pub indices: Vec<usize>,
+    pub all: Vec<Band>,
 }
 
 fn frame_of(f: &Frame) -> FrameRef {
@@ -198,6 +208,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         depth_unit_scale_factor: raw.depth_unit_scale_factor,
         depth_is_z: raw.depth_is_z,
         options: options.clone(),
+        band_selection: None,
     };
     // Probe the first frame: sample type, and band identity when the header does not name the bands.
     let probe = ds.decode_sources(0)?;
@@ -280,6 +291,40 @@ impl Dataset {
         self.bands.len()
     }
 
+    /// Keeps only the bands at `indices` (0-based, in the order given, no repeats) of the bands the files hold:
+    /// `bands`, `n_bands` and every raster [`Dataset::read_frame`] returns have just those from then on. Selecting
+    /// again picks from all the file bands, not from the previous selection.
+    pub fn select_bands(&mut self, indices: &[usize]) -> Result<(), DataError> {
+        let all = self.file_bands().to_vec();
+        let bad = |reason: String| DataError::InvalidValue {
+            path: self.transforms_path.clone(),
+            key: "bands".into(),
+            frame: None,
+            reason,
+        };
+        if indices.is_empty() {
+            return Err(bad("the band selection is empty".into()));
+        }
+        if let Some(&i) = indices.iter().find(|&&i| i >= all.len()) {
+            return Err(bad(format!(
+                "band index {i} is out of range: the dataset has {} bands (0..{})",
+                all.len(),
+                all.len()
+            )));
+        }
+        if let Some((k, &i)) = indices.iter().enumerate().find(|(k, i)| indices[..*k].contains(i)) {
+            return Err(bad(format!("band index {i} is selected twice (position {k})")));
+        }
+        self.bands = indices.iter().map(|&i| all[i].clone()).collect();
+        self.band_selection = Some(BandSelection { indices: indices.to_vec(), all });
+        Ok(())
+    }
+
+    /// The bands the image files hold (all of them, whatever [`Dataset::select_bands`] kept).
+    pub fn file_bands(&self) -> &[Band] {
+        self.band_selection.as_ref().map_or(&self.bands, |s| &s.all)
+    }
+
     /// Bytes one image takes in memory (samples only).
     pub fn image_bytes(&self) -> u64 {
         self.width as u64 * self.height as u64 * self.bands.len() as u64 * self.sample_type.bytes() as u64
@@ -305,7 +350,7 @@ impl Dataset {
     fn max_decode_bytes(&self) -> usize {
         // The expected image at 4 bytes a sample plus slack; bounds what a corrupt header can allocate.
         let px = self.width as usize * self.height as usize;
-        (px * self.bands.len().max(4) * 4).saturating_mul(2).max(1 << 24)
+        (px * self.file_bands().len().max(4) * 4).saturating_mul(2).max(1 << 24)
     }
 
     fn decode_sources(&self, i: usize) -> Result<Vec<DecodedImage>, DataError> {
@@ -338,8 +383,22 @@ impl Dataset {
 
     /// Decodes frame `i` into a compact raster with band scaling, mask and NaN/Inf handling.
     pub fn read_frame(&self, i: usize) -> Result<Raster, DataError> {
+        let raster = self.read_file_bands(i)?;
+        Ok(match &self.band_selection {
+            Some(sel) => {
+                let mut r = select_channels(&raster, &sel.indices);
+                r.scaling = sel.indices.iter().map(|&b| raster.scaling[b]).collect();
+                r.mask = raster.mask;
+                r
+            }
+            None => raster,
+        })
+    }
+
+    /// [`Dataset::read_frame`] with every band the files hold.
+    fn read_file_bands(&self, i: usize) -> Result<Raster, DataError> {
         let f = &self.frames[i];
-        let nb = self.bands.len();
+        let nb = self.file_bands().len();
         let decoded = self.decode_sources(i)?;
         let (mut raster, file_black) = match &f.image {
             ImageSource::File(p) => {
@@ -398,7 +457,7 @@ impl Dataset {
         if !self.sample_type.is_integer() {
             return BandScale::IDENTITY;
         }
-        let band = &self.bands[b];
+        let band = &self.file_bands()[b];
         BandScale {
             black: band.black_level.or(self.black_level).or(file_black).unwrap_or(0.0),
             scale: band.pixel_scale.or(self.pixel_scale).unwrap_or(self.sample_type.default_scale()),
@@ -406,13 +465,13 @@ impl Dataset {
     }
 
     fn arrange_channels(&self, d: DecodedImage, p: &Path, f: &Frame) -> Result<Raster, DataError> {
-        let nb = self.bands.len();
+        let nb = self.file_bands().len();
         let r = d.raster;
         let names = &d.meta.channel_names;
         // EXR: match channels to bands by name when every band finds one.
         if !names.is_empty() {
             let idx: Option<Vec<usize>> =
-                self.bands.iter().map(|b| names.iter().position(|c| channel_matches(c, &b.name))).collect();
+                self.file_bands().iter().map(|b| names.iter().position(|c| channel_matches(c, &b.name))).collect();
             let order: Vec<usize> = match idx {
                 Some(v) => v,
                 None if r.bands == nb => (0..nb).collect(),
@@ -435,7 +494,7 @@ impl Dataset {
             path: p.to_path_buf(),
             key: if matches!(f.image, ImageSource::File(_)) { "file_path" } else { "band_files" }.into(),
             frame: Some(frame_of(f)),
-            expected: self.bands.len(),
+            expected: self.file_bands().len(),
             found,
         }
     }
@@ -448,7 +507,7 @@ impl Dataset {
         files: &[PathBuf],
         f: &Frame,
     ) -> Result<(Raster, Vec<Option<f64>>), DataError> {
-        let nb = self.bands.len();
+        let nb = self.file_bands().len();
         if files.len() != nb {
             return Err(DataError::BandCount {
                 path: self.transforms_path.clone(),
@@ -463,7 +522,7 @@ impl Dataset {
             .iter()
             .map(|d| {
                 let n = d.meta.xmp.as_ref()?.name.as_ref()?;
-                self.bands.iter().position(|b| b.name.eq_ignore_ascii_case(n))
+                self.file_bands().iter().position(|b| b.name.eq_ignore_ascii_case(n))
             })
             .collect();
         let mut used = vec![false; nb];

@@ -31,7 +31,7 @@ pub use cache::{CacheConfig, ImageCache, PixelBatch};
 pub use camera::{Camera, CameraModel, Distortion, Ray};
 pub use check::{check_dataset, CheckReport};
 pub use error::{DataError, FrameRef};
-pub use loader::{load_dataset, Band, Dataset, Frame, ImageSource, LoadOptions};
+pub use loader::{load_dataset, Band, BandSelection, Dataset, Frame, ImageSource, LoadOptions};
 pub use pose::PoseTransform;
 pub use raster::{Raster, SampleType, Samples};
 pub use split::Split;

@@ -6,9 +6,9 @@ use super::config::ModelConfig;
 use super::model::Model;
 use super::pipeline::Pipeline;
 use super::rays::GpuCamera;
-use super::trainer::camera_table;
+use super::trainer::{camera_table, load_run_dataset};
 use super::views::NovelView;
-use crate::data::{load_dataset, Dataset, LoadOptions, PoseTransform};
+use crate::data::{Dataset, PoseTransform};
 use crate::gpu::Context;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -54,7 +54,10 @@ impl LoadedRun {
         )
         .map_err(|e| format!("{}: {e}", info_path.display()))?;
         let data = info["data"].as_str().ok_or_else(|| format!("{}: key `data` missing", info_path.display()))?;
-        let ds = load_dataset(Path::new(data), &LoadOptions::default()).map_err(|e| e.to_string())?;
+        // `band_indices`: the run trained on these bands only (`msnerf train --bands`, sweep axis `bands`).
+        let band_indices: Option<Vec<usize>> = serde_json::from_value(info["band_indices"].clone())
+            .map_err(|e| format!("{}: key `band_indices`: {e}", info_path.display()))?;
+        let ds = load_run_dataset(Path::new(data), band_indices.as_deref())?;
         let checkpoint = dir.join("checkpoints/latest.msnp");
         let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len()).map_err(|e| e.to_string())?;
         model.store.load(&checkpoint).map_err(|e| e.to_string())?;

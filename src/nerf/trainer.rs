@@ -18,7 +18,7 @@ use super::pipeline::{Batch, Pipeline, StepStats};
 use super::rays::GpuCamera;
 use super::schedule::ProposalSchedule;
 use crate::data::{cache, load_dataset, Dataset, LoadOptions, Split};
-use crate::gpu::Context;
+use crate::gpu::{Context, KernelTime, TimingReport};
 use crate::util::atomic;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -44,6 +44,8 @@ pub struct TrainOptions {
     pub eval_pixels: usize,
     pub progress: bool,
     pub stop: Option<Arc<AtomicBool>>,
+    /// Train on these bands of the dataset only (indices into its band list, in order); `None`: all of them.
+    pub bands: Option<Vec<usize>>,
 }
 
 /// Trainer state saved next to each checkpoint.
@@ -62,9 +64,16 @@ pub struct TrainSummary {
     pub final_train_psnr: f64,
     pub first_eval_psnr: Option<f64>,
     pub best_eval_psnr: Option<f64>,
+    /// The step at which `best_eval_psnr` was reached (in this call; `None` when it came from before a resume).
+    pub best_eval_step: Option<u64>,
     pub eval_history: Vec<(u64, f64)>,
     pub elapsed_s: f64,
     pub rays_per_s: f64,
+    /// Mean host time of one training step in this call (`Pipeline::train_step`, excluding batch sampling).
+    pub mean_step_ms: f64,
+    /// Mean GPU time of one step and its per-kernel breakdown (ms per step, largest first), from the timestamps.
+    pub gpu_ms_per_step: f64,
+    pub kernels: Vec<KernelTime>,
     pub stopped_early: Option<String>,
     pub peak_gpu_bytes: u64,
     pub peak_cache_bytes: u64,
@@ -152,10 +161,32 @@ fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState, ds: &Datas
     Ok(())
 }
 
+/// Adds one step's timestamps to per-kernel totals (kept by name; the dispatch list itself is not kept).
+fn add_kernel_times(totals: &mut Vec<KernelTime>, timing: &TimingReport) {
+    for k in timing.by_kernel() {
+        match totals.iter_mut().find(|t| t.name == k.name) {
+            Some(t) => {
+                t.count += k.count;
+                t.total_ms += k.total_ms;
+            }
+            None => totals.push(k),
+        }
+    }
+}
+
+/// Loads the dataset a run trains on: `data` with only the bands in `bands` when given.
+pub fn load_run_dataset(data: &Path, bands: Option<&[usize]>) -> Result<Dataset, String> {
+    let mut ds = load_dataset(data, &LoadOptions::default()).map_err(|e| e.to_string())?;
+    if let Some(b) = bands {
+        ds.select_bands(b).map_err(|e| e.to_string())?;
+    }
+    Ok(ds)
+}
+
 /// Runs training; returns the summary. Errors are messages that name the file, key or step.
 pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String> {
     let cfg = &opts.model;
-    let ds = load_dataset(&opts.data, &LoadOptions::default()).map_err(|e| e.to_string())?;
+    let ds = load_run_dataset(&opts.data, opts.bands.as_deref())?;
     let bands = ds.n_bands();
     cfg.band_weights(bands)?;
     let train_frames = ds.split_indices(Split::Train);
@@ -167,7 +198,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     write_atomic_str(&run.join("config.yaml"), serde_yaml::to_string(cfg).map_err(|e| e.to_string())?.as_bytes())?;
     write_atomic_str(&run.join("dataparser_transforms.json"), ds.pose_transform().to_json().as_bytes())?;
     let ds_info = serde_json::json!({
-        "data": opts.data, "bands": ds.bands, "width": ds.width, "height": ds.height,
+        "data": opts.data, "bands": ds.bands, "band_indices": opts.bands, "width": ds.width, "height": ds.height,
         "train_frames": train_frames, "eval_frames": ds.split_indices(Split::Eval),
     });
     write_atomic_str(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
@@ -224,6 +255,8 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     let mut poisoned_in_a_row = 0u32;
     let mut rays_done = 0u64;
     let mut last = StepStats::default();
+    let mut kernel_totals: Vec<KernelTime> = Vec::new();
+    let (mut step_ms_total, mut gpu_ms_total, mut timed_steps) = (0.0f64, 0.0f64, 0u64);
     let r = cfg.trainer.rays_per_batch;
     while state.step < max_steps {
         if opts.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed)) {
@@ -246,6 +279,10 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         let t0 = Instant::now();
         let stats = pipe.train_step(&batch).map_err(|e| format!("step {}: {e}", state.step))?;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
+        step_ms_total += ms;
+        gpu_ms_total += stats.timing.gpu_ms;
+        timed_steps += 1;
+        add_kernel_times(&mut kernel_totals, &stats.timing);
         rays_done += r as u64;
         state.step += 1;
         state.schedule = pipe.schedule;
@@ -276,11 +313,19 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
             b.set_message(format!("{rays_per_s:.0} rays/s loss {:.4} psnr {:.2}", stats.loss, stats.psnr));
         }
         let is_last = state.step == max_steps;
-        if !eval.pixels.is_empty() && (state.step % cfg.trainer.steps_per_eval == 0 || is_last || state.step == 1) {
+        let out_of_time = opts.time_budget_s.is_some_and(|t| elapsed0 + start.elapsed().as_secs_f64() >= t);
+        if !eval.pixels.is_empty()
+            && (state.step % cfg.trainer.steps_per_eval == 0 || is_last || state.step == 1 || out_of_time)
+        {
+            // `out_of_time`: the loop stops before the next step, so the model it leaves is evaluated too and the
+            // best held-out PSNR of a time-budgeted run includes where it ended.
             let p = eval_psnr(&mut pipe, &eval)?;
             summary.first_eval_psnr.get_or_insert(p);
             summary.eval_history.push((state.step, p));
-            state.best_eval_psnr = Some(state.best_eval_psnr.map_or(p, |b: f64| b.max(p)));
+            if state.best_eval_psnr.is_none_or(|b| p > b) {
+                state.best_eval_psnr = Some(p);
+                summary.best_eval_step = Some(state.step);
+            }
             log(
                 serde_json::json!({"step": state.step, "eval_psnr": p, "elapsed_s": elapsed0 + start.elapsed().as_secs_f64()}),
             )?;
@@ -304,6 +349,14 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     summary.rays_per_s = rays_done as f64 / start.elapsed().as_secs_f64().max(1e-9);
     summary.peak_gpu_bytes = ctx.with_ledger(|l| l.total_peak());
     summary.peak_cache_bytes = cache.peak_bytes();
+    let n = timed_steps.max(1) as f64;
+    summary.mean_step_ms = step_ms_total / n;
+    summary.gpu_ms_per_step = gpu_ms_total / n;
+    for k in &mut kernel_totals {
+        k.total_ms /= n;
+    }
+    kernel_totals.sort_by(|a, b| b.total_ms.total_cmp(&a.total_ms).then(a.name.cmp(&b.name)));
+    summary.kernels = kernel_totals;
     let s = serde_json::to_string_pretty(&summary).expect("json");
     write_atomic_str(&run.join("summary.json"), s.as_bytes())?;
     Ok(summary)

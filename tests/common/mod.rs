@@ -143,5 +143,6 @@ pub fn train_options(
         eval_pixels,
         progress: false,
         stop: None,
+        bands: None,
     }
 }
