@@ -8,6 +8,7 @@
 use super::pareto::{memory_front, memory_points, time_front, time_points};
 use super::result::CellResult;
 use crate::util::atomic;
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
@@ -101,13 +102,23 @@ fn draw_psnr_vs_time<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, results:
         .into_iter()
         .map(|(c, p)| (results[c].points[p].target_s, results[c].points[p].psnr))
         .collect();
+    finish_with_front(root, &mut chart, front, 9)
+}
+
+/// Draws the Pareto front (a line through rings of `radius` px), the legend, and presents the drawing.
+fn finish_with_front<'a, DB: DrawingBackend + 'a>(
+    root: &DrawingArea<DB, Shift>,
+    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    front: Vec<(f64, f64)>,
+    radius: i32,
+) -> Result<(), String> {
     if !front.is_empty() {
         chart
             .draw_series(LineSeries::new(front.clone(), BLACK.stroke_width(1)))
             .map_err(err)?
             .label("Pareto front (models of every band)")
             .legend(|(x, y)| Circle::new((x + 9, y), 7, BLACK.stroke_width(2)));
-        chart.draw_series(front.iter().map(|&p| Circle::new(p, 9, BLACK.stroke_width(2)))).map_err(err)?;
+        chart.draw_series(front.iter().map(|&p| Circle::new(p, radius, BLACK.stroke_width(2)))).map_err(err)?;
     }
     chart
         .configure_series_labels()
@@ -261,23 +272,7 @@ fn draw_memory_vs_psnr<DB: DrawingBackend>(
             .map_err(err)?;
     }
     let front: Vec<(f64, f64)> = memory_front(results).into_iter().map(|i| pts[i]).collect();
-    if !front.is_empty() {
-        chart
-            .draw_series(LineSeries::new(front.clone(), BLACK.stroke_width(1)))
-            .map_err(err)?
-            .label("Pareto front (models of every band)")
-            .legend(|(x, y)| Circle::new((x + 9, y), 7, BLACK.stroke_width(2)));
-        chart.draw_series(front.iter().map(|&p| Circle::new(p, 10, BLACK.stroke_width(2)))).map_err(err)?;
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::LowerRight)
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()
-        .map_err(err)?;
-    root.present().map_err(err)
+    finish_with_front(root, &mut chart, front, 10)
 }
 
 /// Draws with both backends and writes `dir/stem.svg` and `dir/stem.png` atomically.
