@@ -37,7 +37,7 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Train a model on a dataset
     Train(train::TrainArgs),
-    /// Evaluate a trained run: PSNR and SSIM per band and per view
+    /// Evaluate a trained run: PSNR and SSIM per band and per view (LPIPS given its weights)
     Eval(eval::EvalArgs),
     /// Render views of a trained run: GeoTIFFs, previews, vegetation indices
     Render(render::RenderArgs),
@@ -47,7 +47,7 @@ pub enum Command {
     Dataset(dataset::DatasetArgs),
     /// The whole job on a built-in simulated scene: simulate, train, evaluate, render, export, compare
     Demo(demo::DemoArgs),
-    /// Benchmarks that print numbers (kernels)
+    /// Benchmarks that print numbers (kernels, training steps)
     Bench(bench::BenchArgs),
     /// Write a synthetic multispectral dataset from a scene (built-in name or YAML file)
     Simulate(simulate::SimulateArgs),
