@@ -116,11 +116,6 @@ impl Pipeline {
         Ok(())
     }
 
-    /// The pose kernels when poses are refined.
-    fn active_pose(&self) -> Option<&PoseKernels> {
-        self.pose_kernels.as_ref()
-    }
-
     /// The pose slot, when poses are refined.
     fn pose_slot(&self) -> Option<PoseSlot<'_>> {
         let store = &self.model.store;
@@ -184,7 +179,7 @@ impl Pipeline {
         let anneal = if train { anneal_at(&m.cfg.sampling, self.step) } else { 1.0 };
         let scale = m.cfg.field.average_init_density;
         k.ray_gen(rec, &self.cameras, &b.pixels, rb, &b.norms)?;
-        if let (true, Some(pk), Some(slot), Some(pb)) = (train, self.active_pose(), self.pose_slot(), &b.pose) {
+        if let (true, Some(pk), Some(slot), Some(pb)) = (train, self.pose_kernels.as_ref(), self.pose_slot(), &b.pose) {
             pk.apply(rec, slot, &b.cam_idx, rb, &pb.raw_dirs)?;
         }
         // Proposal levels.
@@ -398,7 +393,7 @@ impl Pipeline {
         colour_dx: Option<(&GpuBuffer<f32>, usize)>,
         accumulate: bool,
     ) -> GpuResult<()> {
-        let (Some(pk), Some(pb)) = (self.active_pose(), &b.pose) else { return Ok(()) };
+        let (Some(pk), Some(pb)) = (self.pose_kernels.as_ref(), &b.pose) else { return Ok(()) };
         let m = &self.model;
         let s = rb.n_rays * lv.n;
         let gp = ParamSlice { array: m.store.params(), offset: m.offset(&field.grid_slot) };
@@ -410,13 +405,17 @@ impl Pipeline {
 
     /// Pose refinement: adds every ray's share to its camera's gradient.
     fn record_pose_reduce(&self, rec: &mut Recorder, b: &ChunkBuffers<GpuAlloc>, r: usize) -> GpuResult<()> {
-        let (Some(pk), Some(slot), Some(pb)) = (self.active_pose(), self.pose_slot(), &b.pose) else { return Ok(()) };
+        let (Some(pk), Some(slot), Some(pb)) = (self.pose_kernels.as_ref(), self.pose_slot(), &b.pose) else {
+            return Ok(());
+        };
         pk.reduce(rec, slot, (&pb.ray_grads, &pb.raw_dirs, &b.cam_idx), r)
     }
 
     /// Pose refinement: the regulariser's loss (its gradient is added to the pose slot); 0 without refinement.
     fn pose_regularizer(&self, b: &ChunkBuffers<GpuAlloc>, timing: &mut TimingReport) -> GpuResult<f64> {
-        let (Some(pk), Some(slot), Some(pb)) = (self.active_pose(), self.pose_slot(), &b.pose) else { return Ok(0.0) };
+        let (Some(pk), Some(slot), Some(pb)) = (self.pose_kernels.as_ref(), self.pose_slot(), &b.pose) else {
+            return Ok(0.0);
+        };
         let co = &self.model.cfg.camera_optimizer;
         let n = self.model.n_cameras;
         let mut rec = self.ctx.recorder("pose regulariser")?;
@@ -520,14 +519,8 @@ impl Pipeline {
         if !stats.skipped {
             let mut rec = self.ctx.recorder("adam")?;
             // Fields and camera corrections get gradients every step, the proposals on update steps.
-            let pose_on = self.active_pose().is_some();
-            let has_grad: Vec<bool> = (self.model.store.groups().iter())
-                .map(|g| match g.name.as_str() {
-                    "proposals" => update_props,
-                    super::model::CAMERA_GROUP => pose_on,
-                    _ => true,
-                })
-                .collect();
+            let has_grad: Vec<bool> =
+                self.model.store.groups().iter().map(|g| g.name != "proposals" || update_props).collect();
             crate::nn::adam::step(&mut rec, &mut self.model.store, &has_grad, 1.0)?;
             stats.timing.accumulate(&rec.submit_and_wait()?);
         }

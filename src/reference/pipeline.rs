@@ -194,6 +194,7 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
                     (field, pc),
                     lv,
                     (&edges, &comp.weights, inter_norm),
+                    pose_off.is_some(),
                     &mut out,
                 );
                 if pose_off.is_some() {
@@ -225,7 +226,8 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
 }
 
 /// Interlevel loss of one proposal level (added to `out`) and its backward into the proposal's MLP and grid; returns
-/// the hash-input gradient of the level's samples (3 per sample, for pose refinement).
+/// the hash-input gradient of the level's samples (3 per sample) when `with_dpos` (pose refinement), else nothing.
+#[allow(clippy::too_many_arguments)]
 fn proposal_backward(
     model: &Model,
     params: &[f64],
@@ -233,6 +235,7 @@ fn proposal_backward(
     (field, pc): (&crate::nerf::model::DensityField, &crate::nerf::config::ProposalConfig),
     lv: &ProposalLevel,
     (nerf_edges, nerf_weights, inter_norm): (&[f64], &[f64], f64),
+    with_dpos: bool,
     out: &mut RefStep,
 ) -> Vec<f64> {
     let scale = model.cfg.field.average_init_density as f64;
@@ -250,7 +253,9 @@ fn proposal_backward(
         let mlp_grads = &mut out.grads[mo..mo + field.mlp.config.n_params()];
         let dx = mlp::backward(&field.mlp.config, w_mlp, &pencs[k], &[d_raw[k]], mlp_grads);
         hashgrid::backward_params(&plevels, fpl, ppos[k], &dx, &mut out.grads[go..go + pc.grid.n_params()]);
-        dpos.extend(hashgrid::backward_input(&plevels, fpl, grid, ppos[k], &dx));
+        if with_dpos {
+            dpos.extend(hashgrid::backward_input(&plevels, fpl, grid, ppos[k], &dx));
+        }
     }
     dpos
 }
