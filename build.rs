@@ -50,8 +50,9 @@ const VARIANTS: &[Variant] = &[
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
     // network: fully fused MLP (src/nn/mlp.rs)
-    v("mlp_fwd", "network/mlp_fwd.comp"),
-    v("mlp_bwd", "network/mlp_bwd.comp"),
+    v("mlp_layer_fwd", "network/mlp_layer_fwd.comp"),
+    v("mlp_layer_bwd", "network/mlp_layer_bwd.comp"),
+    v("mlp_out_delta", "network/mlp_out_delta.comp"),
     v("mlp_wgrad", "network/mlp_wgrad.comp"),
     v("mlp_wgrad_reduce", "network/mlp_wgrad_reduce.comp"),
     // nn: direction encoding and optimiser (src/nn)

@@ -61,7 +61,9 @@ fn check_config(g: &Context, c: &MlpConfig, n: usize, seed: u64) {
         ops::fill(&mut rec, ch, 0.0f32, 0, ch.len()).expect("zero grads");
     }
     mlp.forward(&mut rec, p, xin, n, y, &acts).expect("forward");
-    mlp.infer(&mut rec, p, xin, n, RowSlice { buf: &out_infer, stride: out_stride, col: out_col }).expect("infer");
+    let infer_scratch = zeros(g, "infer scratch", c.infer_scratch_floats(n));
+    let out_infer_slice = RowSlice { buf: &out_infer, stride: out_stride, col: out_col };
+    mlp.infer(&mut rec, p, xin, n, out_infer_slice, &infer_scratch).expect("infer");
     let bufs = MlpTrainBuffers { acts: &acts, deltas: &deltas, scratch: &scratch };
     let dys = RowSlice { buf: &dy, stride: c.n_output, col: 0 };
     let dxs = RowSlice { buf: &dx, stride: c.in_pad(), col: 0 };
@@ -126,6 +128,8 @@ fn colour_head_for_six_bands() {
 fn wide_network_with_128_bands_and_other_activations() {
     let g = gpu();
     check_config(&g, &cfg(32, 128, 128, 2, Activation::Sigmoid), 203, 4);
+    // Multispectral-NeRF Table 1's colour head: 80 padded inputs (not a multiple of 32) -> 128 -> 128 -> 6.
+    check_config(&g, &cfg(79, 6, 128, 2, Activation::Sigmoid), 211, 9);
     check_config(&g, &cfg(20, 3, 32, 3, Activation::Exponential), 301, 5);
     check_config(&g, &cfg(16, 17, 16, 1, Activation::Relu), 129, 6);
 }
@@ -175,6 +179,7 @@ fn weights_across_a_chunk_boundary_are_refused() {
             RowSlice { buf: &x, stride: 16, col: 0 },
             4,
             RowSlice { buf: &y, stride: 16, col: 0 },
+            &zeros(&g, "scratch", 16 * 4),
         )
         .expect_err("512 floats at 400 cross the 512-float chunk boundary");
     assert!(err.to_string().contains("chunk boundary"), "{err}");

@@ -45,7 +45,11 @@ fn a_sweep_measures_every_cell_and_resumes_without_redoing_finished_ones() {
             assert_eq!(p.bands.len(), nb);
             assert!(p.bands.iter().all(|b| b.psnr.is_finite() && b.ssim.is_finite()));
         }
-        assert!(r.points[1].step > r.points[0].step && r.steps == r.points[1].step, "training went on between points");
+        assert!(
+            r.points[1].step > r.points[0].step && r.steps == r.points[1].step,
+            "training went on between points: {:?}",
+            r.points
+        );
         assert!(r.mean_step_ms > 0.0 && r.gpu_ms_per_step > 0.0);
         assert!(r.kernels.iter().any(|k| k.name.starts_with("mlp") && k.ms_per_step > 0.0), "{:?}", r.kernels);
         assert!(r.peak_gpu_bytes > 1 << 20 && r.peak_cache_bytes > 0 && r.parameters > 0);

@@ -6,7 +6,7 @@
 //! Timing: wall clock of whole submissions (one warm-up, then the median of `repeats`), since lavapipe's
 //! timestamps measure CPU time anyway; the per-kernel GPU timestamps are reported alongside.
 
-use crate::gpu::{Context, GpuBuffer, GpuResult, LargeArray, MemoryCategory, Recorder};
+use crate::gpu::{Context, GpuBuffer, GpuResult, KernelTime, LargeArray, MemoryCategory, Recorder};
 use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
 use crate::nn::mlp::{Activation, Mlp, MlpConfig, MlpTrainBuffers};
 use crate::nn::{ParamSlice, RowSlice};
@@ -34,9 +34,13 @@ pub struct MlpResult {
     pub name: String,
     pub shape: String,
     pub rows: usize,
-    pub rows_per_invocation: u32,
+    /// Block sizes used (`MlpTiling`): unrolled multiply-adds per layer kernel and the weight-gradient tile.
+    pub mac_budget: usize,
+    pub wgrad_tile: usize,
     pub forward_gflops: f64,
     pub train_gflops: f64,
+    /// Per kernel of one training pass (forward + backward): calls and ms (device timestamps; CPU time on lavapipe).
+    pub train_kernels: Vec<KernelTime>,
     /// The same layers through the CPU sgemm (forward + both backward products), when the device is a CPU.
     pub cpu_sgemm_gflops: Option<f64>,
 }
@@ -160,20 +164,25 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
     let dys = RowSlice { buf: &dy, stride: cfg.n_output, col: 0 };
     let dxs = RowSlice { buf: &dx, stride: cfg.in_pad(), col: 0 };
     let bufs = MlpTrainBuffers { acts: &acts, deltas: &deltas, scratch: &scratch };
-    let fwd = time_ms(repeats, || run_recorded(ctx, &|rec| mlp.infer(rec, p, xs, rows, ys)))?;
-    let train = time_ms(repeats, || {
-        run_recorded(ctx, &|rec| {
-            mlp.forward(rec, p, xs, rows, ys, &acts)?;
-            mlp.backward(rec, p, g, (xs, ys, dys), rows, &bufs, Some(dxs))
-        })
-    })?;
+    let infer_scratch = zeros(ctx, "bench infer scratch", cfg.infer_scratch_floats(rows))?;
+    let fwd = time_ms(repeats, || run_recorded(ctx, &|rec| mlp.infer(rec, p, xs, rows, ys, &infer_scratch)))?;
+    let train_pass = |rec: &mut Recorder| {
+        mlp.forward(rec, p, xs, rows, ys, &acts)?;
+        mlp.backward(rec, p, g, (xs, ys, dys), rows, &bufs, Some(dxs))
+    };
+    let train = time_ms(repeats, || run_recorded(ctx, &train_pass))?;
+    let mut rec = ctx.recorder("bench")?;
+    train_pass(&mut rec)?;
+    let train_kernels = rec.submit_and_wait()?.by_kernel();
     let flop = 2.0 * rows as f64 * cfg.macs_per_row() as f64;
     let cpu_sgemm_gflops = ctx.caps().is_cpu.then(|| cpu_sgemm_gflops(cfg, rows, repeats));
     Ok(MlpResult {
         name: name.into(),
         shape: shape(cfg),
         rows,
-        rows_per_invocation: if ctx.caps().is_cpu { 4 } else { 1 },
+        mac_budget: mlp.tiling.mac_budget,
+        wgrad_tile: mlp.tiling.wgrad_tile,
+        train_kernels,
         forward_gflops: flop / fwd / 1e6,
         train_gflops: 3.0 * flop / train / 1e6,
         cpu_sgemm_gflops,
@@ -182,7 +191,7 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
 
 fn shape(c: &MlpConfig) -> String {
     let mut s = format!("{}", c.in_pad());
-    for (r, _) in c.matrices() {
+    for (r, _) in c.layer_shapes() {
         s += &format!("-{r}");
     }
     s
@@ -191,7 +200,7 @@ fn shape(c: &MlpConfig) -> String {
 /// Forward (Y = X W^T per layer) plus the two backward products (dX = dY W, dW = dY^T X) through
 /// `matrixmultiply::sgemm`, on the same shapes; GFLOP/s of the whole.
 pub fn cpu_sgemm_gflops(cfg: &MlpConfig, rows: usize, repeats: usize) -> f64 {
-    let mats = cfg.matrices();
+    let mats = cfg.layer_shapes();
     let widest = mats.iter().map(|(r, c)| (*r).max(*c)).max().unwrap_or(16);
     let w: Vec<Vec<f32>> = mats.iter().enumerate().map(|(i, (r, c))| random(r * c, -0.1, 0.1, 10 + i as u64)).collect();
     let mut acts: Vec<Vec<f32>> = vec![random(rows * cfg.in_pad(), -1.0, 1.0, 7)];

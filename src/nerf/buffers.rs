@@ -107,6 +107,8 @@ pub struct ChunkBuffers<A: Alloc> {
     pub nerf: LevelBuffers<A>,
     pub colour: ColourBuffers<A>,
     pub pose: Option<PoseBuffers<A>>,
+    /// Inference only: the hidden-layer scratch every MLP runs through (training uses each MLP's activations).
+    pub mlp_scratch: Option<A::F>,
     /// Bound where a kernel's optional input is absent (e.g. no appearance embedding).
     pub dummy: A::F,
 }
@@ -208,6 +210,16 @@ impl<A: Alloc> ChunkBuffers<A> {
         } else {
             None
         };
+        let mlp_scratch = if train {
+            None
+        } else {
+            let most = (model.proposal_mlps.iter().zip(&cfg.proposals))
+                .map(|(m, p)| m.infer_scratch_floats(rays * p.samples))
+                .chain([fm.infer_scratch_floats(s), cm.infer_scratch_floats(s)])
+                .max()
+                .unwrap_or(0);
+            Some(a.f32("MLP inference scratch", act, most)?)
+        };
         Ok(Self {
             rays,
             pixels: a.u32("ray pixels", ray, rays * 3)?,
@@ -222,6 +234,7 @@ impl<A: Alloc> ChunkBuffers<A> {
             nerf,
             colour,
             pose,
+            mlp_scratch,
             dummy: a.f32("dummy binding", MemoryCategory::Other, 4)?,
         })
     }

@@ -85,6 +85,11 @@ fn need<T>(o: &Option<T>) -> &T {
     o.as_ref().expect("training buffers are allocated with train = true")
 }
 
+/// The hidden-layer scratch of an MLP's inference: its training activations, or the chunk's inference scratch.
+fn infer_scratch<'a>(acts: &'a Option<GpuBuffer<f32>>, b: &'a ChunkBuffers<GpuAlloc>) -> &'a GpuBuffer<f32> {
+    acts.as_ref().or(b.mlp_scratch.as_ref()).expect("inference buffers have the MLP scratch, training ones activations")
+}
+
 impl Pipeline {
     /// `cameras`: one entry per dataset frame, in the normalised frame.
     pub fn new(ctx: &Context, model: Model, cameras: &[GpuCamera]) -> GpuResult<Self> {
@@ -200,7 +205,7 @@ impl Pipeline {
             if train && update_props {
                 field.mlp.forward(rec, mp, input, s, out, need(&lv.acts))?;
             } else {
-                field.mlp.infer(rec, mp, input, s, out)?;
+                field.mlp.infer(rec, mp, input, s, out, infer_scratch(&lv.acts, b))?;
             }
             k.weights(rec, rb, geo, lv.n, &lv.edges, (&lv.raw, 1), scale, &lv.weights)?;
             prev = Some((&lv.edges, &lv.weights, lv.n));
@@ -231,7 +236,7 @@ impl Pipeline {
         if train {
             f.mlp.forward(rec, mp, input, s, out, need(&lv.acts))?;
         } else {
-            f.mlp.infer(rec, mp, input, s, out)?;
+            f.mlp.infer(rec, mp, input, s, out, infer_scratch(&lv.acts, b))?;
         }
         let geo_dim = m.cfg.field.geo_feat_dim;
         let app_dim = m.cfg.field.appearance_embed_dim;
@@ -250,7 +255,7 @@ impl Pipeline {
         if train {
             m.colour.forward(rec, cp, cin, s, cout, need(&b.colour.acts))
         } else {
-            m.colour.infer(rec, cp, cin, s, cout)
+            m.colour.infer(rec, cp, cin, s, cout, infer_scratch(&b.colour.acts, b))
         }
     }
 
@@ -442,6 +447,31 @@ impl Pipeline {
     }
 
     /// One training step on `batch`.
+    /// Runs every kernel of a training step (with and without a proposal update) and of inference once, on one ray
+    /// (pixel (0, 0) of the first camera), so that all pipelines are created and compiled before a training clock
+    /// starts: lavapipe compiles each pipeline with LLVM at its first dispatch (up to a second or two for the
+    /// unrolled MLP tiles). Parameters and optimiser state are untouched; the gradients it leaves are zeroed at the
+    /// start of every step.
+    pub fn warm_up(&mut self) -> GpuResult<()> {
+        let pixels = [0u32, 0, 0];
+        self.render(&pixels)?;
+        self.ensure_buffers(true)?;
+        let b = self.train_bufs.take().expect("ensured above");
+        let targets = vec![0.0f32; self.model.bands + 1];
+        let res = (|| {
+            self.upload_rays(&b, &pixels, Some(&targets))?;
+            for update_props in [true, false] {
+                let mut rec = self.ctx.recorder("warm-up")?;
+                self.record_forward(&mut rec, &b, (1, 0), true, update_props)?;
+                self.record_backward(&mut rec, &b, (1, 0), (0.0, 0.0, 0.0), update_props)?;
+                rec.submit_and_wait()?;
+            }
+            Ok(())
+        })();
+        self.train_bufs = Some(b);
+        res
+    }
+
     pub fn train_step(&mut self, batch: &Batch) -> Result<StepStats, GpuError> {
         self.ensure_buffers(true)?;
         let bands = self.model.bands;

@@ -248,6 +248,8 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         b.set_position(state.step);
         b
     });
+    // Pipeline compilation (lavapipe: at each kernel's first dispatch) happens here, before the clock starts.
+    pipe.warm_up().map_err(|e| format!("kernel warm-up: {e}"))?;
     ctx.with_ledger(|l| l.reset_peaks());
     let start = Instant::now();
     let elapsed0 = state.elapsed_s;

@@ -1,18 +1,30 @@
-//! Fully fused MLP (tiny-cuda-nn `FullyFusedMLP` semantics, spec/nerfacto.md §4): no biases, ReLU hidden layers of
-//! width 16/32/64/128, any input width (padded to 16 by the caller's row layout), any output width (padded to 16),
-//! output activation none / sigmoid / exponential / ReLU. Weights: row-major matrices W_in (WIDTH x in_pad),
-//! N_HIDDEN-1 hidden (WIDTH x WIDTH), W_out (out_pad x WIDTH), contiguous, inside one chunk of a parameter array.
+//! The MLP of tiny-cuda-nn's `FullyFusedMLP` semantics (spec/nerfacto.md §4): no biases, ReLU hidden layers of
+//! width 16/32/64/128, any input width (padded to 16 by the caller's row layout), any output width (padded to 16 in
+//! the parameter layout), output activation none / sigmoid / exponential / ReLU. Weights: row-major matrices
+//! W_in (WIDTH x in_pad), N_HIDDEN-1 hidden (WIDTH x WIDTH), W_out (out_pad x WIDTH), contiguous, inside one chunk
+//! of a parameter array.
 //!
-//! Kernels: `mlp_fwd` (training variant stores hidden activations; inference keeps nothing), `mlp_bwd` (deltas of
-//! every layer and the input gradient), `mlp_wgrad` + `mlp_wgrad_reduce` (weight gradients, split over the batch and
-//! summed in a fixed order: deterministic). Rows per invocation come from the device: several on CPU devices
-//! (lavapipe's SIMD runs 8 invocations at once, so each weight load feeds ROWS x 8 FMAs), one on GPUs.
+//! The network runs layer by layer, each layer as register tiles (`glsl/network/`):
+//! - `mlp_layer_fwd`: one row per invocation, a block of a layer's outputs fully unrolled, every weight read at a
+//!   constant offset from a push-constant address (shared by all invocations: a broadcast on lavapipe's SIMD, a
+//!   uniform load on GPUs); hidden outputs go to the activations buffer (training) or a bounded scratch
+//!   (inference, in blocks of [`INFER_BLOCK_ROWS`] rows).
+//! - `mlp_out_delta` then `mlp_layer_bwd` (the same tile shape with the matrix transposed, masked by the stored
+//!   ReLU activations): every layer's deltas, and the input gradient.
+//! - `mlp_wgrad` + `mlp_wgrad_reduce`: weight gradients, split over the batch, summed in a fixed order
+//!   (deterministic; no atomics).
+//!
+//! Block sizes come from the device ([`MlpTiling::for_device`]): lavapipe compiles each pipeline with LLVM, whose
+//! time grows faster than linearly with the unrolled code, so a kernel's block is kept under a multiply-add budget.
+//! Rows are read and written as wide as their alignment allows (`row_io.glsl`). Why this shape, and what it
+//! reaches against a CPU sgemm: docs/benchmarks.md.
 
 use super::{ParamSlice, RowSlice};
-use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder};
+use crate::gpu::{Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder, ShaderBlob};
 use crate::shaders;
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
+use std::ops::Range;
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -95,42 +107,114 @@ impl MlpConfig {
         splits * self.matrices().iter().map(|(r, c)| r * c).max().unwrap_or(0)
     }
 
+    /// Floats of the hidden-layer scratch that inference over `n` rows needs (it runs in blocks of
+    /// [`INFER_BLOCK_ROWS`] rows; a training activations buffer for as many rows is large enough too).
+    pub fn infer_scratch_floats(&self, n: usize) -> usize {
+        self.hidden_floats(n.min(INFER_BLOCK_ROWS))
+    }
+
+    /// (outputs, inputs) of every layer as computed: the matrices, with the last one's padding rows left out.
+    pub fn layer_shapes(&self) -> Vec<(usize, usize)> {
+        let mut m = self.matrices();
+        if let Some(last) = m.last_mut() {
+            last.0 = self.n_output;
+        }
+        m
+    }
+
     /// Multiply-adds per row of a forward pass (x2 for FLOPs; the backward costs twice the forward).
     pub fn macs_per_row(&self) -> usize {
-        self.n_params()
+        self.layer_shapes().iter().map(|(r, c)| r * c).sum()
     }
+}
+
+/// Rows per split of the weight-gradient reduction.
+pub const ROWS_PER_SPLIT: usize = 256;
+
+/// Inference runs the layers over blocks of this many rows, so its hidden-layer scratch stays bounded.
+pub const INFER_BLOCK_ROWS: usize = 1 << 16;
+
+/// Block sizes of the MLP kernels on one device.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct MlpTiling {
+    /// Most unrolled multiply-adds per row in one `mlp_layer_fwd` / `mlp_layer_bwd` pipeline: a layer whose
+    /// inputs x outputs exceed it runs as several blocks of outputs, each reading the row's inputs again.
+    pub mac_budget: usize,
+    /// Largest weight-gradient tile (rows x columns of the matrix) one `mlp_wgrad` invocation accumulates.
+    pub wgrad_tile: usize,
+    /// Batch rows one `mlp_wgrad` loop iteration takes (unrolled).
+    pub wgrad_rows: usize,
+}
+
+impl MlpTiling {
+    /// lavapipe: 4096 multiply-adds per pipeline (about a second of LLVM compile time; 10k take 5 s, 32k over a
+    /// minute) and 32 x 32 gradient tiles (each row's loads feed 1024 multiply-adds); GPUs: 8192 and 4 x 4
+    /// (many threads, few registers).
+    pub fn for_device(caps: &DeviceCaps) -> Self {
+        if caps.is_cpu {
+            Self { mac_budget: 4096, wgrad_tile: 32, wgrad_rows: 4 }
+        } else {
+            Self { mac_budget: 8192, wgrad_tile: 4, wgrad_rows: 1 }
+        }
+    }
+}
+
+/// Splits `total` outputs into near-equal blocks of at most `max` (a multiple of 4 when there are several).
+fn blocks(total: usize, max: usize) -> Vec<Range<usize>> {
+    let max = (max / 4 * 4).max(4);
+    let size = if total <= max { total } else { total.div_ceil(total.div_ceil(max)).next_multiple_of(4) };
+    (0..total).step_by(size.max(1)).map(|s| s..(s + size).min(total)).collect()
+}
+
+/// The largest of `max`, `max / 2`, ... (at least 1) that divides `total`.
+fn tile(total: usize, max: usize) -> usize {
+    let mut t = max.max(1);
+    while total % t != 0 {
+        t /= 2;
+    }
+    t
+}
+
+/// Widest access (8, 4, 2 or 1 floats) that divides every given float offset or stride.
+fn vec_width(offsets: &[usize]) -> u32 {
+    [8usize, 4, 2].into_iter().find(|v| offsets.iter().all(|o| o % v == 0)).unwrap_or(1) as u32
 }
 
 #[repr(C)]
 #[derive(Copy, Clone, Pod, Zeroable)]
-struct FwdPush {
-    params: u64,
-    shift: u32,
-    w_offset: u32,
+struct LayerFwdPush {
+    w_addr: u64,
     n: u32,
     in_stride: u32,
     in_col: u32,
     out_stride: u32,
     out_col: u32,
-    n_out: u32,
+    pad: u32,
 }
 
 #[repr(C)]
 #[derive(Copy, Clone, Pod, Zeroable)]
-struct BwdPush {
-    params: u64,
-    shift: u32,
-    w_offset: u32,
+struct LayerBwdPush {
+    w_addr: u64,
+    n: u32,
+    d_stride: u32,
+    d_col: u32,
+    a_stride: u32,
+    a_col: u32,
+    out_stride: u32,
+    out_col: u32,
+    pad: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct OutDeltaPush {
     n: u32,
     y_stride: u32,
     y_col: u32,
     dy_stride: u32,
     dy_col: u32,
-    n_out: u32,
-    dx_stride: u32,
-    dx_col: u32,
-    want_dx: u32,
-    pad: u32,
+    d_col: u32,
 }
 
 #[repr(C)]
@@ -171,47 +255,24 @@ pub struct MlpTrainBuffers<'a> {
 
 pub struct Mlp {
     pub config: MlpConfig,
-    rows: u32,
-    fwd_train: Kernel<FwdPush>,
-    fwd_infer: Kernel<FwdPush>,
-    bwd: Kernel<BwdPush>,
-    wgrad: Kernel<WgradPush>,
+    pub tiling: MlpTiling,
     reduce: Kernel<ReducePush>,
 }
 
-/// Rows per split of the weight-gradient reduction.
-pub const ROWS_PER_SPLIT: usize = 256;
+/// A pipeline of `blob` specialised with `spec` (created on first use, then taken from the context's cache).
+fn kernel<P: Pod>(ctx: &Context, blob: &'static ShaderBlob, spec: &[(u32, u32)]) -> GpuResult<Kernel<P>> {
+    Kernel::with_spec(ctx, blob, spec)
+}
 
 impl Mlp {
     pub fn new(ctx: &Context, config: &MlpConfig) -> GpuResult<Self> {
-        config.validate().map_err(|msg| GpuError::Buffer { name: "MLP config".into(), msg })?;
-        let rows = if ctx.caps().is_cpu { 4 } else { 1 };
-        Self::with_rows(ctx, config, rows)
+        Self::with_tiling(ctx, config, MlpTiling::for_device(ctx.caps()))
     }
 
-    /// With an explicit number of rows per invocation (benchmarks compare them).
-    pub fn with_rows(ctx: &Context, config: &MlpConfig, rows: u32) -> GpuResult<Self> {
-        let c = config;
-        let spec = |store: u32| {
-            vec![
-                (0, c.width as u32),
-                (1, c.in_pad() as u32),
-                (2, c.out_pad() as u32),
-                (3, c.n_hidden_layers as u32),
-                (4, c.output_activation.code()),
-                (5, rows),
-                (6, store),
-            ]
-        };
-        Ok(Self {
-            config: config.clone(),
-            rows,
-            fwd_train: Kernel::with_spec(ctx, &shaders::MLP_FWD, &spec(1))?,
-            fwd_infer: Kernel::with_spec(ctx, &shaders::MLP_FWD, &spec(0))?,
-            bwd: Kernel::with_spec(ctx, &shaders::MLP_BWD, &spec(0)[..6])?,
-            wgrad: Kernel::new(ctx, &shaders::MLP_WGRAD)?,
-            reduce: Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)?,
-        })
+    /// With explicit block sizes (benchmarks and tests compare them).
+    pub fn with_tiling(ctx: &Context, config: &MlpConfig, tiling: MlpTiling) -> GpuResult<Self> {
+        config.validate().map_err(|msg| GpuError::Buffer { name: "MLP config".into(), msg })?;
+        Ok(Self { config: config.clone(), tiling, reduce: Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)? })
     }
 
     /// Floats of the split-K scratch for `n` rows.
@@ -219,26 +280,19 @@ impl Mlp {
         self.config.wgrad_scratch_floats(n)
     }
 
+    /// The weights lie inside one chunk and start 16-byte aligned (the layer kernels read them as vec4).
     fn check_params(&self, p: &ParamSlice) -> GpuResult<()> {
+        if p.offset % 4 != 0 {
+            return Err(GpuError::Buffer {
+                name: p.array.name().into(),
+                msg: format!("MLP weights at element {} must start at a multiple of 4 elements", p.offset),
+            });
+        }
         check_within_chunk(p.array, p.offset, self.config.n_params())
     }
 
-    fn fwd_push(&self, params: &ParamSlice, input: &RowSlice, n: usize, output: &RowSlice) -> GpuResult<FwdPush> {
-        self.check_params(params)?;
-        Ok(FwdPush {
-            params: params.array.table_address()?,
-            shift: params.array.chunk_shift(),
-            w_offset: params.offset as u32,
-            n: n as u32,
-            in_stride: input.stride as u32,
-            in_col: input.col as u32,
-            out_stride: output.stride as u32,
-            out_col: output.col as u32,
-            n_out: self.config.n_output as u32,
-        })
-    }
-
-    /// Inference: output rows from input rows (`in_pad` columns read, `n_output` written); stores nothing.
+    /// Inference: output rows from input rows (`in_pad` columns read, `n_output` written), in blocks of
+    /// [`INFER_BLOCK_ROWS`] rows through `scratch` (`infer_scratch_floats(n)` floats).
     pub fn infer(
         &self,
         rec: &mut Recorder,
@@ -246,15 +300,17 @@ impl Mlp {
         input: RowSlice,
         n: usize,
         output: RowSlice,
+        scratch: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
-        let push = self.fwd_push(&params, &input, n, &output)?;
-        // The acts binding is unused by the inference variant; bind the output to satisfy the layout.
-        let bindings = [input.buf.binding(), output.buf.binding(), output.buf.binding()];
-        let groups = (n as u64).div_ceil(self.rows as u64);
-        rec.dispatch_named("mlp_infer", &self.fwd_infer, &bindings, &params.array.deps(), &push, groups)
+        need(scratch, self.config.infer_scratch_floats(n))?;
+        for start in (0..n).step_by(INFER_BLOCK_ROWS) {
+            let rows = (n - start).min(INFER_BLOCK_ROWS);
+            self.record_forward(rec, &params, rows_from(input, start), rows, rows_from(output, start), scratch)?;
+        }
+        Ok(())
     }
 
-    /// Training forward: like `infer`, and stores the hidden activations in `acts`.
+    /// Training forward: like `infer`, keeping every hidden layer's output in `acts` (`hidden_floats(n)`).
     pub fn forward(
         &self,
         rec: &mut Recorder,
@@ -264,11 +320,58 @@ impl Mlp {
         output: RowSlice,
         acts: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
-        let push = self.fwd_push(&params, &input, n, &output)?;
         need(acts, self.config.hidden_floats(n))?;
-        let bindings = [input.buf.binding(), output.buf.binding(), acts.binding()];
-        let groups = (n as u64).div_ceil(self.rows as u64);
-        rec.dispatch_named("mlp_fwd", &self.fwd_train, &bindings, &params.array.deps(), &push, groups)
+        self.record_forward(rec, &params, input, n, output, acts)
+    }
+
+    /// Every layer over `n` rows, hidden outputs into `acts` laid out as float[N_HIDDEN][n][WIDTH].
+    fn record_forward(
+        &self,
+        rec: &mut Recorder,
+        params: &ParamSlice,
+        input: RowSlice,
+        n: usize,
+        output: RowSlice,
+        acts: &GpuBuffer<f32>,
+    ) -> GpuResult<()> {
+        self.check_params(params)?;
+        if n == 0 {
+            return Ok(());
+        }
+        let c = &self.config;
+        let ctx = rec.context();
+        let base = weights_address(params)?;
+        let deps = params.array.deps();
+        let hidden = RowSlice { buf: acts, stride: c.width, col: 0 };
+        let mut w_offset = 0;
+        for (layer, &(out_w, in_w)) in c.layer_shapes().iter().enumerate() {
+            let last = layer == c.n_hidden_layers;
+            let src = if layer == 0 { input } else { RowSlice { col: (layer - 1) * n * c.width, ..hidden } };
+            let dst = if last { output } else { RowSlice { col: layer * n * c.width, ..hidden } };
+            let act = if last { c.output_activation } else { Activation::Relu };
+            for b in blocks(out_w, self.tiling.mac_budget / in_w) {
+                let spec = [
+                    (0, in_w as u32),
+                    (1, b.len() as u32),
+                    (2, act.code()),
+                    (3, vec_width(&[src.stride, src.col])),
+                    (4, vec_width(&[dst.stride, dst.col + b.start])),
+                ];
+                let k = kernel(ctx, &shaders::MLP_LAYER_FWD, &spec)?;
+                let push = LayerFwdPush {
+                    w_addr: base + 4 * (w_offset + b.start * in_w) as u64,
+                    n: n as u32,
+                    in_stride: src.stride as u32,
+                    in_col: src.col as u32,
+                    out_stride: dst.stride as u32,
+                    out_col: (dst.col + b.start) as u32,
+                    pad: 0,
+                };
+                rec.dispatch_named("mlp_fwd", &k, &[src.buf.binding(), dst.buf.binding()], &deps, &push, n as u64)?;
+            }
+            w_offset += c.matrices()[layer].0 * in_w;
+        }
+        Ok(())
     }
 
     /// Backward: deltas of every layer, `grads += dL/dW`, and `dx = dL/dinput` when given.
@@ -286,57 +389,109 @@ impl Mlp {
         let (input, output, dy) = io;
         self.check_params(&params)?;
         check_within_chunk(grads.array, grads.offset, self.config.n_params())?;
+        need(bufs.acts, self.config.hidden_floats(n))?;
         need(bufs.deltas, self.config.delta_floats(n))?;
         need(bufs.scratch, self.wgrad_scratch_floats(n))?;
+        if n == 0 {
+            return Ok(());
+        }
         let c = &self.config;
-        let dxs = dx.unwrap_or(RowSlice { buf: bufs.deltas, stride: 0, col: 0 });
-        let push = BwdPush {
-            params: params.array.table_address()?,
-            shift: params.array.chunk_shift(),
-            w_offset: params.offset as u32,
+        let ctx = rec.context();
+        let (nh, width) = (c.n_hidden_layers, c.width);
+        let hidden_total = c.hidden_floats(n);
+        let out_deltas = RowSlice { buf: bufs.deltas, stride: c.out_pad(), col: hidden_total };
+        let hidden_deltas = |m: usize| RowSlice { buf: bufs.deltas, stride: width, col: m * n * width };
+        let acts = |m: usize| RowSlice { buf: bufs.acts, stride: width, col: m * n * width };
+
+        let spec = [(0, c.n_output as u32), (1, c.out_pad() as u32), (2, c.output_activation.code())];
+        let k = kernel(ctx, &shaders::MLP_OUT_DELTA, &spec)?;
+        let push = OutDeltaPush {
             n: n as u32,
             y_stride: output.stride as u32,
             y_col: output.col as u32,
             dy_stride: dy.stride as u32,
             dy_col: dy.col as u32,
-            n_out: c.n_output as u32,
-            dx_stride: dxs.stride as u32,
-            dx_col: dxs.col as u32,
-            want_dx: u32::from(dx.is_some()),
-            pad: 0,
+            d_col: hidden_total as u32,
         };
-        let bindings =
-            [output.buf.binding(), dy.buf.binding(), bufs.acts.binding(), bufs.deltas.binding(), dxs.buf.binding()];
-        let groups = (n as u64).div_ceil(self.rows as u64);
-        rec.dispatch_named("mlp_bwd", &self.bwd, &bindings, &params.array.deps(), &push, groups)?;
+        let bindings = [output.buf.binding(), dy.buf.binding(), bufs.deltas.binding()];
+        rec.dispatch_named("mlp_out_delta", &k, &bindings, &[], &push, n as u64)?;
 
-        // Weight gradients, matrix by matrix: delta of its output x activation of its input.
+        // Through every matrix transposed, last to first: matrix m turns layer m's deltas into layer m-1's (masked
+        // by the ReLU that produced its input), and matrix 0 gives dL/dinput.
+        let base = weights_address(&params)?;
+        let offsets = matrix_offsets(c);
+        let deps = params.array.deps();
+        let shapes = c.layer_shapes();
+        for m in (0..=nh).rev() {
+            let d_in = if m == nh { out_deltas } else { hidden_deltas(m) };
+            let (d_w, in_w) = shapes[m];
+            let (target, mask) = match (m, dx) {
+                (0, Some(dx)) => (dx, None),
+                (0, None) => break,
+                _ => (hidden_deltas(m - 1), Some(acts(m - 1))),
+            };
+            let a = mask.unwrap_or(d_in);
+            for b in blocks(in_w, self.tiling.mac_budget / d_w) {
+                let spec = [
+                    (0, d_w as u32),
+                    (1, in_w as u32),
+                    (2, b.len() as u32),
+                    (3, u32::from(mask.is_some())),
+                    (4, vec_width(&[d_in.stride, d_in.col])),
+                    (5, if mask.is_some() { vec_width(&[a.stride, a.col + b.start]) } else { 1 }),
+                    (6, vec_width(&[target.stride, target.col + b.start])),
+                ];
+                let k = kernel(ctx, &shaders::MLP_LAYER_BWD, &spec)?;
+                let push = LayerBwdPush {
+                    w_addr: base + 4 * (offsets[m] + b.start) as u64,
+                    n: n as u32,
+                    d_stride: d_in.stride as u32,
+                    d_col: d_in.col as u32,
+                    a_stride: a.stride as u32,
+                    a_col: (a.col + b.start) as u32,
+                    out_stride: target.stride as u32,
+                    out_col: (target.col + b.start) as u32,
+                    pad: 0,
+                };
+                let bindings = [d_in.buf.binding(), a.buf.binding(), target.buf.binding()];
+                rec.dispatch_named("mlp_bwd", &k, &bindings, &deps, &push, n as u64)?;
+            }
+        }
+
+        // Weight gradients, matrix by matrix: delta of its output x activation of its input (the last matrix's
+        // padding rows included: their deltas are zero).
         let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
-        let mut g_offset = grads.offset;
-        let hidden = c.hidden_floats(n);
         for (m, &(out_w, in_w)) in c.matrices().iter().enumerate() {
-            let (d_buf_col, d_stride) =
-                if m == c.n_hidden_layers { (hidden, c.out_pad()) } else { (m * n * c.width, c.width) };
-            let (a_buf, a_stride, a_col) =
-                if m == 0 { (input.buf, input.stride, input.col) } else { (bufs.acts, c.width, (m - 1) * n * c.width) };
+            let d = if m == nh { out_deltas } else { hidden_deltas(m) };
+            let a = if m == 0 { input } else { acts(m - 1) };
+            let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
+            let spec = [
+                (0, jt as u32),
+                (1, kt as u32),
+                (2, vec_width(&[d.stride, d.col, jt])),
+                (3, vec_width(&[a.stride, a.col, kt])),
+                (4, vec_width(&[in_w, kt])),
+                (5, self.tiling.wgrad_rows as u32),
+            ];
+            let k = kernel(ctx, &shaders::MLP_WGRAD, &spec)?;
             let push = WgradPush {
                 n: n as u32,
                 out_w: out_w as u32,
                 in_w: in_w as u32,
-                d_stride: d_stride as u32,
-                d_col: d_buf_col as u32,
-                a_stride: a_stride as u32,
-                a_col: a_col as u32,
+                d_stride: d.stride as u32,
+                d_col: d.col as u32,
+                a_stride: a.stride as u32,
+                a_col: a.col as u32,
                 rows_per_split: ROWS_PER_SPLIT as u32,
                 splits: splits as u32,
             };
-            let bindings = [bufs.deltas.binding(), a_buf.binding(), bufs.scratch.binding()];
-            let work = (splits * (out_w / 4) * (in_w / 4)) as u64;
-            rec.dispatch_named("mlp_wgrad", &self.wgrad, &bindings, &[], &push, work)?;
+            let bindings = [d.buf.binding(), a.buf.binding(), bufs.scratch.binding()];
+            let work = (splits * (out_w / jt) * (in_w / kt)) as u64;
+            rec.dispatch_named("mlp_wgrad", &k, &bindings, &[], &push, work)?;
             let push = ReducePush {
                 grads: grads.array.table_address()?,
                 shift: grads.array.chunk_shift(),
-                g_offset: g_offset as u32,
+                g_offset: (grads.offset + offsets[m]) as u32,
                 count: (out_w * in_w) as u32,
                 splits: splits as u32,
                 pad: 0,
@@ -351,10 +506,33 @@ impl Mlp {
                 &push,
                 (out_w * in_w) as u64,
             )?;
-            g_offset += out_w * in_w;
         }
         Ok(())
     }
+}
+
+/// The rows of `s` from row `start` on.
+fn rows_from(s: RowSlice<'_>, start: usize) -> RowSlice<'_> {
+    RowSlice { col: s.col + start * s.stride, ..s }
+}
+
+/// Offset of every matrix in the module's weights.
+fn matrix_offsets(c: &MlpConfig) -> Vec<usize> {
+    c.matrices()
+        .iter()
+        .scan(0, |off, (r, cols)| {
+            let at = *off;
+            *off += r * cols;
+            Some(at)
+        })
+        .collect()
+}
+
+/// Device address of the module's first weight (the module lies inside one chunk: `check_within_chunk`).
+fn weights_address(p: &ParamSlice) -> GpuResult<u64> {
+    let shift = p.array.chunk_shift();
+    let chunk = &p.array.chunks()[p.offset >> shift];
+    Ok(chunk.device_address()? + 4 * (p.offset & ((1usize << shift) - 1)) as u64)
 }
 
 fn need(buf: &GpuBuffer<f32>, floats: usize) -> GpuResult<()> {
@@ -377,4 +555,42 @@ fn check_within_chunk(a: &LargeArray<f32>, offset: usize, len: usize) -> GpuResu
         });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{blocks, tile, vec_width};
+
+    #[test]
+    fn blocks_cover_the_outputs_in_near_equal_multiples_of_four() {
+        let one = |total: usize| std::iter::once(0..total).collect::<Vec<_>>();
+        assert_eq!(blocks(64, 128), one(64));
+        assert_eq!(blocks(6, 4096 / 64), one(6));
+        assert_eq!(blocks(128, 4096 / 128), vec![0..32, 32..64, 64..96, 96..128]);
+        assert_eq!(blocks(128, 4096 / 80), vec![0..44, 44..88, 88..128]);
+        assert_eq!(blocks(16, 2), vec![0..4, 4..8, 8..12, 12..16]);
+        for (total, max) in [(100, 30), (7, 4), (128, 51), (33, 8)] {
+            let b = blocks(total, max);
+            assert_eq!(b.first().map(|r| r.start), Some(0));
+            assert_eq!(b.last().map(|r| r.end), Some(total));
+            assert!(b.windows(2).all(|w| w[0].end == w[1].start && w[0].len() % 4 == 0));
+            assert!(b.iter().all(|r| r.len() <= (max / 4 * 4).max(4)), "{total} {max}: {b:?}");
+        }
+    }
+
+    #[test]
+    fn gradient_tiles_divide_the_matrix() {
+        assert_eq!(tile(80, 32), 16);
+        assert_eq!(tile(128, 32), 32);
+        assert_eq!(tile(16, 32), 16);
+        assert_eq!(tile(48, 4), 4);
+    }
+
+    #[test]
+    fn access_width_divides_every_offset() {
+        assert_eq!(vec_width(&[64, 0]), 8);
+        assert_eq!(vec_width(&[6, 0]), 2);
+        assert_eq!(vec_width(&[35, 2]), 1);
+        assert_eq!(vec_width(&[16, 4, 32]), 4);
+    }
 }

@@ -1,0 +1,78 @@
+// row_io.glsl: loads and stores of runs of consecutive floats in a row of a storage buffer, as wide as the run's
+// alignment allows. On lavapipe every load or store whose address differs between invocations becomes a loop over
+// the SIMD lanes; one 32-byte u64vec4 access per lane costs about as much as one float access, so reading 8 floats
+// at a time is ~3-4x cheaper per float than reading them one by one (measured in docs/benchmarks.md). GPUs
+// coalesce either form.
+//
+// ROWS_DECLARE(B, NAME, QUAL) declares binding B four times, as float NAME_1[], uint64_t NAME_2[], u64vec2 NAME_4[]
+// and u64vec4 NAME_8[] (aliases of the same buffer, allowed for storage buffers of one descriptor type).
+// ROWS_LOAD(NAME, VEC, base, dst, DOFF, COUNT): dst[DOFF + i] = NAME[base + i] for i < COUNT;
+// ROWS_STORE(NAME, VEC, base, src, SOFF, COUNT): NAME[base + i] = src[SOFF + i] for i < COUNT.
+// VEC (8, 4, 2 or 1 floats) must divide base; DOFF, SOFF and COUNT are compile-time constants (spec constants
+// included), so the unrolled loops index dst/src with constants and the arrays stay in registers.
+#extension GL_EXT_control_flow_attributes : require
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+
+#define ROWS_DECLARE(B, NAME, QUAL) \
+    layout(std430, binding = B) QUAL buffer NAME##_b1 { float NAME##_1[]; }; \
+    layout(std430, binding = B) QUAL buffer NAME##_b2 { uint64_t NAME##_2[]; }; \
+    layout(std430, binding = B) QUAL buffer NAME##_b4 { u64vec2 NAME##_4[]; }; \
+    layout(std430, binding = B) QUAL buffer NAME##_b8 { u64vec4 NAME##_8[]; };
+
+vec2 rows_unpack(uint64_t u) {
+    return uintBitsToFloat(unpackUint2x32(u));
+}
+
+uint64_t rows_pack(float a, float b) {
+    return packUint2x32(floatBitsToUint(vec2(a, b)));
+}
+
+// End of the part of a COUNT-float run covered by accesses of width W (given the width allowed and where the
+// previous, wider accesses stopped).
+#define ROWS_END(VEC, W, START, COUNT) ((VEC) >= (W) ? (START) + ((COUNT) - (START)) / (W) * (W) : (START))
+
+#define ROWS_LOAD(NAME, VEC, base, dst, DOFF, COUNT) { \
+    uint e8_ = ROWS_END(VEC, 8u, 0u, COUNT); \
+    uint e4_ = ROWS_END(VEC, 4u, e8_, COUNT); \
+    uint e2_ = ROWS_END(VEC, 2u, e4_, COUNT); \
+    uint b_ = (base); \
+    [[unroll]] for (uint i_ = 0u; i_ < e8_; i_ += 8u) { \
+        u64vec4 t_ = NAME##_8[(b_ + i_) / 8u]; \
+        [[unroll]] for (uint c_ = 0u; c_ < 4u; ++c_) { \
+            vec2 f_ = rows_unpack(t_[c_]); \
+            dst[(DOFF) + i_ + 2u * c_] = f_.x; \
+            dst[(DOFF) + i_ + 2u * c_ + 1u] = f_.y; \
+        } \
+    } \
+    [[unroll]] for (uint i_ = e8_; i_ < e4_; i_ += 4u) { \
+        u64vec2 t_ = NAME##_4[(b_ + i_) / 4u]; \
+        vec2 f0_ = rows_unpack(t_.x), f1_ = rows_unpack(t_.y); \
+        dst[(DOFF) + i_] = f0_.x; dst[(DOFF) + i_ + 1u] = f0_.y; \
+        dst[(DOFF) + i_ + 2u] = f1_.x; dst[(DOFF) + i_ + 3u] = f1_.y; \
+    } \
+    [[unroll]] for (uint i_ = e4_; i_ < e2_; i_ += 2u) { \
+        vec2 f_ = rows_unpack(NAME##_2[(b_ + i_) / 2u]); \
+        dst[(DOFF) + i_] = f_.x; dst[(DOFF) + i_ + 1u] = f_.y; \
+    } \
+    [[unroll]] for (uint i_ = e2_; i_ < (COUNT); ++i_) dst[(DOFF) + i_] = NAME##_1[b_ + i_]; \
+}
+
+#define ROWS_STORE(NAME, VEC, base, src, SOFF, COUNT) { \
+    uint e8_ = ROWS_END(VEC, 8u, 0u, COUNT); \
+    uint e4_ = ROWS_END(VEC, 4u, e8_, COUNT); \
+    uint e2_ = ROWS_END(VEC, 2u, e4_, COUNT); \
+    uint b_ = (base); \
+    [[unroll]] for (uint i_ = 0u; i_ < e8_; i_ += 8u) { \
+        uint s_ = (SOFF) + i_; \
+        NAME##_8[(b_ + i_) / 8u] = u64vec4(rows_pack(src[s_], src[s_ + 1u]), rows_pack(src[s_ + 2u], src[s_ + 3u]), \
+                                           rows_pack(src[s_ + 4u], src[s_ + 5u]), rows_pack(src[s_ + 6u], src[s_ + 7u])); \
+    } \
+    [[unroll]] for (uint i_ = e8_; i_ < e4_; i_ += 4u) { \
+        uint s_ = (SOFF) + i_; \
+        NAME##_4[(b_ + i_) / 4u] = u64vec2(rows_pack(src[s_], src[s_ + 1u]), rows_pack(src[s_ + 2u], src[s_ + 3u])); \
+    } \
+    [[unroll]] for (uint i_ = e4_; i_ < e2_; i_ += 2u) { \
+        NAME##_2[(b_ + i_) / 2u] = rows_pack(src[(SOFF) + i_], src[(SOFF) + i_ + 1u]); \
+    } \
+    [[unroll]] for (uint i_ = e2_; i_ < (COUNT); ++i_) NAME##_1[b_ + i_] = src[(SOFF) + i_]; \
+}
