@@ -48,6 +48,7 @@ const VARIANTS: &[Variant] = &[
     // encoding: multiresolution hash grid (src/nn/hashgrid.rs)
     v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
+    v("hashgrid_bwd_runs", "encoding/hashgrid_bwd_runs.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
     // network: fully fused MLP (src/nn/mlp.rs)
     v("mlp_layer_fwd", "network/mlp_layer_fwd.comp"),

@@ -1,76 +1,54 @@
-// hashgrid_bwd: gradient of the hash encoding with respect to its parameters. For every (point, level, corner,
-// feature): grad[entry, f] += weight * dL/dy[n, col + l*F + f], accumulated in fp32 with atomicAdd
+// hashgrid_bwd: one level of the hash encoding's gradient with respect to its parameters. For every (point, corner,
+// feature): grad[entry, f] += weight * dL/dy[n, col + f], accumulated in fp32 with atomicAdd
 // (VK_EXT_shader_atomic_float). The gradient array has the same chunking as the parameters.
-// Run combining (RUN > 1): an invocation takes RUN consecutive points (the samples of a ray are consecutive) and
-// adds up, in registers, the contributions of points that fall in the same cell as the point before, issuing the
-// 8 x F atomics once per run of equal cells instead of once per point. Coarse levels, where many samples of a ray
-// share a cell, need far fewer atomics; RUN = 1 is the plain one-point-per-invocation kernel.
-// Bindings: 0 positions (float[3N]), 1 levels (HashLevel[L]), 2 dL/dy (float rows of dy_stride).
-// Push:     grads (chunk-table address), shift, param_offset, n, dy_stride, dy_col.
-// Spec:     0 F, 1 RUN.
-// Threads:  one invocation per (RUN points, level): x (folded into 2D) over point runs, z over levels; 128 per group.
+// One dispatch per level with the level's parameters in push constants (as hashgrid_fwd); a point's F output
+// gradients are read in one access. Points whose output gradient is zero (masked-out samples) issue no atomics.
+// Bindings: 0 positions (float[3N]), 1 dL/dy (float rows of dy_stride).
+// Push:     grads (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
+//           (first float of the level, in the chunk or in the array), n, dy_stride, dy_col (the level's first
+//           column), scale, res, entries.
+// Spec:     0 F, 1 HASHED, 2 HASH_CHUNKED, 3 VEC_DY (read width of dL/dy, floats).
+// Threads:  one invocation per point, 64 per group, folded into 2D past 65535 groups.
 #version 460
 #extension GL_EXT_shader_atomic_float : require
-#define WG_SIZE 128
+#define WG_SIZE 64
 #include "common/index.glsl"
 #include "common/large_array.glsl"
+#include "network/row_io.glsl"
 #include "encoding/hashgrid_common.glsl"
 layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint F = 2;
-layout(constant_id = 1) const uint RUN = 1;
+layout(constant_id = 1) const uint HASHED = 1;
+layout(constant_id = 2) const uint HASH_CHUNKED = 0;
+layout(constant_id = 3) const uint VEC_DY = 1;
+#include "encoding/hashgrid_entry.glsl"
+layout(buffer_reference, std430, buffer_reference_align = 4) buffer HashGradF1 { float v[]; };
 layout(std430, binding = 0) readonly buffer Positions { float pos[]; };
-layout(std430, binding = 1) readonly buffer Levels { HashLevel levels[]; };
-layout(std430, binding = 2) readonly buffer DLdy { float dy[]; };
+ROWS_DECLARE(1, dy, readonly)
 layout(push_constant) uniform Push {
-    uint64_t grads; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; uint pad;
+    uint64_t grads; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col;
+    float scale; uint res; uint entries; uint pad;
 } pc;
 
-float acc[8 * F]; // the open run's sums, per corner and feature
-
-// Adds acc to the entries of the corners of `cell`.
-void flush(HashLevel lv, uvec3 cell) {
-    for (uint c = 0u; c < 8u; ++c) {
-        uint e = pc.param_offset + (lv.offset + hash_index(lv, corner_vertex(c, cell))) * F;
-        LargeF32Chunk chunk = LargeF32Chunk(large_chunk_addr(pc.grads, pc.shift, e));
-        uint o = large_offset(pc.shift, e);
-        for (uint f = 0u; f < F; ++f) atomicAdd(chunk.v[o + f], acc[c * F + f]);
-    }
-}
-
 void main() {
-    uint i0 = global_index() * RUN;
-    uint l = gl_WorkGroupID.z;
-    if (i0 >= pc.n) return;
-    HashLevel lv = levels[l];
-    uvec3 cur = uvec3(0u);
-    bool open_run = false;
-    for (uint r = 0u; r < RUN; ++r) {
-        uint i = i0 + r;
-        if (i >= pc.n) break;
-        float g[F];
-        bool any_nonzero = false;
-        for (uint f = 0u; f < F; ++f) {
-            g[f] = dy[i * pc.dy_stride + pc.dy_col + l * F + f];
-            any_nonzero = any_nonzero || g[f] != 0.0;
-        }
-        if (!any_nonzero) continue; // masked-out samples cost no atomics
-        vec3 p = vec3(pos[3u * i], pos[3u * i + 1u], pos[3u * i + 2u]);
-        uvec3 cell;
-        vec3 frac;
-        hash_cell(lv, p, cell, frac);
-        if (open_run && cell != cur) {
-            flush(lv, cur);
-            open_run = false;
-        }
-        if (!open_run) {
-            for (uint k = 0u; k < 8u * F; ++k) acc[k] = 0.0;
-            cur = cell;
-            open_run = true;
-        }
-        for (uint c = 0u; c < 8u; ++c) {
-            float w = corner_weight(c, frac);
-            for (uint f = 0u; f < F; ++f) acc[c * F + f] += w * g[f];
-        }
+    uint row = global_index();
+    if (row >= pc.n) return;
+    float g[F];
+    ROWS_LOAD(dy, VEC_DY, row * pc.dy_stride + pc.dy_col, g, 0u, F)
+    bool any_nonzero = false;
+    [[unroll]] for (uint f = 0u; f < F; ++f) any_nonzero = any_nonzero || g[f] != 0.0;
+    if (!any_nonzero) return; // masked-out samples cost no atomics
+    HashLevel lv = HashLevel(pc.scale, pc.res, pc.entries, 0u, HASHED, 0u, 0u, 0u);
+    vec3 p = vec3(pos[3u * row], pos[3u * row + 1u], pos[3u * row + 2u]);
+    uvec3 cell;
+    vec3 frac;
+    hash_cell(lv, p, cell, frac);
+    [[unroll]] for (uint c = 0u; c < 8u; ++c) {
+        float w = corner_weight(c, frac);
+        uint e = pc.param_offset + hash_index_known(lv, corner_vertex(c, cell), HASHED != 0u) * F;
+        uint64_t a;
+        uint o;
+        hash_locate(pc.grads, pc.shift, e, a, o);
+        [[unroll]] for (uint f = 0u; f < F; ++f) atomicAdd(HashGradF1(a).v[o + f], w * g[f]);
     }
-    if (open_run) flush(lv, cur);
 }

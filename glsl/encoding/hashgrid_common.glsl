@@ -25,6 +25,20 @@ uint hash_index(HashLevel lv, uvec3 v) {
     return idx % lv.entries;
 }
 
+// The same with the level's kind known at compile time (kernels that unroll the levels: no branch, and the dense
+// modulo without an integer division, which x86 SIMD lacks: a float quotient, exact after one correction step since
+// indices stay below 2^24).
+uint hash_index_known(HashLevel lv, uvec3 v, bool hashed) {
+    if (hashed) {
+        return ((v.x * 1u) ^ (v.y * 2654435761u) ^ (v.z * 805459861u)) & (lv.entries - 1u);
+    }
+    uint idx = v.x + v.y * lv.res + v.z * lv.res * lv.res;
+    int r = int(idx) - int(lv.entries) * int(floor(float(idx) / float(lv.entries)));
+    r += r < 0 ? int(lv.entries) : 0;
+    r -= r >= int(lv.entries) ? int(lv.entries) : 0;
+    return uint(r);
+}
+
 // Cell and fractional position of p (in [0,1]^3) at a level. q is clamped at 0 so points a hair outside the unit
 // cube (contraction rounding) cannot wrap the unsigned cell index.
 void hash_cell(HashLevel lv, vec3 p, out uvec3 cell, out vec3 frac) {

@@ -2,9 +2,12 @@
 //!
 //! [`HashGridConfig`] computes tcnn's level table (vertex-count resolutions, dense levels where res^3 fits the
 //! table, CoherentPrime hashing otherwise, entries padded to multiples of 8). [`HashGrid`] records the kernels:
-//! - `hashgrid_fwd`: one invocation per (point, level), level = workgroup z; writes L*F features per row plus
-//!   optional padding columns.
-//! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array.
+//! - `hashgrid_fwd`: one dispatch per level (its table is what the dispatch reads: tcnn's cache-friendly order), the
+//!   level's parameters in push constants (on lavapipe read once for all invocations, not once per lane), one
+//!   invocation per point; writes F features per row, and the last level the padding columns.
+//! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array, one dispatch per level
+//!   as the forward; `hashgrid_bwd_runs` combines runs of consecutive points in one cell first (measured slower on
+//!   lavapipe; `MSNERF_HASH_BWD_RUN`).
 //! - `hashgrid_bwd_input`: gradient to the positions, one invocation per point.
 //!
 //! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
@@ -126,11 +129,28 @@ struct FwdPush {
     shift: u32,
     param_offset: u32,
     n: u32,
-    n_levels: u32,
     out_stride: u32,
     out_col: u32,
-    pad_to: u32,
     pad_value: f32,
+    scale: f32,
+    res: u32,
+    entries: u32,
+    pad: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct LevelBwdPush {
+    grads: u64,
+    shift: u32,
+    param_offset: u32,
+    n: u32,
+    dy_stride: u32,
+    dy_col: u32,
+    scale: f32,
+    res: u32,
+    entries: u32,
+    pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -160,8 +180,8 @@ struct BwdInputPush {
 pub struct HashGrid {
     pub config: HashGridConfig,
     levels: GpuBuffer<HashLevel>,
-    fwd: Kernel<FwdPush>,
-    bwd: Kernel<BwdPush>,
+    /// `hashgrid_bwd_runs`, used when `bwd_run` > 1.
+    bwd_runs: Kernel<BwdPush>,
     bwd_input: Kernel<BwdInputPush>,
     /// Consecutive points one `hashgrid_bwd` invocation combines (1: one point per invocation).
     bwd_run: u32,
@@ -180,6 +200,23 @@ fn check_array(a: &LargeArray<f32>, offset: usize, n_params: usize) -> GpuResult
         });
     }
     Ok(())
+}
+
+/// Where a grid of `len` floats at `offset` of `a` is read from: the address of its chunk and the offset in it when
+/// the grid lies inside one chunk (`false`), else the chunk table's address and the offset in the array (`true`).
+fn grid_base(a: &LargeArray<f32>, offset: usize, len: usize) -> GpuResult<(u64, usize, bool)> {
+    let shift = a.chunk_shift();
+    let (first, last) = (offset >> shift, (offset + len.max(1) - 1) >> shift);
+    if first == last {
+        Ok((a.chunks()[first].device_address()?, offset & ((1usize << shift) - 1), false))
+    } else {
+        Ok((a.table_address()?, offset, true))
+    }
+}
+
+/// Widest row access (8, 4, 2 or 1 floats) that divides a row stride and a start column.
+fn vec_width(stride: usize, col: usize) -> u32 {
+    [8usize, 4, 2].into_iter().find(|v| stride % v == 0 && col % v == 0).unwrap_or(1) as u32
 }
 
 impl HashGrid {
@@ -201,15 +238,14 @@ impl HashGrid {
         Ok(Self {
             config: config.clone(),
             levels,
-            fwd: Kernel::with_spec(ctx, &shaders::HASHGRID_FWD, &spec)?,
-            bwd: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD, &[(0, config.features_per_level), (1, run)])?,
+            bwd_runs: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD_RUNS, &[(0, config.features_per_level), (1, run)])?,
             bwd_input: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD_INPUT, &spec)?,
             bwd_run: run,
         })
     }
 
     fn grid(&self, rec: &Recorder, n: usize) -> GpuResult<[u32; 3]> {
-        let groups = self.fwd.groups_for(n as u64);
+        let groups = self.bwd_runs.groups_for(n as u64);
         let caps = rec.context().caps();
         let [x, y, _] = crate::gpu::kernel::fold_groups(groups, caps.max_workgroup_count).ok_or_else(|| {
             GpuError::Dispatch { kernel: "hashgrid".into(), msg: format!("{n} points need too many groups") }
@@ -235,20 +271,42 @@ impl HashGrid {
                 msg: format!("output slot {slot:?} does not fit"),
             });
         }
-        let push = FwdPush {
-            params: params.table_address()?,
-            shift: params.chunk_shift(),
-            param_offset: param_offset as u32,
-            n: n as u32,
-            n_levels: self.config.n_levels,
-            out_stride: slot.stride as u32,
-            out_col: slot.col as u32,
-            pad_to: slot.pad_to as u32,
-            pad_value: slot.pad_value,
-        };
-        let grid = self.grid(rec, n)?;
-        let bindings = [positions.binding(), self.levels.binding(), out.binding()];
-        rec.dispatch_groups("hashgrid_fwd", &self.fwd, &bindings, &params.deps(), &push, grid)
+        if n == 0 {
+            return Ok(());
+        }
+        let c = &self.config;
+        let f = c.features_per_level as usize;
+        let levels = c.levels();
+        for (l, lv) in levels.iter().enumerate() {
+            let first = param_offset + lv.offset as usize * f;
+            let (base, offset, chunked) = grid_base(params, first, lv.entries as usize * f)?;
+            let col = slot.col + l * f;
+            let pad = if l + 1 == levels.len() { slot.pad_to - c.n_output() } else { 0 };
+            let spec = [
+                (0, c.features_per_level),
+                (1, lv.hashed),
+                (2, u32::from(chunked)),
+                (3, pad as u32),
+                (4, vec_width(slot.stride, col)),
+            ];
+            let kernel = Kernel::<FwdPush>::with_spec(rec.context(), &shaders::HASHGRID_FWD, &spec)?;
+            let push = FwdPush {
+                params: base,
+                shift: params.chunk_shift(),
+                param_offset: offset as u32,
+                n: n as u32,
+                out_stride: slot.stride as u32,
+                out_col: col as u32,
+                pad_value: slot.pad_value,
+                scale: lv.scale,
+                res: lv.res,
+                entries: lv.entries,
+                pad: 0,
+            };
+            let bindings = [positions.binding(), out.binding()];
+            rec.dispatch_named("hashgrid_fwd", &kernel, &bindings, &params.deps(), &push, n as u64)?;
+        }
+        Ok(())
     }
 
     /// Records grads += d(encoding)/d(params)^T dL/dy.
@@ -263,18 +321,48 @@ impl HashGrid {
         let (grads, param_offset) = (grads.array, grads.offset);
         let (dy, dy_stride, dy_col) = (dy.buf, dy.stride, dy.col);
         check_array(grads, param_offset, self.config.n_params())?;
-        let push = BwdPush {
-            grads: grads.table_address()?,
-            shift: grads.chunk_shift(),
-            param_offset: param_offset as u32,
-            n: n as u32,
-            dy_stride: dy_stride as u32,
-            dy_col: dy_col as u32,
-            pad: 0,
-        };
-        let grid = self.grid(rec, n.div_ceil(self.bwd_run as usize))?;
-        let bindings = [positions.binding(), self.levels.binding(), dy.binding()];
-        rec.dispatch_groups("hashgrid_bwd", &self.bwd, &bindings, &grads.deps(), &push, grid)
+        if n == 0 {
+            return Ok(());
+        }
+        if self.bwd_run > 1 {
+            let bindings = [positions.binding(), self.levels.binding(), dy.binding()];
+            let push = BwdPush {
+                grads: grads.table_address()?,
+                shift: grads.chunk_shift(),
+                param_offset: param_offset as u32,
+                n: n as u32,
+                dy_stride: dy_stride as u32,
+                dy_col: dy_col as u32,
+                pad: 0,
+            };
+            let grid = self.grid(rec, n.div_ceil(self.bwd_run as usize))?;
+            return rec.dispatch_groups("hashgrid_bwd", &self.bwd_runs, &bindings, &grads.deps(), &push, grid);
+        }
+        let c = &self.config;
+        let f = c.features_per_level as usize;
+        for (l, lv) in c.levels().iter().enumerate() {
+            let first = param_offset + lv.offset as usize * f;
+            let (base, offset, chunked) = grid_base(grads, first, lv.entries as usize * f)?;
+            let col = dy_col + l * f;
+            let spec =
+                [(0, c.features_per_level), (1, lv.hashed), (2, u32::from(chunked)), (3, vec_width(dy_stride, col))];
+            let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), &shaders::HASHGRID_BWD, &spec)?;
+            let push = LevelBwdPush {
+                grads: base,
+                shift: grads.chunk_shift(),
+                param_offset: offset as u32,
+                n: n as u32,
+                dy_stride: dy_stride as u32,
+                dy_col: col as u32,
+                scale: lv.scale,
+                res: lv.res,
+                entries: lv.entries,
+                pad: [0; 2],
+            };
+            let bindings = [positions.binding(), dy.binding()];
+            rec.dispatch_named("hashgrid_bwd", &kernel, &bindings, &grads.deps(), &push, n as u64)?;
+        }
+        Ok(())
     }
 
     /// Records dL/dp (float[3n]) from dL/dy.

@@ -147,15 +147,39 @@ pub struct MlpTiling {
 }
 
 impl MlpTiling {
-    /// lavapipe: 4096 multiply-adds per pipeline (about a second of LLVM compile time; 10k take 5 s, 32k over a
-    /// minute) and 32 x 32 gradient tiles (each row's loads feed 1024 multiply-adds); GPUs: 8192 and 4 x 4
-    /// (many threads, few registers).
-    pub fn for_device(caps: &DeviceCaps) -> Self {
-        if caps.is_cpu {
-            Self { mac_budget: 4096, wgrad_tile: 32, wgrad_rows: 4 }
+    /// lavapipe: 8192 multiply-adds per pipeline (a 64 x 64 layer in one block, a 128 x 128 one in two: 2-5 s of
+    /// LLVM compile time each; 16k take 15 s) and 32 x 32 gradient tiles taking 4 rows per iteration (each row's
+    /// loads feed 1024 multiply-adds); GPUs: 8192, and 4 x 4 tiles (many threads, few registers). `MSNERF_MLP_TILING=mac_budget=N,wgrad_tile=N,wgrad_rows=N` overrides
+    /// any of them (benchmarks).
+    pub fn for_device(caps: &DeviceCaps) -> GpuResult<Self> {
+        let t = if caps.is_cpu {
+            Self { mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 4 }
         } else {
             Self { mac_budget: 8192, wgrad_tile: 4, wgrad_rows: 1 }
+        };
+        match std::env::var("MSNERF_MLP_TILING") {
+            Ok(v) => t.with_overrides(&v).map_err(|msg| GpuError::Buffer { name: "MSNERF_MLP_TILING".into(), msg }),
+            Err(_) => Ok(t),
         }
+    }
+
+    /// `key=value` pairs separated by commas; keys are the field names.
+    pub fn with_overrides(mut self, spec: &str) -> Result<Self, String> {
+        for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let (key, value) = part.split_once('=').ok_or_else(|| format!("{part:?} is not key=value"))?;
+            let n: usize = value.trim().parse().map_err(|_| format!("{key}: {value:?} is not a number"))?;
+            let field = match key.trim() {
+                "mac_budget" => &mut self.mac_budget,
+                "wgrad_tile" => &mut self.wgrad_tile,
+                "wgrad_rows" => &mut self.wgrad_rows,
+                other => return Err(format!("unknown key {other:?} (mac_budget, wgrad_tile, wgrad_rows)")),
+            };
+            if n == 0 || n > 1 << 16 {
+                return Err(format!("{key}: {n} is outside 1..=65536"));
+            }
+            *field = n;
+        }
+        Ok(self)
     }
 }
 
@@ -214,6 +238,7 @@ struct OutDeltaPush {
     y_col: u32,
     dy_stride: u32,
     dy_col: u32,
+    d_stride: u32,
     d_col: u32,
 }
 
@@ -266,7 +291,7 @@ fn kernel<P: Pod>(ctx: &Context, blob: &'static ShaderBlob, spec: &[(u32, u32)])
 
 impl Mlp {
     pub fn new(ctx: &Context, config: &MlpConfig) -> GpuResult<Self> {
-        Self::with_tiling(ctx, config, MlpTiling::for_device(ctx.caps()))
+        Self::with_tiling(ctx, config, MlpTiling::for_device(ctx.caps())?)
     }
 
     /// With explicit block sizes (benchmarks and tests compare them).
@@ -403,7 +428,14 @@ impl Mlp {
         let hidden_deltas = |m: usize| RowSlice { buf: bufs.deltas, stride: width, col: m * n * width };
         let acts = |m: usize| RowSlice { buf: bufs.acts, stride: width, col: m * n * width };
 
-        let spec = [(0, c.n_output as u32), (1, c.out_pad() as u32), (2, c.output_activation.code())];
+        // The output deltas' columns that later kernels read: n_output, rounded up to 4 (zeros past n_output).
+        let out_cols = c.n_output.next_multiple_of(4).min(c.out_pad());
+        let spec = [
+            (0, c.n_output as u32),
+            (1, out_cols as u32),
+            (2, c.output_activation.code()),
+            (3, vec_width(&[c.out_pad(), hidden_total])),
+        ];
         let k = kernel(ctx, &shaders::MLP_OUT_DELTA, &spec)?;
         let push = OutDeltaPush {
             n: n as u32,
@@ -411,6 +443,7 @@ impl Mlp {
             y_col: output.col as u32,
             dy_stride: dy.stride as u32,
             dy_col: dy.col as u32,
+            d_stride: c.out_pad() as u32,
             d_col: hidden_total as u32,
         };
         let bindings = [output.buf.binding(), dy.buf.binding(), bufs.deltas.binding()];
@@ -458,10 +491,11 @@ impl Mlp {
             }
         }
 
-        // Weight gradients, matrix by matrix: delta of its output x activation of its input (the last matrix's
-        // padding rows included: their deltas are zero).
+        // Weight gradients, matrix by matrix: delta of its output x activation of its input. The last matrix's rows
+        // past `out_cols` are padding, their gradient stays as it is (zero).
         let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
-        for (m, &(out_w, in_w)) in c.matrices().iter().enumerate() {
+        for (m, &(rows, in_w)) in c.matrices().iter().enumerate() {
+            let out_w = if m == nh { out_cols } else { rows };
             let d = if m == nh { out_deltas } else { hidden_deltas(m) };
             let a = if m == 0 { input } else { acts(m - 1) };
             let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
@@ -559,7 +593,7 @@ fn check_within_chunk(a: &LargeArray<f32>, offset: usize, len: usize) -> GpuResu
 
 #[cfg(test)]
 mod tests {
-    use super::{blocks, tile, vec_width};
+    use super::{blocks, tile, vec_width, MlpTiling};
 
     #[test]
     fn blocks_cover_the_outputs_in_near_equal_multiples_of_four() {
@@ -576,6 +610,17 @@ mod tests {
             assert!(b.windows(2).all(|w| w[0].end == w[1].start && w[0].len() % 4 == 0));
             assert!(b.iter().all(|r| r.len() <= (max / 4 * 4).max(4)), "{total} {max}: {b:?}");
         }
+    }
+
+    #[test]
+    fn tiling_overrides_name_the_bad_key() {
+        let t = MlpTiling { mac_budget: 4096, wgrad_tile: 32, wgrad_rows: 4 };
+        let o = t.with_overrides("mac_budget=8192, wgrad_rows=8").expect("valid");
+        assert_eq!(o, MlpTiling { mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 8 });
+        assert!(t.with_overrides("tile=3").unwrap_err().contains("unknown key \"tile\""));
+        assert!(t.with_overrides("wgrad_tile=x").unwrap_err().contains("wgrad_tile"));
+        assert!(t.with_overrides("wgrad_rows=0").unwrap_err().contains("wgrad_rows"));
+        assert!(t.with_overrides("mac_budget").unwrap_err().contains("key=value"));
     }
 
     #[test]
