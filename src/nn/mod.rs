@@ -1,5 +1,5 @@
 //! Neural modules as Vulkan kernels, each with a CPU twin in `crate::reference`: the multiresolution hash grid
-//! ([`hashgrid`]), the fully fused MLP ([`mlp`]), the spherical-harmonics direction encoding ([`sh`]), Adam
+//! ([`hashgrid`]), the MLP (tiny-cuda-nn semantics, run as per-layer register tiles: [`mlp`]), the spherical-harmonics direction encoding ([`sh`]), Adam
 //! ([`adam`]) and the one parameter store per model ([`params`]).
 
 pub mod adam;
