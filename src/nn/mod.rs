@@ -1,6 +1,7 @@
 //! Neural modules as Vulkan kernels, each with a CPU twin in `crate::reference`: the multiresolution hash grid
-//! ([`hashgrid`]), the MLP (tiny-cuda-nn semantics, run as per-layer register tiles: [`mlp`]), the spherical-harmonics direction encoding ([`sh`]), Adam
-//! ([`adam`]) and the one parameter store per model ([`params`]).
+//! ([`hashgrid`]), the MLP (tiny-cuda-nn semantics, run as per-layer register tiles: [`mlp`]), the
+//! spherical-harmonics direction encoding ([`sh`]), Adam ([`adam`]) and the one parameter store per model
+//! ([`params`]).
 
 pub mod adam;
 pub mod hashgrid;
