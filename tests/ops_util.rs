@@ -137,7 +137,7 @@ fn segmented_scan_matches_twin() {
 
 #[test]
 fn check_finite_flags_every_kind_of_non_finite_value_anywhere() {
-    // Sizes off the workgroup and a large one (4 M floats: 1024 groups of 256 invocations reading 16 each); one NaN,
+    // Sizes off the workgroup and a large one (4 M floats: 256 groups of 256 invocations reading 64 each); one NaN,
     // +Inf or -Inf at the first, a middle and the last element (only inside 0..n counts), or none at all.
     let g = gpu();
     let mut r = rng(9);

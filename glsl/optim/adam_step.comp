@@ -5,19 +5,25 @@
 //   v = beta2 * v + (1 - beta2) * g^2
 //   p = p - step_size * m / (sqrt(v) / bc2_sqrt + eps)  with step_size = lr / (1 - beta1^t), bc2_sqrt = sqrt(1 - beta2^t)
 // The host computes step_size, bc2_sqrt, 1 - beta1 and 1 - beta2 in f64 (as torch does in Python floats).
+// Each invocation updates VEC consecutive elements, read and written VEC at a time (row_io.glsl: on lavapipe one
+// 32-byte access per lane costs about what a float access costs); the host dispatches the range's multiple of VEC
+// with VEC = 8 and the rest with VEC = 1.
 // Bindings: 0 params (float[], read-write), 1 grads (float[], read), 2 m (float[], read-write),
 //           3 v (float[], read-write); all four the same chunk of their LargeArray.
-// Push:     n, offset, step_size, bc2_sqrt, beta1, one_minus_beta1, beta2, one_minus_beta2, eps, weight_decay,
-//           grad_scale (44 bytes).
-// Threads:  one invocation per element, 256 per group, 1D folded to 2D past 65535 groups.
+// Push:     n (elements), offset (a multiple of VEC), step_size, bc2_sqrt, beta1, one_minus_beta1, beta2,
+//           one_minus_beta2, eps, weight_decay, grad_scale (44 bytes).
+// Spec:     0 VEC (8 or 1).
+// Threads:  one invocation per VEC elements, 64 per group, 1D folded to 2D past 65535 groups.
 #version 460
-#define WG_SIZE 256
+#define WG_SIZE 64
 #include "common/index.glsl"
+#include "network/row_io.glsl"
 layout(local_size_x = WG_SIZE) in;
-layout(std430, binding = 0) buffer Params { float params[]; };
-layout(std430, binding = 1) readonly buffer Grads { float grads[]; };
-layout(std430, binding = 2) buffer M { float m1[]; };
-layout(std430, binding = 3) buffer V { float m2[]; };
+layout(constant_id = 0) const uint VEC = 8;
+ROWS_DECLARE(0, params, )
+ROWS_DECLARE(1, grads, readonly)
+ROWS_DECLARE(2, m1, )
+ROWS_DECLARE(3, m2, )
 layout(push_constant) uniform Push {
     uint n;
     uint offset;
@@ -33,14 +39,21 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    uint i = global_index();
+    uint i = global_index() * VEC;
     if (i >= pc.n) return;
     uint j = pc.offset + i;
-    float p = params[j];
-    float g = grads[j] * pc.grad_scale + pc.weight_decay * p;
-    float m = pc.beta1 * m1[j] + pc.one_minus_beta1 * g;
-    float v = pc.beta2 * m2[j] + pc.one_minus_beta2 * (g * g);
-    m1[j] = m;
-    m2[j] = v;
-    params[j] = p - pc.step_size * (m / (sqrt(v) / pc.bc2_sqrt + pc.eps));
+    float p[VEC], g[VEC], m[VEC], v[VEC];
+    ROWS_LOAD(params, VEC, j, p, 0u, VEC)
+    ROWS_LOAD(grads, VEC, j, g, 0u, VEC)
+    ROWS_LOAD(m1, VEC, j, m, 0u, VEC)
+    ROWS_LOAD(m2, VEC, j, v, 0u, VEC)
+    [[unroll]] for (uint k = 0u; k < VEC; ++k) {
+        float gk = g[k] * pc.grad_scale + pc.weight_decay * p[k];
+        m[k] = pc.beta1 * m[k] + pc.one_minus_beta1 * gk;
+        v[k] = pc.beta2 * v[k] + pc.one_minus_beta2 * (gk * gk);
+        p[k] = p[k] - pc.step_size * (m[k] / (sqrt(v[k]) / pc.bc2_sqrt + pc.eps));
+    }
+    ROWS_STORE(m1, VEC, j, m, 0u, VEC)
+    ROWS_STORE(m2, VEC, j, v, 0u, VEC)
+    ROWS_STORE(params, VEC, j, p, 0u, VEC)
 }

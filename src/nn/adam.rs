@@ -4,7 +4,9 @@
 //! - Bindings: 0 params, 1 grads, 2 m, 3 v — the same chunk of each of the store's four arrays, bound whole.
 //! - Push (44 bytes): `{n, offset, step_size, bc2_sqrt, beta1, one_minus_beta1, beta2, one_minus_beta2, eps,
 //!   weight_decay, grad_scale}`; the kernel updates chunk elements `[offset, offset + n)`.
-//! - Threads: one invocation per element, 256 per group.
+//! - Spec: VEC, elements per invocation, read and written VEC floats at a time: 8 over the 8-aligned body of a
+//!   range, 1 over its unaligned head and tail.
+//! - Threads: one invocation per VEC elements, 64 per group.
 //!
 //! [`step`] dispatches once per chunk range of each stepped group's element range (groups are contiguous, see
 //! [`crate::nn::params`]). Semantics per group g, with `lr = groups[g].lr_at(schedule_step)`:
@@ -57,6 +59,9 @@ struct AdamPush {
     grad_scale: f32,
 }
 
+/// Elements one `adam_step` invocation updates where the range allows (read and written 8 floats at a time).
+const ADAM_VEC: usize = 8;
+
 /// What [`step`] did to one group.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct GroupStep {
@@ -82,7 +87,8 @@ pub fn step(
             msg: format!("{} gradient flags for {n_groups} parameter groups", has_grad.len()),
         });
     }
-    let k = Kernel::<AdamPush>::new(rec.context(), &shaders::ADAM_STEP)?;
+    let wide = Kernel::<AdamPush>::with_spec(rec.context(), &shaders::ADAM_STEP, &[(0, ADAM_VEC as u32)])?;
+    let narrow = Kernel::<AdamPush>::with_spec(rec.context(), &shaders::ADAM_STEP, &[(0, 1)])?;
     let schedule_step = store.schedule_step();
     let mut report = Vec::with_capacity(n_groups);
     let mut new_steps = store.group_steps().to_vec();
@@ -107,10 +113,17 @@ pub fn step(
                 grad_scale,
             };
             for (c, r) in store.layout().chunk_ranges(store.layout().group_range(g)) {
-                push.n = r.len() as u32;
-                push.offset = r.start as u32;
                 let bindings = [store.params(), store.grads(), store.m(), store.v()].map(|a| a.chunks()[c].binding());
-                rec.dispatch(&k, &bindings, &push, r.len() as u64)?;
+                // ADAM_VEC elements per invocation over the aligned body, one per invocation elsewhere.
+                let [head, body, tail] = crate::ops::aligned_split(r.start, r.end, ADAM_VEC);
+                for (k, range, per) in [(&narrow, head, 1), (&wide, body, ADAM_VEC), (&narrow, tail, 1)] {
+                    if range.is_empty() {
+                        continue;
+                    }
+                    push.n = range.len() as u32;
+                    push.offset = range.start as u32;
+                    rec.dispatch(k, &bindings, &push, (range.len() / per) as u64)?;
+                }
             }
         }
         report.push(GroupStep { lr, t: new_steps[g], stepped });

@@ -8,7 +8,8 @@
 //! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array, one dispatch per level
 //!   as the forward; `hashgrid_bwd_runs` combines runs of consecutive points in one cell first (measured slower on
 //!   lavapipe; `MSNERF_HASH_BWD_RUN`).
-//! - `hashgrid_bwd_input`: gradient to the positions, one invocation per point.
+//! - `hashgrid_bwd_input`: gradient to the positions, one dispatch per level (the first writes, the others add),
+//!   one invocation per point.
 //!
 //! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
 
@@ -141,6 +142,7 @@ struct FwdPush {
 #[repr(C)]
 #[derive(Copy, Clone, Pod, Zeroable)]
 struct LevelBwdPush {
+    /// The gradient array (hashgrid_bwd) or the parameters (hashgrid_bwd_input).
     grads: u64,
     shift: u32,
     param_offset: u32,
@@ -165,24 +167,11 @@ struct BwdPush {
     pad: u32,
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct BwdInputPush {
-    params: u64,
-    shift: u32,
-    param_offset: u32,
-    n: u32,
-    n_levels: u32,
-    dy_stride: u32,
-    dy_col: u32,
-}
-
 pub struct HashGrid {
     pub config: HashGridConfig,
     levels: GpuBuffer<HashLevel>,
     /// `hashgrid_bwd_runs`, used when `bwd_run` > 1.
     bwd_runs: Kernel<BwdPush>,
-    bwd_input: Kernel<BwdInputPush>,
     /// Consecutive points one `hashgrid_bwd` invocation combines (1: one point per invocation).
     bwd_run: u32,
 }
@@ -234,12 +223,10 @@ impl HashGrid {
             });
         }
         let levels = GpuBuffer::from_slice(ctx, "hash grid levels", MemoryCategory::Other, &config.levels())?;
-        let spec = [(0, config.features_per_level)];
         Ok(Self {
             config: config.clone(),
             levels,
             bwd_runs: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD_RUNS, &[(0, config.features_per_level), (1, run)])?,
-            bwd_input: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD_INPUT, &spec)?,
             bwd_run: run,
         })
     }
@@ -378,17 +365,39 @@ impl HashGrid {
         let (params, param_offset) = (params.array, params.offset);
         let (dy, dy_stride, dy_col) = (dy.buf, dy.stride, dy.col);
         check_array(params, param_offset, self.config.n_params())?;
-        let push = BwdInputPush {
-            params: params.table_address()?,
-            shift: params.chunk_shift(),
-            param_offset: param_offset as u32,
-            n: n as u32,
-            n_levels: self.config.n_levels,
-            dy_stride: dy_stride as u32,
-            dy_col: dy_col as u32,
-        };
-        let bindings = [positions.binding(), self.levels.binding(), dy.binding(), dp.binding()];
-        rec.dispatch_named("hashgrid_bwd_input", &self.bwd_input, &bindings, &params.deps(), &push, n as u64)
+        if n == 0 {
+            return Ok(());
+        }
+        let c = &self.config;
+        let f = c.features_per_level as usize;
+        for (l, lv) in c.levels().iter().enumerate() {
+            let first = param_offset + lv.offset as usize * f;
+            let (base, offset, chunked) = grid_base(params, first, lv.entries as usize * f)?;
+            let col = dy_col + l * f;
+            let spec = [
+                (0, c.features_per_level),
+                (1, lv.hashed),
+                (2, u32::from(chunked)),
+                (3, u32::from(l == 0)),
+                (4, vec_width(dy_stride, col)),
+            ];
+            let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), &shaders::HASHGRID_BWD_INPUT, &spec)?;
+            let push = LevelBwdPush {
+                grads: base,
+                shift: params.chunk_shift(),
+                param_offset: offset as u32,
+                n: n as u32,
+                dy_stride: dy_stride as u32,
+                dy_col: col as u32,
+                scale: lv.scale,
+                res: lv.res,
+                entries: lv.entries,
+                pad: [0; 2],
+            };
+            let bindings = [positions.binding(), dy.binding(), dp.binding()];
+            rec.dispatch_named("hashgrid_bwd_input", &kernel, &bindings, &params.deps(), &push, n as u64)?;
+        }
+        Ok(())
     }
 
     /// A scratch output buffer of `n` rows for this grid (tests and benchmarks).

@@ -13,7 +13,7 @@ struct CheckPush {
 }
 
 /// Elements each invocation reads (the dispatch has n / this many invocations, at least one group).
-const PER_INVOCATION: usize = 16;
+const PER_INVOCATION: usize = 64;
 
 /// Records `flag[0] = 1` if `data[0..n]` holds a NaN or Inf; leaves the flag alone otherwise (zero it first).
 pub fn record_check_finite(

@@ -37,14 +37,23 @@ fn check_range(name: &str, start: usize, n: usize, len: usize) -> GpuResult<()> 
     Ok(())
 }
 
+/// Elements one `fill_u32` invocation writes over the 8-aligned body of a range (8 floats per store).
+const FILL_VEC: usize = 8;
+
 /// `buf[start .. start + n] = value`.
 pub fn fill<T: Pod>(rec: &mut Recorder, buf: &GpuBuffer<T>, value: T, start: usize, n: usize) -> GpuResult<()> {
     check_word::<T>(buf.name())?;
     check_range(buf.name(), start, n, buf.len())?;
-    let k = Kernel::<FillPush>::new(rec.context(), &shaders::FILL_U32)?;
     let value: u32 = bytemuck::cast(value);
-    let push = FillPush { n: n as u32, offset: start as u32, value };
-    rec.dispatch(&k, &[buf.binding()], &push, n as u64)
+    for (range, per) in super::aligned_split(start, start + n, FILL_VEC).into_iter().zip([1, FILL_VEC, 1]) {
+        if range.is_empty() {
+            continue;
+        }
+        let k = Kernel::<FillPush>::with_spec(rec.context(), &shaders::FILL_U32, &[(0, per as u32)])?;
+        let push = FillPush { n: range.len() as u32, offset: range.start as u32, value };
+        rec.dispatch(&k, &[buf.binding()], &push, (range.len() / per) as u64)?;
+    }
+    Ok(())
 }
 
 /// `dst[dst_start .. dst_start + n] = src[src_start .. src_start + n]`.

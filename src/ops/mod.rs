@@ -16,6 +16,14 @@ use crate::gpu::ShaderBlob;
 use crate::shaders;
 use bytemuck::Pod;
 
+/// Splits elements `[start, end)` for kernels that take `vec` consecutive elements per invocation where they can:
+/// the unaligned head, the body of whole `vec`-aligned groups and the tail (each possibly empty).
+pub fn aligned_split(start: usize, end: usize, vec: usize) -> [std::ops::Range<usize>; 3] {
+    let head = start.next_multiple_of(vec).min(end);
+    let body = head + (end - head) / vec * vec;
+    [start..head, head..body, body..end]
+}
+
 /// Element types the generic reduce and scan kernels come in.
 pub trait ScanValue: Pod + Default + std::fmt::Debug {
     const REDUCE: &'static ShaderBlob;
@@ -40,3 +48,16 @@ impl ScanValue for u32 {
 
 /// Block width of the reduce and scan kernels (their `local_size_x`).
 pub const BLOCK: usize = 256;
+
+#[cfg(test)]
+mod split_tests {
+    use super::aligned_split;
+
+    #[test]
+    fn aligned_split_covers_the_range_with_an_aligned_body() {
+        assert_eq!(aligned_split(3, 29, 8), [3..8, 8..24, 24..29]);
+        assert_eq!(aligned_split(8, 16, 8), [8..8, 8..16, 16..16]);
+        assert_eq!(aligned_split(5, 7, 8), [5..7, 7..7, 7..7]);
+        assert_eq!(aligned_split(0, 0, 8), [0..0, 0..0, 0..0]);
+    }
+}
