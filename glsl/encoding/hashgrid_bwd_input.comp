@@ -8,7 +8,7 @@
 // Push:     params (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
 //           (first float of the level, in the chunk or in the array), n, dy_stride, dy_col (the level's first
 //           column), scale, res, entries.
-// Spec:     0 F, 1 HASHED, 2 HASH_CHUNKED, 3 FIRST (1: write, 0: add), 4 VEC_DY (read width of dL/dy, floats).
+// Spec:     0 F, 1 HASHED, 2 HASH_CHUNKED, 3 VEC_DY (read width of dL/dy, floats), 4 FIRST (1: write, 0: add).
 // Threads:  one invocation per point, 64 per group, folded into 2D past 65535 groups.
 #version 460
 #define WG_SIZE 64
@@ -20,8 +20,8 @@ layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint F = 2;
 layout(constant_id = 1) const uint HASHED = 1;
 layout(constant_id = 2) const uint HASH_CHUNKED = 0;
-layout(constant_id = 3) const uint FIRST = 1;
-layout(constant_id = 4) const uint VEC_DY = 1;
+layout(constant_id = 3) const uint VEC_DY = 1;
+layout(constant_id = 4) const uint FIRST = 1;
 #include "encoding/hashgrid_entry.glsl"
 layout(std430, binding = 0) readonly buffer Positions { float pos[]; };
 ROWS_DECLARE(1, dy, readonly)

@@ -31,10 +31,14 @@ uint64_t rows_pack(float a, float b) {
 // previous, wider accesses stopped).
 #define ROWS_END(VEC, W, START, COUNT) ((VEC) >= (W) ? (START) + ((COUNT) - (START)) / (W) * (W) : (START))
 
-#define ROWS_LOAD(NAME, VEC, base, dst, DOFF, COUNT) { \
+// e8_, e4_, e2_: where the runs of 8-, 4- and 2-float accesses end in a COUNT-float run.
+#define ROWS_SPLIT(VEC, COUNT) \
     uint e8_ = ROWS_END(VEC, 8u, 0u, COUNT); \
     uint e4_ = ROWS_END(VEC, 4u, e8_, COUNT); \
-    uint e2_ = ROWS_END(VEC, 2u, e4_, COUNT); \
+    uint e2_ = ROWS_END(VEC, 2u, e4_, COUNT);
+
+#define ROWS_LOAD(NAME, VEC, base, dst, DOFF, COUNT) { \
+    ROWS_SPLIT(VEC, COUNT) \
     uint b_ = (base); \
     [[unroll]] for (uint i_ = 0u; i_ < e8_; i_ += 8u) { \
         u64vec4 t_ = NAME##_8[(b_ + i_) / 8u]; \
@@ -58,9 +62,7 @@ uint64_t rows_pack(float a, float b) {
 }
 
 #define ROWS_STORE(NAME, VEC, base, src, SOFF, COUNT) { \
-    uint e8_ = ROWS_END(VEC, 8u, 0u, COUNT); \
-    uint e4_ = ROWS_END(VEC, 4u, e8_, COUNT); \
-    uint e2_ = ROWS_END(VEC, 2u, e4_, COUNT); \
+    ROWS_SPLIT(VEC, COUNT) \
     uint b_ = (base); \
     [[unroll]] for (uint i_ = 0u; i_ < e8_; i_ += 8u) { \
         uint s_ = (SOFF) + i_; \

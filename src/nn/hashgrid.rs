@@ -325,31 +325,17 @@ impl HashGrid {
             let grid = self.grid(rec, n.div_ceil(self.bwd_run as usize))?;
             return rec.dispatch_groups("hashgrid_bwd", &self.bwd_runs, &bindings, &grads.deps(), &push, grid);
         }
-        let c = &self.config;
-        let f = c.features_per_level as usize;
-        for (l, lv) in c.levels().iter().enumerate() {
-            let first = param_offset + lv.offset as usize * f;
-            let (base, offset, chunked) = grid_base(grads, first, lv.entries as usize * f)?;
-            let col = dy_col + l * f;
-            let spec =
-                [(0, c.features_per_level), (1, lv.hashed), (2, u32::from(chunked)), (3, vec_width(dy_stride, col))];
-            let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), &shaders::HASHGRID_BWD, &spec)?;
-            let push = LevelBwdPush {
-                grads: base,
-                shift: grads.chunk_shift(),
-                param_offset: offset as u32,
-                n: n as u32,
-                dy_stride: dy_stride as u32,
-                dy_col: col as u32,
-                scale: lv.scale,
-                res: lv.res,
-                entries: lv.entries,
-                pad: [0; 2],
-            };
-            let bindings = [positions.binding(), dy.binding()];
-            rec.dispatch_named("hashgrid_bwd", &kernel, &bindings, &grads.deps(), &push, n as u64)?;
-        }
-        Ok(())
+        let dy = RowSlice { buf: dy, stride: dy_stride, col: dy_col };
+        self.record_level_backward(
+            rec,
+            &shaders::HASHGRID_BWD,
+            "hashgrid_bwd",
+            (grads, param_offset),
+            positions,
+            n,
+            dy,
+            None,
+        )
     }
 
     /// Records dL/dp (float[3n]) from dL/dy.
@@ -368,34 +354,56 @@ impl HashGrid {
         if n == 0 {
             return Ok(());
         }
+        let dy = RowSlice { buf: dy, stride: dy_stride, col: dy_col };
+        let input = &shaders::HASHGRID_BWD_INPUT;
+        self.record_level_backward(rec, input, "hashgrid_bwd_input", (params, param_offset), positions, n, dy, Some(dp))
+    }
+
+    /// One dispatch per level of a kernel that reads the level's F columns of `dy` and the level's table entries of
+    /// `array` (spec: F, HASHED, HASH_CHUNKED, VEC_DY, and FIRST = first level when `dp` is given, bound third).
+    #[allow(clippy::too_many_arguments)]
+    fn record_level_backward(
+        &self,
+        rec: &mut Recorder,
+        blob: &'static crate::gpu::ShaderBlob,
+        label: &'static str,
+        (array, param_offset): (&LargeArray<f32>, usize),
+        positions: &GpuBuffer<f32>,
+        n: usize,
+        dy: RowSlice,
+        dp: Option<&GpuBuffer<f32>>,
+    ) -> GpuResult<()> {
         let c = &self.config;
         let f = c.features_per_level as usize;
         for (l, lv) in c.levels().iter().enumerate() {
             let first = param_offset + lv.offset as usize * f;
-            let (base, offset, chunked) = grid_base(params, first, lv.entries as usize * f)?;
-            let col = dy_col + l * f;
-            let spec = [
+            let (base, offset, chunked) = grid_base(array, first, lv.entries as usize * f)?;
+            let col = dy.col + l * f;
+            let mut spec = vec![
                 (0, c.features_per_level),
                 (1, lv.hashed),
                 (2, u32::from(chunked)),
-                (3, u32::from(l == 0)),
-                (4, vec_width(dy_stride, col)),
+                (3, vec_width(dy.stride, col)),
             ];
-            let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), &shaders::HASHGRID_BWD_INPUT, &spec)?;
+            let mut bindings = vec![positions.binding(), dy.buf.binding()];
+            if let Some(dp) = dp {
+                spec.push((4, u32::from(l == 0)));
+                bindings.push(dp.binding());
+            }
+            let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), blob, &spec)?;
             let push = LevelBwdPush {
                 grads: base,
-                shift: params.chunk_shift(),
+                shift: array.chunk_shift(),
                 param_offset: offset as u32,
                 n: n as u32,
-                dy_stride: dy_stride as u32,
+                dy_stride: dy.stride as u32,
                 dy_col: col as u32,
                 scale: lv.scale,
                 res: lv.res,
                 entries: lv.entries,
                 pad: [0; 2],
             };
-            let bindings = [positions.binding(), dy.binding(), dp.binding()];
-            rec.dispatch_named("hashgrid_bwd_input", &kernel, &bindings, &params.deps(), &push, n as u64)?;
+            rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;
         }
         Ok(())
     }
