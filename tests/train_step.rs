@@ -121,8 +121,12 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
             weight: weight as f64,
         });
     }
+    // The warm-up compiles every kernel and changes nothing the step below depends on.
+    pipe.warm_up().expect("warm-up");
+    let compiled = g.pipeline_count();
     let step = pipe.step;
     let stats = pipe.train_step(&batch).expect("train step");
+    assert_eq!(g.pipeline_count(), compiled, "the warm-up created every pipeline a training step uses");
     assert_eq!(stats.proposals_updated, update);
     assert!(!stats.skipped, "no NaN in a healthy step: {:?}", stats.poisoned);
     let want = train_step(&pipe.model, &params, &refs, step, update);

@@ -1,4 +1,4 @@
-//! `msnerf bench kernels`: hash grid forward/backward in points/s and fused MLP forward+backward in GFLOP/s, at
+//! `msnerf bench kernels`: hash grid forward/backward in points/s and MLP forward+backward in GFLOP/s, at
 //! nerfacto's and Multispectral-NeRF Table 1's sizes, on the selected device. On a CPU device (lavapipe) the same
 //! MLP layer shapes also run through `matrixmultiply`'s threaded sgemm on the same cores, so the table shows how
 //! close the Vulkan kernels get to what the CPU can do.

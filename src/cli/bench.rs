@@ -27,7 +27,7 @@ pub enum BenchWhat {
         #[arg(long)]
         json: bool,
     },
-    /// Hash grid points/s and fused MLP GFLOP/s at nerfacto's and Table 1's sizes
+    /// Hash grid points/s and MLP GFLOP/s at nerfacto's and Table 1's sizes
     Kernels {
         /// Points per hash grid measurement
         #[arg(long, default_value_t = 1 << 18)]

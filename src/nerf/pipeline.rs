@@ -446,12 +446,11 @@ impl Pipeline {
         }
     }
 
-    /// One training step on `batch`.
-    /// Runs every kernel of a training step (with and without a proposal update) and of inference once, on one ray
-    /// (pixel (0, 0) of the first camera), so that all pipelines are created and compiled before a training clock
-    /// starts: lavapipe compiles each pipeline with LLVM at its first dispatch (up to a second or two for the
-    /// unrolled MLP tiles). Parameters and optimiser state are untouched; the gradients it leaves are zeroed at the
-    /// start of every step.
+    /// Runs every kernel of a training step (with and without a proposal update, the gradient check and the pose
+    /// regulariser; the optimiser's pipelines are created) and of inference once, on one ray (pixel (0, 0) of the
+    /// first camera), so that all pipelines are created and compiled before a training clock starts: lavapipe
+    /// compiles each pipeline with LLVM at its first dispatch (a second or more for the unrolled MLP tiles).
+    /// Parameters and optimiser state are untouched; the gradients it leaves are zeroed at the start of every step.
     pub fn warm_up(&mut self) -> GpuResult<()> {
         let pixels = [0u32, 0, 0];
         self.render(&pixels)?;
@@ -460,18 +459,24 @@ impl Pipeline {
         let targets = vec![0.0f32; self.model.bands + 1];
         let res = (|| {
             self.upload_rays(&b, &pixels, Some(&targets))?;
+            let mut timing = TimingReport::default();
             for update_props in [true, false] {
                 let mut rec = self.ctx.recorder("warm-up")?;
+                self.model.store.zero_grads(&mut rec)?;
                 self.record_forward(&mut rec, &b, (1, 0), true, update_props)?;
                 self.record_backward(&mut rec, &b, (1, 0), (0.0, 0.0, 0.0), update_props)?;
                 rec.submit_and_wait()?;
             }
+            self.pose_regularizer(&b, &mut timing)?;
+            self.grads_finite(&mut timing)?;
+            crate::nn::adam::kernels(&self.ctx)?;
             Ok(())
         })();
         self.train_bufs = Some(b);
         res
     }
 
+    /// One training step on `batch`.
     pub fn train_step(&mut self, batch: &Batch) -> Result<StepStats, GpuError> {
         self.ensure_buffers(true)?;
         let bands = self.model.bands;

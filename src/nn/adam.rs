@@ -43,9 +43,10 @@ impl Default for AdamHyper {
     }
 }
 
+/// `adam_step`'s push constants (see the module documentation).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Pod, Zeroable)]
-struct AdamPush {
+pub struct AdamPush {
     n: u32,
     offset: u32,
     step_size: f32,
@@ -61,6 +62,14 @@ struct AdamPush {
 
 /// Elements one `adam_step` invocation updates where the range allows (read and written 8 floats at a time).
 const ADAM_VEC: usize = 8;
+
+/// The `adam_step` pipelines [`step`] uses (8 elements per invocation, and 1), created on first use.
+pub fn kernels(ctx: &crate::gpu::Context) -> GpuResult<[Kernel<AdamPush>; 2]> {
+    Ok([
+        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[(0, ADAM_VEC as u32)])?,
+        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[(0, 1)])?,
+    ])
+}
 
 /// What [`step`] did to one group.
 #[derive(Copy, Clone, Debug, PartialEq)]
@@ -87,8 +96,7 @@ pub fn step(
             msg: format!("{} gradient flags for {n_groups} parameter groups", has_grad.len()),
         });
     }
-    let wide = Kernel::<AdamPush>::with_spec(rec.context(), &shaders::ADAM_STEP, &[(0, ADAM_VEC as u32)])?;
-    let narrow = Kernel::<AdamPush>::with_spec(rec.context(), &shaders::ADAM_STEP, &[(0, 1)])?;
+    let [wide, narrow] = kernels(rec.context())?;
     let schedule_step = store.schedule_step();
     let mut report = Vec::with_capacity(n_groups);
     let mut new_steps = store.group_steps().to_vec();
