@@ -13,7 +13,7 @@
 //!
 //! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
 
-use super::{ParamSlice, RowSlice};
+use super::{vec_width, ParamSlice, RowSlice};
 use crate::gpu::{BufferDesc, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, MemoryCategory, Recorder};
 use crate::shaders;
 use bytemuck::{Pod, Zeroable};
@@ -203,9 +203,13 @@ fn grid_base(a: &LargeArray<f32>, offset: usize, len: usize) -> GpuResult<(u64, 
     }
 }
 
-/// Widest row access (8, 4, 2 or 1 floats) that divides a row stride and a start column.
-fn vec_width(stride: usize, col: usize) -> u32 {
-    [8usize, 4, 2].into_iter().find(|v| stride % v == 0 && col % v == 0).unwrap_or(1) as u32
+/// Where one level's dispatch reads its table: level index and table, the address and offset `grid_base` gives.
+struct LevelRead {
+    l: usize,
+    lv: HashLevel,
+    base: u64,
+    offset: usize,
+    chunked: bool,
 }
 
 impl HashGrid {
@@ -263,18 +267,15 @@ impl HashGrid {
         }
         let c = &self.config;
         let f = c.features_per_level as usize;
-        let levels = c.levels();
-        for (l, lv) in levels.iter().enumerate() {
-            let first = param_offset + lv.offset as usize * f;
-            let (base, offset, chunked) = grid_base(params, first, lv.entries as usize * f)?;
+        for LevelRead { l, lv, base, offset, chunked } in self.level_reads(params, param_offset)? {
             let col = slot.col + l * f;
-            let pad = if l + 1 == levels.len() { slot.pad_to - c.n_output() } else { 0 };
+            let pad = if l + 1 == c.n_levels as usize { slot.pad_to - c.n_output() } else { 0 };
             let spec = [
                 (0, c.features_per_level),
                 (1, lv.hashed),
                 (2, u32::from(chunked)),
                 (3, pad as u32),
-                (4, vec_width(slot.stride, col)),
+                (4, vec_width(&[slot.stride, col])),
             ];
             let kernel = Kernel::<FwdPush>::with_spec(rec.context(), &shaders::HASHGRID_FWD, &spec)?;
             let push = FwdPush {
@@ -375,15 +376,13 @@ impl HashGrid {
     ) -> GpuResult<()> {
         let c = &self.config;
         let f = c.features_per_level as usize;
-        for (l, lv) in c.levels().iter().enumerate() {
-            let first = param_offset + lv.offset as usize * f;
-            let (base, offset, chunked) = grid_base(array, first, lv.entries as usize * f)?;
+        for LevelRead { l, lv, base, offset, chunked } in self.level_reads(array, param_offset)? {
             let col = dy.col + l * f;
             let mut spec = vec![
                 (0, c.features_per_level),
                 (1, lv.hashed),
                 (2, u32::from(chunked)),
-                (3, vec_width(dy.stride, col)),
+                (3, vec_width(&[dy.stride, col])),
             ];
             let mut bindings = vec![positions.binding(), dy.buf.binding()];
             if let Some(dp) = dp {
@@ -406,6 +405,18 @@ impl HashGrid {
             rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;
         }
         Ok(())
+    }
+
+    /// Every level's table in a grid stored at `param_offset` of `array`.
+    fn level_reads(&self, array: &LargeArray<f32>, param_offset: usize) -> GpuResult<Vec<LevelRead>> {
+        let f = self.config.features_per_level as usize;
+        (self.config.levels().into_iter().enumerate())
+            .map(|(l, lv)| {
+                let (base, offset, chunked) =
+                    grid_base(array, param_offset + lv.offset as usize * f, lv.entries as usize * f)?;
+                Ok(LevelRead { l, lv, base, offset, chunked })
+            })
+            .collect()
     }
 
     /// A scratch output buffer of `n` rows for this grid (tests and benchmarks).

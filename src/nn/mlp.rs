@@ -19,8 +19,8 @@
 //! Rows are read and written as wide as their alignment allows (`row_io.glsl`). Why this shape, and what it
 //! reaches against a CPU sgemm: docs/benchmarks.md.
 
-use super::{ParamSlice, RowSlice};
-use crate::gpu::{Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder, ShaderBlob};
+use super::{vec_width, ParamSlice, RowSlice};
+use crate::gpu::{Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder};
 use crate::shaders;
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
@@ -199,11 +199,6 @@ fn tile(total: usize, max: usize) -> usize {
     t
 }
 
-/// Widest access (8, 4, 2 or 1 floats) that divides every given float offset or stride.
-fn vec_width(offsets: &[usize]) -> u32 {
-    [8usize, 4, 2].into_iter().find(|v| offsets.iter().all(|o| o % v == 0)).unwrap_or(1) as u32
-}
-
 #[repr(C)]
 #[derive(Copy, Clone, Pod, Zeroable)]
 struct LayerFwdPush {
@@ -282,11 +277,6 @@ pub struct Mlp {
     pub config: MlpConfig,
     pub tiling: MlpTiling,
     reduce: Kernel<ReducePush>,
-}
-
-/// A pipeline of `blob` specialised with `spec` (created on first use, then taken from the context's cache).
-fn kernel<P: Pod>(ctx: &Context, blob: &'static ShaderBlob, spec: &[(u32, u32)]) -> GpuResult<Kernel<P>> {
-    Kernel::with_spec(ctx, blob, spec)
 }
 
 impl Mlp {
@@ -368,7 +358,7 @@ impl Mlp {
         let base = weights_address(params)?;
         let deps = params.array.deps();
         let hidden = RowSlice { buf: acts, stride: c.width, col: 0 };
-        let mut w_offset = 0;
+        let offsets = matrix_offsets(c);
         for (layer, &(out_w, in_w)) in c.layer_shapes().iter().enumerate() {
             let last = layer == c.n_hidden_layers;
             let src = if layer == 0 { input } else { RowSlice { col: (layer - 1) * n * c.width, ..hidden } };
@@ -382,9 +372,9 @@ impl Mlp {
                     (3, vec_width(&[src.stride, src.col])),
                     (4, vec_width(&[dst.stride, dst.col + b.start])),
                 ];
-                let k = kernel(ctx, &shaders::MLP_LAYER_FWD, &spec)?;
+                let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_FWD, &spec)?;
                 let push = LayerFwdPush {
-                    w_addr: base + 4 * (w_offset + b.start * in_w) as u64,
+                    w_addr: base + 4 * (offsets[layer] + b.start * in_w) as u64,
                     n: n as u32,
                     in_stride: src.stride as u32,
                     in_col: src.col as u32,
@@ -394,7 +384,6 @@ impl Mlp {
                 };
                 rec.dispatch_named("mlp_fwd", &k, &[src.buf.binding(), dst.buf.binding()], &deps, &push, n as u64)?;
             }
-            w_offset += c.matrices()[layer].0 * in_w;
         }
         Ok(())
     }
@@ -436,7 +425,7 @@ impl Mlp {
             (2, c.output_activation.code()),
             (3, vec_width(&[c.out_pad(), hidden_total])),
         ];
-        let k = kernel(ctx, &shaders::MLP_OUT_DELTA, &spec)?;
+        let k = Kernel::with_spec(ctx, &shaders::MLP_OUT_DELTA, &spec)?;
         let push = OutDeltaPush {
             n: n as u32,
             y_stride: output.stride as u32,
@@ -474,7 +463,7 @@ impl Mlp {
                     (5, if mask.is_some() { vec_width(&[a.stride, a.col + b.start]) } else { 1 }),
                     (6, vec_width(&[target.stride, target.col + b.start])),
                 ];
-                let k = kernel(ctx, &shaders::MLP_LAYER_BWD, &spec)?;
+                let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_BWD, &spec)?;
                 let push = LayerBwdPush {
                     w_addr: base + 4 * (offsets[m] + b.start) as u64,
                     n: n as u32,
@@ -507,7 +496,7 @@ impl Mlp {
                 (4, vec_width(&[in_w, kt])),
                 (5, self.tiling.wgrad_rows as u32),
             ];
-            let k = kernel(ctx, &shaders::MLP_WGRAD, &spec)?;
+            let k = Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?;
             let push = WgradPush {
                 n: n as u32,
                 out_w: out_w as u32,
@@ -593,7 +582,8 @@ fn check_within_chunk(a: &LargeArray<f32>, offset: usize, len: usize) -> GpuResu
 
 #[cfg(test)]
 mod tests {
-    use super::{blocks, tile, vec_width, MlpTiling};
+    use super::{blocks, tile, MlpTiling};
+    use crate::nn::vec_width;
 
     #[test]
     fn blocks_cover_the_outputs_in_near_equal_multiples_of_four() {

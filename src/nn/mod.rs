@@ -18,6 +18,12 @@ pub struct ParamSlice<'a> {
     pub offset: usize,
 }
 
+/// Widest access (8, 4, 2 or 1 floats) that divides every given float offset or stride: the width kernels using
+/// `glsl/network/row_io.glsl` read or write a run of a row with.
+pub(crate) fn vec_width(offsets: &[usize]) -> u32 {
+    [8usize, 4, 2].into_iter().find(|v| offsets.iter().all(|o| o % v == 0)).unwrap_or(1) as u32
+}
+
 /// A matrix stored as rows of a buffer: row i's columns start at `i * stride + col`.
 #[derive(Copy, Clone)]
 pub struct RowSlice<'a> {
