@@ -56,6 +56,8 @@ const VARIANTS: &[Variant] = &[
     v("mlp_out_delta", "network/mlp_out_delta.comp"),
     v("mlp_wgrad", "network/mlp_wgrad.comp"),
     v("mlp_wgrad_reduce", "network/mlp_wgrad_reduce.comp"),
+    v("mlp_tile_layer", "network/mlp_tile_layer.comp"),
+    v("mlp_tile_wgrad", "network/mlp_tile_wgrad.comp"),
     // nn: direction encoding and optimiser (src/nn)
     v("sh_fwd", "encoding/sh_fwd.comp"),
     v("sh_bwd", "encoding/sh_bwd.comp"),

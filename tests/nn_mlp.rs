@@ -6,7 +6,7 @@ mod common;
 
 use common::{gpu, rng};
 use msnerf::gpu::{BufferDesc, Context, GpuBuffer, LargeArray, MemoryCategory};
-use msnerf::nn::mlp::{Activation, Mlp, MlpConfig, MlpTrainBuffers};
+use msnerf::nn::mlp::{Activation, Mlp, MlpConfig, MlpTiling, MlpTrainBuffers};
 use msnerf::nn::{ParamSlice, RowSlice};
 use msnerf::ops;
 use msnerf::reference::mlp as twin;
@@ -31,8 +31,16 @@ fn weights(c: &MlpConfig, seed: u64) -> Vec<f32> {
     w
 }
 
+/// Both kernel families on this device: its default and the other one (register tiles, shared-memory tiles).
 fn check_config(g: &Context, c: &MlpConfig, n: usize, seed: u64) {
-    let mlp = Mlp::new(g, c).expect("mlp");
+    let default = MlpTiling::for_device(g.caps()).expect("tiling");
+    for tiling in [default, MlpTiling { shared_tiles: !default.shared_tiles, ..default }] {
+        check_with(g, c, n, seed, tiling);
+    }
+}
+
+fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling) {
+    let mlp = Mlp::with_tiling(g, c, tiling).expect("mlp");
     let w = weights(c, seed);
     let offset = 40;
     let params = LargeArray::<f32>::new(g, "params", offset + w.len(), MemoryCategory::Parameters).expect("params");
@@ -82,14 +90,14 @@ fn check_config(g: &Context, c: &MlpConfig, n: usize, seed: u64) {
         let (_, yv) = twin::forward(c, &w64, &row);
         for j in 0..c.n_output {
             let (gy, wy) = (got_y[i * out_stride + out_col + j], yv[j] as f32);
-            assert!(common::close_f32(gy, wy), "{c:?} row {i} out {j}: got {gy} want {wy}");
+            assert!(common::close_f32(gy, wy), "{c:?} {tiling:?} row {i} out {j}: got {gy} want {wy}");
         }
         assert_eq!(got_y[i * out_stride], 0.0, "column before the output slot untouched");
         let d: Vec<f64> = dy_host[i * c.n_output..(i + 1) * c.n_output].iter().map(|&v| v as f64).collect();
         let dxv = twin::backward(c, &w64, &row, &d, &mut want_g);
         for k in 0..c.in_pad() {
             let (gd, wd) = (got_dx[i * c.in_pad() + k], dxv[k] as f32);
-            assert!(common::close_f32(gd, wd), "{c:?} row {i} dx {k}: got {gd} want {wd}");
+            assert!(common::close_f32(gd, wd), "{c:?} {tiling:?} row {i} dx {k}: got {gd} want {wd}");
         }
     }
     common::assert_same(&got_infer, &got_y, "inference equals the training forward");
@@ -99,7 +107,10 @@ fn check_config(g: &Context, c: &MlpConfig, n: usize, seed: u64) {
         let mean = want.iter().map(|v| v.abs()).sum::<f64>() / want.len() as f64;
         for e in 0..rows * cols {
             let (gv, wv) = (got_g[offset + off + e] as f64, want[e]);
-            assert!((gv - wv).abs() <= 1e-4 * (wv.abs() + mean), "{c:?} matrix {m} element {e}: got {gv} want {wv}");
+            assert!(
+                (gv - wv).abs() <= 1e-4 * (wv.abs() + mean),
+                "{c:?} {tiling:?} matrix {m} element {e}: got {gv} want {wv}"
+            );
         }
         off += rows * cols;
     }

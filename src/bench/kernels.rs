@@ -34,7 +34,9 @@ pub struct MlpResult {
     pub name: String,
     pub shape: String,
     pub rows: usize,
-    /// Block sizes used (`MlpTiling`): unrolled multiply-adds per layer kernel and the weight-gradient tile.
+    /// Kernels used (`MlpTiling`): shared-memory tiles (GPUs) or register tiles (CPU devices), and the register
+    /// tiles' block sizes: unrolled multiply-adds per layer kernel and the weight-gradient tile.
+    pub shared_tiles: bool,
     pub mac_budget: usize,
     pub wgrad_tile: usize,
     pub forward_gflops: f64,
@@ -180,6 +182,7 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
         name: name.into(),
         shape: shape(cfg),
         rows,
+        shared_tiles: mlp.tiling.shared_tiles,
         mac_budget: mlp.tiling.mac_budget,
         wgrad_tile: mlp.tiling.wgrad_tile,
         train_kernels,

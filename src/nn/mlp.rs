@@ -14,8 +14,14 @@
 //! - `mlp_wgrad` + `mlp_wgrad_reduce`: weight gradients, split over the batch, summed in a fixed order
 //!   (deterministic; no atomics).
 //!
-//! Block sizes come from the device ([`MlpTiling::for_device`]): lavapipe compiles each pipeline with LLVM, whose
-//! time grows faster than linearly with the unrolled code, so a kernel's block is kept under a multiply-add budget.
+//! On GPUs the same products run as shared-memory tiles instead (`mlp_tile_layer` for forward and backward,
+//! `mlp_tile_wgrad` for the weight gradients, then the same reduction): a workgroup of 256 stages 16-deep slices
+//! of a 64 x 64 (or 256 x 16, 128 x 32) block in shared memory and each thread keeps a 4 x 4 block in registers,
+//! so register use does not grow with the layer's width.
+//!
+//! Which family runs, and its block sizes, come from the device ([`MlpTiling::for_device`]): lavapipe compiles
+//! each pipeline with LLVM, whose time grows faster than linearly with the unrolled code, so a register kernel's
+//! block is kept under a multiply-add budget.
 //! Rows are read and written as wide as their alignment allows (`row_io.glsl`). Why this shape, and what it
 //! reaches against a CPU sgemm: docs/benchmarks.md.
 
@@ -134,28 +140,36 @@ pub const ROWS_PER_SPLIT: usize = 256;
 /// Inference runs the layers over blocks of this many rows, so its hidden-layer scratch stays bounded.
 pub const INFER_BLOCK_ROWS: usize = 1 << 16;
 
-/// Block sizes of the MLP kernels on one device.
+/// Which kernels run the MLP and their block sizes on one device.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct MlpTiling {
-    /// Most unrolled multiply-adds per row in one `mlp_layer_fwd` / `mlp_layer_bwd` pipeline: a layer whose
-    /// inputs x outputs exceed it runs as several blocks of outputs, each reading the row's inputs again.
+    /// Shared-memory tiles (`mlp_tile_layer`, `mlp_tile_wgrad`: fixed register use, any width) instead of the
+    /// register tiles (`mlp_layer_fwd`/`_bwd`, `mlp_wgrad`: a row's whole input in registers).
+    pub shared_tiles: bool,
+    /// Register tiles: most unrolled multiply-adds per row in one `mlp_layer_fwd` / `mlp_layer_bwd` pipeline: a
+    /// layer whose inputs x outputs exceed it runs as several blocks of outputs, each reading the row's inputs again.
     pub mac_budget: usize,
-    /// Largest weight-gradient tile (rows x columns of the matrix) one `mlp_wgrad` invocation accumulates.
+    /// Register tiles: largest weight-gradient tile (rows x columns of the matrix) one `mlp_wgrad` invocation
+    /// accumulates.
     pub wgrad_tile: usize,
-    /// Batch rows one `mlp_wgrad` loop iteration takes (unrolled).
+    /// Register tiles: batch rows one `mlp_wgrad` loop iteration takes (unrolled).
     pub wgrad_rows: usize,
 }
 
 impl MlpTiling {
-    /// lavapipe: 8192 multiply-adds per pipeline (a 64 x 64 layer in one block, a 128 x 128 one in two: 2-5 s of
-    /// LLVM compile time each; 16k take 15 s) and 32 x 32 gradient tiles taking 4 rows per iteration (each row's
-    /// loads feed 1024 multiply-adds); GPUs: 8192, and 4 x 4 tiles (many threads, few registers). `MSNERF_MLP_TILING=mac_budget=N,wgrad_tile=N,wgrad_rows=N` overrides
-    /// any of them (benchmarks).
+    /// CPU devices (lavapipe): register tiles, 8192 multiply-adds per pipeline (a 64 x 64 layer in one block, a
+    /// 128 x 128 one in two: 2-5 s of LLVM compile time each; 16k take 15 s) and 32 x 32 gradient tiles taking 4 rows
+    /// per iteration (each row's loads feed 1024 multiply-adds); lavapipe's SIMD lanes each own a row, and its
+    /// shared memory and barriers are slow. GPUs: shared-memory tiles. A register tile keeps a row's inputs and a
+    /// block of outputs in registers: at 128 inputs and an 8192 budget that is 192 live floats, which NVIDIA's
+    /// compiler spills to local memory or refuses (measured on an H100: `vkCreateComputePipelines` failed), and
+    /// every thread re-reads all weights. The register-tile fields below still apply when `shared=0`: 4096, 4 x 4.
+    /// `MSNERF_MLP_TILING=shared=0|1,mac_budget=N,wgrad_tile=N,wgrad_rows=N` overrides any of them (benchmarks).
     pub fn for_device(caps: &DeviceCaps) -> GpuResult<Self> {
         let t = if caps.is_cpu {
-            Self { mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 4 }
+            Self { shared_tiles: false, mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 4 }
         } else {
-            Self { mac_budget: 8192, wgrad_tile: 4, wgrad_rows: 1 }
+            Self { shared_tiles: true, mac_budget: 4096, wgrad_tile: 4, wgrad_rows: 1 }
         };
         match std::env::var("MSNERF_MLP_TILING") {
             Ok(v) => t.with_overrides(&v).map_err(|msg| GpuError::Buffer { name: "MSNERF_MLP_TILING".into(), msg }),
@@ -163,16 +177,23 @@ impl MlpTiling {
         }
     }
 
-    /// `key=value` pairs separated by commas; keys are the field names.
+    /// `key=value` pairs separated by commas; keys are the field names (`shared` for `shared_tiles`, 0 or 1).
     pub fn with_overrides(mut self, spec: &str) -> Result<Self, String> {
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             let (key, value) = part.split_once('=').ok_or_else(|| format!("{part:?} is not key=value"))?;
             let n: usize = value.trim().parse().map_err(|_| format!("{key}: {value:?} is not a number"))?;
+            if key.trim() == "shared" {
+                if n > 1 {
+                    return Err(format!("shared: {n} is not 0 or 1"));
+                }
+                self.shared_tiles = n == 1;
+                continue;
+            }
             let field = match key.trim() {
                 "mac_budget" => &mut self.mac_budget,
                 "wgrad_tile" => &mut self.wgrad_tile,
                 "wgrad_rows" => &mut self.wgrad_rows,
-                other => return Err(format!("unknown key {other:?} (mac_budget, wgrad_tile, wgrad_rows)")),
+                other => return Err(format!("unknown key {other:?} (shared, mac_budget, wgrad_tile, wgrad_rows)")),
             };
             if n == 0 || n > 1 << 16 {
                 return Err(format!("{key}: {n} is outside 1..=65536"));
@@ -261,6 +282,55 @@ struct ReducePush {
     splits: u32,
     pad: u32,
     pad2: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct TileLayerPush {
+    w_addr: u64,
+    n: u32,
+    k_dim: u32,
+    cols: u32,
+    ws_t: u32,
+    ws_c: u32,
+    a_stride: u32,
+    a_col: u32,
+    m_stride: u32,
+    m_col: u32,
+    c_stride: u32,
+    c_col: u32,
+    col_tiles: u32,
+}
+
+#[repr(C)]
+#[derive(Copy, Clone, Pod, Zeroable)]
+struct TileWgradPush {
+    n: u32,
+    out_w: u32,
+    in_w: u32,
+    d_stride: u32,
+    d_col: u32,
+    a_stride: u32,
+    a_col: u32,
+    rows_per_split: u32,
+    splits: u32,
+    tiles_k: u32,
+}
+
+/// What `mlp_tile_layer` computes: a layer's forward (activation `act`) or its backward to the input (masked by the
+/// ReLU that produced the input, or not masked for the network's input).
+#[derive(Copy, Clone)]
+enum TileOp<'a> {
+    Forward(Activation),
+    Backward(Option<RowSlice<'a>>),
+}
+
+/// Workgroup threads of the shared-memory tile kernels.
+const TILE_THREADS: u64 = 256;
+
+/// Columns of a shared-memory tile for a result `cols` wide: 16, 32 or 64 (the tile has 4096 / that rows).
+fn tile_columns(cols: usize) -> usize {
+    cols.next_power_of_two().clamp(16, 64)
 }
 
 /// Buffers a training pass reads and writes besides parameters.
@@ -364,6 +434,11 @@ impl Mlp {
             let src = if layer == 0 { input } else { RowSlice { col: (layer - 1) * n * c.width, ..hidden } };
             let dst = if last { output } else { RowSlice { col: layer * n * c.width, ..hidden } };
             let act = if last { c.output_activation } else { Activation::Relu };
+            if self.tiling.shared_tiles {
+                let w_addr = base + 4 * offsets[layer] as u64;
+                self.tile_layer(rec, w_addr, &deps, TileOp::Forward(act), src, dst, n, (in_w, out_w))?;
+                continue;
+            }
             for b in blocks(out_w, self.tiling.mac_budget / in_w) {
                 let spec = [
                     (0, in_w as u32),
@@ -452,6 +527,11 @@ impl Mlp {
                 (0, None) => break,
                 _ => (hidden_deltas(m - 1), Some(acts(m - 1))),
             };
+            if self.tiling.shared_tiles {
+                let w_addr = base + 4 * offsets[m] as u64;
+                self.tile_layer(rec, w_addr, &deps, TileOp::Backward(mask), d_in, target, n, (d_w, in_w))?;
+                continue;
+            }
             let a = mask.unwrap_or(d_in);
             for b in blocks(in_w, self.tiling.mac_budget / d_w) {
                 let spec = [
@@ -487,30 +567,11 @@ impl Mlp {
             let out_w = if m == nh { out_cols } else { rows };
             let d = if m == nh { out_deltas } else { hidden_deltas(m) };
             let a = if m == 0 { input } else { acts(m - 1) };
-            let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
-            let spec = [
-                (0, jt as u32),
-                (1, kt as u32),
-                (2, vec_width(&[d.stride, d.col, jt])),
-                (3, vec_width(&[a.stride, a.col, kt])),
-                (4, vec_width(&[in_w, kt])),
-                (5, self.tiling.wgrad_rows as u32),
-            ];
-            let k = Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?;
-            let push = WgradPush {
-                n: n as u32,
-                out_w: out_w as u32,
-                in_w: in_w as u32,
-                d_stride: d.stride as u32,
-                d_col: d.col as u32,
-                a_stride: a.stride as u32,
-                a_col: a.col as u32,
-                rows_per_split: ROWS_PER_SPLIT as u32,
-                splits: splits as u32,
-            };
-            let bindings = [d.buf.binding(), a.buf.binding(), bufs.scratch.binding()];
-            let work = (splits * (out_w / jt) * (in_w / kt)) as u64;
-            rec.dispatch_named("mlp_wgrad", &k, &bindings, &[], &push, work)?;
+            if self.tiling.shared_tiles {
+                self.tile_wgrad(rec, d, a, n, (out_w, in_w), bufs.scratch)?;
+            } else {
+                self.register_wgrad(rec, d, a, n, (out_w, in_w), bufs.scratch)?;
+            }
             let push = ReducePush {
                 grads: grads.array.table_address()?,
                 shift: grads.array.chunk_shift(),
@@ -531,6 +592,126 @@ impl Mlp {
             )?;
         }
         Ok(())
+    }
+
+    /// One layer's forward or backward product through `mlp_tile_layer`: `shape` is (k_dim, cols), the summed and
+    /// the written widths.
+    #[allow(clippy::too_many_arguments)]
+    fn tile_layer(
+        &self,
+        rec: &mut Recorder,
+        w_addr: u64,
+        deps: &[ash::vk::Buffer],
+        op: TileOp,
+        a: RowSlice,
+        out: RowSlice,
+        n: usize,
+        shape: (usize, usize),
+    ) -> GpuResult<()> {
+        let (k_dim, cols) = shape;
+        let bn = tile_columns(cols);
+        let (epi, act, mask) = match op {
+            TileOp::Forward(act) => (0, act.code(), None),
+            TileOp::Backward(Some(m)) => (1, 0, Some(m)),
+            TileOp::Backward(None) => (2, 0, None),
+        };
+        let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_LAYER, &[(0, bn as u32), (1, epi), (2, act)])?;
+        let m = mask.unwrap_or(a);
+        // The layer's input width: forward, the matrix's columns (k_dim); backward, the written columns.
+        let in_w = if matches!(op, TileOp::Forward(_)) { k_dim } else { cols };
+        let (ws_t, ws_c) = if matches!(op, TileOp::Forward(_)) { (1, in_w) } else { (in_w, 1) };
+        let col_tiles = cols.div_ceil(bn);
+        let push = TileLayerPush {
+            w_addr,
+            n: n as u32,
+            k_dim: k_dim as u32,
+            cols: cols as u32,
+            ws_t: ws_t as u32,
+            ws_c: ws_c as u32,
+            a_stride: a.stride as u32,
+            a_col: a.col as u32,
+            m_stride: m.stride as u32,
+            m_col: m.col as u32,
+            c_stride: out.stride as u32,
+            c_col: out.col as u32,
+            col_tiles: col_tiles as u32,
+        };
+        let label = if matches!(op, TileOp::Forward(_)) { "mlp_fwd" } else { "mlp_bwd" };
+        let groups = n.div_ceil(4096 / bn) * col_tiles;
+        let bindings = [a.buf.binding(), m.buf.binding(), out.buf.binding()];
+        rec.dispatch_named(label, &k, &bindings, deps, &push, groups as u64 * TILE_THREADS)
+    }
+
+    /// One matrix's split-K weight-gradient partials through `mlp_tile_wgrad`; `shape` is (out_w, in_w).
+    fn tile_wgrad(
+        &self,
+        rec: &mut Recorder,
+        d: RowSlice,
+        a: RowSlice,
+        n: usize,
+        shape: (usize, usize),
+        scratch: &GpuBuffer<f32>,
+    ) -> GpuResult<()> {
+        let (out_w, in_w) = shape;
+        let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
+        let tj = tile_columns(out_w);
+        let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
+        let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_WGRAD, &[(0, tj as u32), (1, tk as u32)])?;
+        let tiles_k = in_w.div_ceil(tk);
+        let push = TileWgradPush {
+            n: n as u32,
+            out_w: out_w as u32,
+            in_w: in_w as u32,
+            d_stride: d.stride as u32,
+            d_col: d.col as u32,
+            a_stride: a.stride as u32,
+            a_col: a.col as u32,
+            rows_per_split: ROWS_PER_SPLIT as u32,
+            splits: splits as u32,
+            tiles_k: tiles_k as u32,
+        };
+        let groups = out_w.div_ceil(tj) * tiles_k * splits;
+        let bindings = [d.buf.binding(), a.buf.binding(), scratch.binding()];
+        rec.dispatch_named("mlp_wgrad", &k, &bindings, &[], &push, groups as u64 * TILE_THREADS)
+    }
+
+    /// One matrix's split-K weight-gradient partials through the register tiles of `mlp_wgrad`.
+    fn register_wgrad(
+        &self,
+        rec: &mut Recorder,
+        d: RowSlice,
+        a: RowSlice,
+        n: usize,
+        shape: (usize, usize),
+        scratch: &GpuBuffer<f32>,
+    ) -> GpuResult<()> {
+        let (out_w, in_w) = shape;
+        let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
+        let ctx = rec.context();
+        let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
+        let spec = [
+            (0, jt as u32),
+            (1, kt as u32),
+            (2, vec_width(&[d.stride, d.col, jt])),
+            (3, vec_width(&[a.stride, a.col, kt])),
+            (4, vec_width(&[in_w, kt])),
+            (5, self.tiling.wgrad_rows as u32),
+        ];
+        let k = Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?;
+        let push = WgradPush {
+            n: n as u32,
+            out_w: out_w as u32,
+            in_w: in_w as u32,
+            d_stride: d.stride as u32,
+            d_col: d.col as u32,
+            a_stride: a.stride as u32,
+            a_col: a.col as u32,
+            rows_per_split: ROWS_PER_SPLIT as u32,
+            splits: splits as u32,
+        };
+        let bindings = [d.buf.binding(), a.buf.binding(), scratch.binding()];
+        let work = (splits * (out_w / jt) * (in_w / kt)) as u64;
+        rec.dispatch_named("mlp_wgrad", &k, &bindings, &[], &push, work)
     }
 }
 
@@ -604,9 +785,10 @@ mod tests {
 
     #[test]
     fn tiling_overrides_name_the_bad_key() {
-        let t = MlpTiling { mac_budget: 4096, wgrad_tile: 32, wgrad_rows: 4 };
-        let o = t.with_overrides("mac_budget=8192, wgrad_rows=8").expect("valid");
-        assert_eq!(o, MlpTiling { mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 8 });
+        let t = MlpTiling { shared_tiles: false, mac_budget: 4096, wgrad_tile: 32, wgrad_rows: 4 };
+        let o = t.with_overrides("mac_budget=8192, wgrad_rows=8,shared=1").expect("valid");
+        assert_eq!(o, MlpTiling { shared_tiles: true, mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 8 });
+        assert!(t.with_overrides("shared=2").unwrap_err().contains("shared"));
         assert!(t.with_overrides("tile=3").unwrap_err().contains("unknown key \"tile\""));
         assert!(t.with_overrides("wgrad_tile=x").unwrap_err().contains("wgrad_tile"));
         assert!(t.with_overrides("wgrad_rows=0").unwrap_err().contains("wgrad_rows"));
