@@ -190,3 +190,32 @@ fn upload_and_download_through_staging_in_pieces() {
     assert_eq!(staging, 2 * g.buffer_footprint(64 << 20), "staging is ledgered");
     assert!(g.upload(&buf, n - 1, &[1, 2]).is_err(), "an upload past the end is refused");
 }
+
+#[test]
+fn batched_parts_move_several_ranges_in_one_submission() {
+    use msnerf::gpu::staging::Part;
+    let g = gpu();
+    let a = GpuBuffer::<u32>::from_slice(&g, "a", MemoryCategory::Other, &[7; 10]).expect("a");
+    let b = GpuBuffer::<f32>::from_slice(&g, "b", MemoryCategory::Other, &[0.5; 5]).expect("b");
+    // Different element types, an odd byte count (3 floats), an empty part, offsets inside the buffers.
+    let parts = [
+        Part::upload(&a, 2, &[1u32, 2, 3, 4, 5]).expect("part a"),
+        Part::upload(&b, 1, &[-1.0f32, -2.0, -3.0]).expect("part b"),
+        Part::upload(&a, 0, &[] as &[u32]).expect("empty part"),
+    ];
+    g.upload_parts(&parts).expect("batched upload");
+    assert_eq!(g.download(&a).expect("a"), [7, 7, 1, 2, 3, 4, 5, 7, 7, 7]);
+    assert_eq!(g.download(&b).expect("b"), [0.5, -1.0, -2.0, -3.0, 0.5]);
+    let got = g
+        .download_parts(&[
+            Part::download(&b, 1, 4).expect("b range"),
+            Part::download(&a, 6, 9).expect("a range"),
+            Part::download(&a, 3, 3).expect("empty range"),
+        ])
+        .expect("batched readback");
+    assert_eq!(bytemuck::pod_collect_to_vec::<u8, f32>(&got[0]), [-1.0, -2.0, -3.0]);
+    assert_eq!(bytemuck::pod_collect_to_vec::<u8, u32>(&got[1]), [5, 7, 7]);
+    assert!(got[2].is_empty());
+    assert!(Part::upload(&b, 4, &[1.0f32, 2.0]).is_err(), "a part past the end is refused");
+    assert!(Part::download(&a, 5, 11).is_err(), "a range past the end is refused");
+}

@@ -146,6 +146,13 @@ fn wide_network_with_128_bands_and_other_activations() {
 }
 
 #[test]
+fn weight_gradients_over_many_splits() {
+    // 70001 rows: 274 splits of 256 rows for the register tiles; the shared-memory tiles cap the splits at 256 and
+    // take 288 rows per split (244 splits, the last one short).
+    check_config(&gpu(), &cfg(16, 3, 16, 1, Activation::None), 70_001, 12);
+}
+
+#[test]
 fn twin_backward_matches_finite_differences() {
     for (c, seed) in [(cfg(20, 5, 16, 2, Activation::Sigmoid), 7u64), (cfg(9, 2, 32, 1, Activation::Exponential), 8)] {
         let w: Vec<f64> = weights(&c, seed).iter().map(|&v| v as f64).collect();

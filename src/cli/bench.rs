@@ -22,6 +22,9 @@ pub enum BenchWhat {
         /// Rays per batch (overrides the profile; keeps lavapipe runs short)
         #[arg(long)]
         rays_per_batch: Option<usize>,
+        /// Rays per GPU pass within a batch (overrides the profile; at most the batch)
+        #[arg(long)]
+        rays_per_chunk: Option<usize>,
         #[arg(long, default_value_t = 3)]
         steps: usize,
         #[arg(long)]
@@ -50,13 +53,19 @@ pub enum BenchWhat {
 pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
     let ctx = Context::new(&cli.context_desc())?;
     match args.what {
-        BenchWhat::Train { ref models, ref bands, rays_per_batch, steps, json } => {
+        BenchWhat::Train { ref models, ref bands, rays_per_batch, rays_per_chunk, steps, json } => {
             let mut all = Vec::new();
             for m in models {
                 let mut cfg = crate::nerf::config::ModelConfig::resolve(m).map_err(anyhow::Error::msg)?;
                 if let Some(r) = rays_per_batch {
                     cfg.trainer.rays_per_batch = r;
                     cfg.trainer.rays_per_chunk = cfg.trainer.rays_per_chunk.min(r);
+                }
+                if let Some(c) = rays_per_chunk {
+                    if c == 0 {
+                        anyhow::bail!("--rays-per-chunk must be > 0");
+                    }
+                    cfg.trainer.rays_per_chunk = c.min(cfg.trainer.rays_per_batch);
                 }
                 for &b in bands {
                     let r = crate::bench::train::run(&ctx, &cfg, b, steps, 1).map_err(anyhow::Error::msg)?;

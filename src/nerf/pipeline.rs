@@ -16,6 +16,7 @@ use super::model::{Model, POSE_SLOT};
 use super::pose::{LevelGrad, PoseKernels, PoseSlot};
 use super::rays::GpuCamera;
 use super::schedule::{anneal_at, ProposalSchedule};
+use crate::gpu::staging::Part;
 use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, MemoryCategory, Recorder, TimingReport};
 use crate::nn::{ParamSlice, RowSlice};
 
@@ -416,34 +417,56 @@ impl Pipeline {
         pk.reduce(rec, slot, (&pb.ray_grads, &pb.raw_dirs, &b.cam_idx), r)
     }
 
-    /// Pose refinement: the regulariser's loss (its gradient is added to the pose slot); 0 without refinement.
-    fn pose_regularizer(&self, b: &ChunkBuffers<GpuAlloc>, timing: &mut TimingReport) -> GpuResult<f64> {
+    /// Pose refinement: records the regulariser (its gradient is added to the pose slot, its per-camera losses go
+    /// to `reg_losses`); returns how many losses to read back (0 without refinement).
+    fn record_pose_regularizer(&self, rec: &mut Recorder, b: &ChunkBuffers<GpuAlloc>) -> GpuResult<usize> {
         let (Some(pk), Some(slot), Some(pb)) = (self.pose_kernels.as_ref(), self.pose_slot(), &b.pose) else {
-            return Ok(0.0);
+            return Ok(0);
         };
         let co = &self.model.cfg.camera_optimizer;
         let n = self.model.n_cameras;
-        let mut rec = self.ctx.recorder("pose regulariser")?;
-        pk.regularizer(
-            &mut rec,
-            slot,
-            (n, self.n_train_cameras),
-            (co.trans_l2_penalty, co.rot_l2_penalty),
-            &pb.reg_losses,
-        )?;
-        timing.accumulate(&rec.submit_and_wait()?);
-        Ok(self.ctx.download_range(&pb.reg_losses, 0, n)?.iter().map(|&v| v as f64).sum())
+        pk.regularizer(rec, slot, (n, self.n_train_cameras), (co.trans_l2_penalty, co.rot_l2_penalty), &pb.reg_losses)?;
+        Ok(n)
     }
 
-    fn upload_rays(&self, b: &ChunkBuffers<GpuAlloc>, pixels: &[u32], targets: Option<&[f32]>) -> GpuResult<()> {
-        let bands = self.model.bands;
-        self.ctx.upload(&b.pixels, 0, pixels)?;
-        let cams: Vec<u32> = pixels.chunks(3).map(|p| p[0]).collect();
-        self.ctx.upload(&b.cam_idx, 0, &cams)?;
-        match targets {
-            Some(t) => self.ctx.upload(&b.targets, 0, t),
-            None => self.ctx.upload(&b.targets, 0, &vec![0.0f32; cams.len() * (bands + 1)]),
+    /// The end of a step's gradient work, in one submission and one readback: the pose regulariser, then the
+    /// NaN/Inf check of every gradient chunk (`check_finite`). Returns the regulariser's loss (0 without pose
+    /// refinement) and whether every gradient is finite.
+    fn finish_gradients(&self, b: &ChunkBuffers<GpuAlloc>, timing: &mut TimingReport) -> GpuResult<(f64, bool)> {
+        let mut rec = self.ctx.recorder("regulariser and gradient check")?;
+        let n_reg = self.record_pose_regularizer(&mut rec, b)?;
+        crate::ops::fill(&mut rec, &self.guard_flag, 0u32, 0, 1)?;
+        for c in self.model.store.grads().chunks() {
+            crate::ops::record_check_finite(&mut rec, c, c.len(), &self.guard_flag)?;
         }
+        timing.accumulate(&rec.submit_and_wait()?);
+        let mut parts = vec![Part::download(&self.guard_flag, 0, 1)?];
+        if let Some(pb) = b.pose.as_ref().filter(|_| n_reg > 0) {
+            parts.push(Part::download(&pb.reg_losses, 0, n_reg)?);
+        }
+        let got = self.ctx.download_parts(&parts)?;
+        let flag: Vec<u32> = bytemuck::pod_collect_to_vec(&got[0]);
+        let reg: f64 =
+            got.get(1).map_or(0.0, |v| bytemuck::pod_collect_to_vec::<u8, f32>(v).iter().map(|&x| x as f64).sum());
+        Ok((reg, flag[0] == 0))
+    }
+
+    /// The chunk's pixels, cameras and targets (zeros when rendering), in one submission.
+    fn upload_rays(&self, b: &ChunkBuffers<GpuAlloc>, pixels: &[u32], targets: Option<&[f32]>) -> GpuResult<()> {
+        let cams: Vec<u32> = pixels.chunks(3).map(|p| p[0]).collect();
+        let zeros;
+        let targets = match targets {
+            Some(t) => t,
+            None => {
+                zeros = vec![0.0f32; cams.len() * (self.model.bands + 1)];
+                &zeros
+            }
+        };
+        self.ctx.upload_parts(&[
+            Part::upload(&b.pixels, 0, pixels)?,
+            Part::upload(&b.cam_idx, 0, &cams)?,
+            Part::upload(&b.targets, 0, targets)?,
+        ])
     }
 
     /// Runs every kernel of a training step (with and without a proposal update, the gradient check and the pose
@@ -467,8 +490,7 @@ impl Pipeline {
                 self.record_backward(&mut rec, &b, (1, 0), (0.0, 0.0, 0.0), update_props)?;
                 rec.submit_and_wait()?;
             }
-            self.pose_regularizer(&b, &mut timing)?;
-            self.grads_finite(&mut timing)?;
+            self.finish_gradients(&b, &mut timing)?;
             crate::nn::adam::kernels(&self.ctx)?;
             Ok(())
         })();
@@ -490,9 +512,11 @@ impl Pipeline {
         );
         let update_props = self.schedule.decide(&cfg.sampling, self.step) && !self.model.proposals.is_empty();
         let mut stats = StepStats { step: self.step, proposals_updated: update_props, ..Default::default() };
-        let mut rec = self.ctx.recorder("zero grads")?;
-        self.model.store.zero_grads(&mut rec)?;
-        stats.timing.accumulate(&rec.submit_and_wait()?);
+        if n_rays == 0 {
+            let mut rec = self.ctx.recorder("zero grads")?;
+            self.model.store.zero_grads(&mut rec)?;
+            stats.timing.accumulate(&rec.submit_and_wait()?);
+        }
         let b = self.train_bufs.take().expect("ensured above");
         let chunk = b.rays;
         let mut sq = 0.0f64;
@@ -506,6 +530,9 @@ impl Pipeline {
                     Some(&batch.targets[c0 * (bands + 1)..(c0 + r) * (bands + 1)]),
                 )?;
                 let mut rec = self.ctx.recorder("train chunk")?;
+                if c0 == 0 {
+                    self.model.store.zero_grads(&mut rec)?;
+                }
                 self.record_forward(&mut rec, &b, (r, c0), true, update_props)?;
                 self.record_backward(&mut rec, &b, (r, c0), norms, update_props)?;
                 rec.submit_and_wait()
@@ -517,22 +544,29 @@ impl Pipeline {
                     break;
                 }
             }
-            let out = self.ctx.download_range(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?;
+            // The chunk's per-ray outputs and, on proposal-update steps, the interlevel losses: one readback.
+            let mut parts = vec![Part::download(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?];
+            if update_props {
+                for pl in &b.proposals {
+                    parts.push(Part::download(need(&pl.losses), 0, r)?);
+                }
+            }
+            let got = self.ctx.download_parts(&parts)?;
+            let out: Vec<f32> = bytemuck::pod_collect_to_vec(&got[0]);
             for row in out.chunks(RAY_OUT_FIXED + bands) {
                 stats.loss_rgb += row[0] as f64;
                 stats.loss_distortion += row[1] as f64;
                 sq += row[5] as f64;
             }
-            if update_props {
-                for pl in &b.proposals {
-                    let l = self.ctx.download_range(need(&pl.losses), 0, r)?;
-                    stats.loss_interlevel += l.iter().map(|&v| v as f64).sum::<f64>();
-                }
+            for l in &got[1..] {
+                stats.loss_interlevel +=
+                    bytemuck::pod_collect_to_vec::<u8, f32>(l).iter().map(|&v| v as f64).sum::<f64>();
             }
         }
+        let mut grads_ok = false;
         if result.is_ok() {
-            match self.pose_regularizer(&b, &mut stats.timing) {
-                Ok(l) => stats.loss_pose = l,
+            match self.finish_gradients(&b, &mut stats.timing) {
+                Ok((l, ok)) => (stats.loss_pose, grads_ok) = (l, ok),
                 Err(e) => result = Err(e),
             }
         }
@@ -542,7 +576,7 @@ impl Pipeline {
             && stats.loss_distortion.is_finite()
             && stats.loss_interlevel.is_finite()
             && stats.loss_pose.is_finite();
-        let grads_finite = finite && self.grads_finite(&mut stats.timing)?;
+        let grads_finite = finite && grads_ok;
         if result.is_ok() && !grads_finite {
             stats.skipped = true;
             stats.poisoned = Some(self.first_poisoned(&b)?);
@@ -561,17 +595,6 @@ impl Pipeline {
         }
         self.step += 1;
         Ok(stats)
-    }
-
-    /// No gradient chunk holds a NaN or Inf (`check_finite` over each, one submission, one readback).
-    fn grads_finite(&self, timing: &mut TimingReport) -> GpuResult<bool> {
-        let mut rec = self.ctx.recorder("gradient check")?;
-        crate::ops::fill(&mut rec, &self.guard_flag, 0u32, 0, 1)?;
-        for c in self.model.store.grads().chunks() {
-            crate::ops::record_check_finite(&mut rec, c, c.len(), &self.guard_flag)?;
-        }
-        timing.accumulate(&rec.submit_and_wait()?);
-        Ok(self.ctx.download(&self.guard_flag)?[0] == 0)
     }
 
     /// Name of the first buffer, in pipeline order, that holds a NaN or Inf.
@@ -640,14 +663,18 @@ impl Pipeline {
                 };
                 self.kernels.composite(&mut rec, rb, geo, b.nerf.n, &p, &cb)?;
                 out.timing.accumulate(&rec.submit_and_wait()?);
-                let ro = self.ctx.download_range(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?;
+                let got = self.ctx.download_parts(&[
+                    Part::download(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?,
+                    Part::download(&b.norms, 0, r)?,
+                ])?;
+                let ro: Vec<f32> = bytemuck::pod_collect_to_vec(&got[0]);
                 for row in ro.chunks(RAY_OUT_FIXED + bands) {
                     out.accumulation.push(row[2]);
                     out.median_depth.push(row[3]);
                     out.expected_depth.push(row[4]);
                     out.colour.extend_from_slice(&row[RAY_OUT_FIXED..]);
                 }
-                out.direction_norm.extend(self.ctx.download_range(&b.norms, 0, r)?);
+                out.direction_norm.extend(bytemuck::pod_collect_to_vec::<u8, f32>(&got[1]));
             }
             GpuResult::Ok(())
         })();

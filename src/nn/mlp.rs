@@ -137,6 +137,23 @@ impl MlpConfig {
 /// Rows per split of the weight-gradient reduction.
 pub const ROWS_PER_SPLIT: usize = 256;
 
+/// Most splits the shared-memory weight gradient uses: past it, splits grow longer instead of more numerous. A GPU
+/// runs 256 splits of a 128 x 128 matrix as 1024 workgroups, enough to fill it, and `mlp_wgrad_reduce` then sums
+/// 256 partials per weight rather than one per 256 rows (on an H100, the reduction was the slowest kernel of a
+/// multispectral-nerf step with 4096-ray chunks: 11 of 63 ms).
+pub const MAX_TILE_SPLITS: usize = 256;
+
+/// Rows per weight-gradient split for `n` rows: [`ROWS_PER_SPLIT`], or for the shared-memory tiles enough to keep
+/// the splits within [`MAX_TILE_SPLITS`] (a multiple of 16, the rows the kernel stages at a time). Never more
+/// splits than `wgrad_scratch_floats` sizes for.
+fn rows_per_split(n: usize, shared_tiles: bool) -> usize {
+    if shared_tiles {
+        n.div_ceil(MAX_TILE_SPLITS).next_multiple_of(16).max(ROWS_PER_SPLIT)
+    } else {
+        ROWS_PER_SPLIT
+    }
+}
+
 /// Inference runs the layers over blocks of this many rows, so its hidden-layer scratch stays bounded.
 pub const INFER_BLOCK_ROWS: usize = 1 << 16;
 
@@ -562,15 +579,16 @@ impl Mlp {
 
         // Weight gradients, matrix by matrix: delta of its output x activation of its input. The last matrix's rows
         // past `out_cols` are padding, their gradient stays as it is (zero).
-        let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
+        let split_rows = rows_per_split(n, self.tiling.shared_tiles);
+        let splits = n.div_ceil(split_rows).max(1);
         for (m, &(rows, in_w)) in c.matrices().iter().enumerate() {
             let out_w = if m == nh { out_cols } else { rows };
             let d = if m == nh { out_deltas } else { hidden_deltas(m) };
             let a = if m == 0 { input } else { acts(m - 1) };
             if self.tiling.shared_tiles {
-                self.tile_wgrad(rec, d, a, n, (out_w, in_w), bufs.scratch)?;
+                self.tile_wgrad(rec, (d, a), (n, split_rows, splits), (out_w, in_w), bufs.scratch)?;
             } else {
-                self.register_wgrad(rec, d, a, n, (out_w, in_w), bufs.scratch)?;
+                self.register_wgrad(rec, (d, a), (n, split_rows, splits), (out_w, in_w), bufs.scratch)?;
             }
             let push = ReducePush {
                 grads: grads.array.table_address()?,
@@ -642,18 +660,16 @@ impl Mlp {
         rec.dispatch_named(label, &k, &bindings, deps, &push, groups as u64 * TILE_THREADS)
     }
 
-    /// One matrix's split-K weight-gradient partials through `mlp_tile_wgrad`; `shape` is (out_w, in_w).
+    /// One matrix's split-K weight-gradient partials through `mlp_tile_wgrad`: `n` rows in `splits` splits of
+    /// `split_rows`, for an `out_w` x `in_w` matrix.
     fn tile_wgrad(
         &self,
         rec: &mut Recorder,
-        d: RowSlice,
-        a: RowSlice,
-        n: usize,
-        shape: (usize, usize),
+        (d, a): (RowSlice, RowSlice),
+        (n, split_rows, splits): (usize, usize, usize),
+        (out_w, in_w): (usize, usize),
         scratch: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
-        let (out_w, in_w) = shape;
-        let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
         let tj = tile_columns(out_w);
         let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
         let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_WGRAD, &[(0, tj as u32), (1, tk as u32)])?;
@@ -666,7 +682,7 @@ impl Mlp {
             d_col: d.col as u32,
             a_stride: a.stride as u32,
             a_col: a.col as u32,
-            rows_per_split: ROWS_PER_SPLIT as u32,
+            rows_per_split: split_rows as u32,
             splits: splits as u32,
             tiles_k: tiles_k as u32,
         };
@@ -679,14 +695,11 @@ impl Mlp {
     fn register_wgrad(
         &self,
         rec: &mut Recorder,
-        d: RowSlice,
-        a: RowSlice,
-        n: usize,
-        shape: (usize, usize),
+        (d, a): (RowSlice, RowSlice),
+        (n, split_rows, splits): (usize, usize, usize),
+        (out_w, in_w): (usize, usize),
         scratch: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
-        let (out_w, in_w) = shape;
-        let splits = n.div_ceil(ROWS_PER_SPLIT).max(1);
         let ctx = rec.context();
         let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
         let spec = [
@@ -706,7 +719,7 @@ impl Mlp {
             d_col: d.col as u32,
             a_stride: a.stride as u32,
             a_col: a.col as u32,
-            rows_per_split: ROWS_PER_SPLIT as u32,
+            rows_per_split: split_rows as u32,
             splits: splits as u32,
         };
         let bindings = [d.buf.binding(), a.buf.binding(), scratch.binding()];
@@ -793,6 +806,18 @@ mod tests {
         assert!(t.with_overrides("wgrad_tile=x").unwrap_err().contains("wgrad_tile"));
         assert!(t.with_overrides("wgrad_rows=0").unwrap_err().contains("wgrad_rows"));
         assert!(t.with_overrides("mac_budget").unwrap_err().contains("key=value"));
+    }
+
+    #[test]
+    fn shared_tile_splits_stay_within_the_cap_and_the_scratch() {
+        use super::{rows_per_split, MAX_TILE_SPLITS, ROWS_PER_SPLIT};
+        for n in [1, 255, 256, 1003, 65_536, 65_537, 70_001, 1 << 20, 3_000_017] {
+            let r = rows_per_split(n, true);
+            assert!(r % 16 == 0 && r >= ROWS_PER_SPLIT, "{n}: {r}");
+            assert!(n.div_ceil(r) <= MAX_TILE_SPLITS, "{n}: {} splits", n.div_ceil(r));
+            assert!(n.div_ceil(r) <= n.div_ceil(ROWS_PER_SPLIT).max(1), "{n}: more splits than the scratch holds");
+            assert_eq!(rows_per_split(n, false), ROWS_PER_SPLIT);
+        }
     }
 
     #[test]
