@@ -4,7 +4,7 @@
 // mlp_wgrad_reduce then sums the splits in a fixed order, so the result is deterministic (no atomics).
 // Bindings: 0 delta rows (d_stride, from d_col), 1 act_in rows (a_stride, from a_col), 2 partial
 //           (float[splits][out_w][in_w], written).
-// Push:     n, out_w, in_w, d_stride, d_col, a_stride, a_col, rows_per_split, splits.
+// Push:     n, out_w, in_w, d_stride, d_col, a_stride, a_col, rows_per_split, splits, tiles_k (in_w / KT).
 // Spec:     0 JT, 1 KT (tile; they divide out_w and in_w), 2 VEC_D, 3 VEC_A, 4 VEC_P (access widths, floats),
 //           5 ROWS (rows per loop iteration).
 // Threads:  one invocation per (tile, split), consecutive invocations on consecutive splits of one tile, 64 per
@@ -25,11 +25,12 @@ ROWS_DECLARE(1, act, readonly)
 ROWS_DECLARE(2, partial, writeonly)
 layout(push_constant) uniform Push {
     uint n; uint out_w; uint in_w; uint d_stride; uint d_col; uint a_stride; uint a_col; uint rows_per_split; uint splits;
+    uint tiles_k;
 } pc;
 
 void main() {
     uint inv = global_index();
-    uint tiles_k = pc.in_w / KT;
+    uint tiles_k = pc.tiles_k;
     uint tiles = (pc.out_w / JT) * tiles_k;
     if (inv >= tiles * pc.splits) return;
     uint tile = inv / pc.splits;

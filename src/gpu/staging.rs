@@ -139,11 +139,7 @@ impl Context {
         }
         let mut guard = lock(&self.shared.staging);
         let stage = self.staging(&mut guard.upload, total.max(1), true)?;
-        let slice = stage
-            .allocation
-            .as_mut()
-            .and_then(|a| a.mapped_slice_mut())
-            .ok_or(GpuError::MissingCapability("host-mappable staging memory"))?;
+        let slice = mapped_mut(stage)?;
         for (p, &o) in parts.iter().zip(&at) {
             slice[o as usize..(o + p.bytes) as usize].copy_from_slice(p.data);
         }
@@ -187,11 +183,7 @@ impl Context {
             }
             transfer_barriers(d, cmd, false);
         })?;
-        let slice = stage
-            .allocation
-            .as_ref()
-            .and_then(|a| a.mapped_slice())
-            .ok_or(GpuError::MissingCapability("host-mappable staging memory"))?;
+        let slice = mapped(stage)?;
         Ok(parts.iter().zip(&at).map(|(p, &o)| slice[o as usize..(o + p.bytes) as usize].to_vec()).collect())
     }
 
@@ -201,11 +193,7 @@ impl Context {
         while done < p.bytes {
             let n = (p.bytes - done).min(MAX_STAGING_BYTES);
             let stage = self.staging(&mut guard.upload, n, true)?;
-            let slice = stage
-                .allocation
-                .as_mut()
-                .and_then(|a| a.mapped_slice_mut())
-                .ok_or(GpuError::MissingCapability("host-mappable staging memory"))?;
+            let slice = mapped_mut(stage)?;
             slice[..n as usize].copy_from_slice(&p.data[done as usize..(done + n) as usize]);
             let (src, dst) = (stage.raw, p.raw);
             self.one_shot(|d, cmd| unsafe {
@@ -232,16 +220,29 @@ impl Context {
                 d.cmd_copy_buffer(cmd, src, dst, &[region]);
                 transfer_barriers(d, cmd, false);
             })?;
-            let slice = stage
-                .allocation
-                .as_ref()
-                .and_then(|a| a.mapped_slice())
-                .ok_or(GpuError::MissingCapability("host-mappable staging memory"))?;
+            let slice = mapped(stage)?;
             out[done as usize..(done + n) as usize].copy_from_slice(&slice[..n as usize]);
             done += n;
         }
         Ok(out)
     }
+}
+
+/// The staging buffer's bytes as the host sees them.
+fn mapped(stage: &RawBuffer) -> GpuResult<&[u8]> {
+    stage
+        .allocation
+        .as_ref()
+        .and_then(|a| a.mapped_slice())
+        .ok_or(GpuError::MissingCapability("host-mappable staging memory"))
+}
+
+fn mapped_mut(stage: &mut RawBuffer) -> GpuResult<&mut [u8]> {
+    stage
+        .allocation
+        .as_mut()
+        .and_then(|a| a.mapped_slice_mut())
+        .ok_or(GpuError::MissingCapability("host-mappable staging memory"))
 }
 
 /// Readback barriers: before the copy (earlier device writes visible to it) or after it (its writes visible to

@@ -287,6 +287,31 @@ struct WgradPush {
     a_col: u32,
     rows_per_split: u32,
     splits: u32,
+    tiles_k: u32,
+}
+
+impl WgradPush {
+    /// Push constants of `mlp_wgrad` and `mlp_tile_wgrad` (the same block): deltas `d` x inputs `a` over `n` rows
+    /// in `splits` splits of `split_rows`, an `out_w` x `in_w` matrix in tiles with `tiles_k` along its rows.
+    fn new(
+        (d, a): (RowSlice, RowSlice),
+        (n, split_rows, splits): (usize, usize, usize),
+        (out_w, in_w): (usize, usize),
+        tiles_k: usize,
+    ) -> Self {
+        Self {
+            n: n as u32,
+            out_w: out_w as u32,
+            in_w: in_w as u32,
+            d_stride: d.stride as u32,
+            d_col: d.col as u32,
+            a_stride: a.stride as u32,
+            a_col: a.col as u32,
+            rows_per_split: split_rows as u32,
+            splits: splits as u32,
+            tiles_k: tiles_k as u32,
+        }
+    }
 }
 
 #[repr(C)]
@@ -317,21 +342,6 @@ struct TileLayerPush {
     c_stride: u32,
     c_col: u32,
     col_tiles: u32,
-}
-
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct TileWgradPush {
-    n: u32,
-    out_w: u32,
-    in_w: u32,
-    d_stride: u32,
-    d_col: u32,
-    a_stride: u32,
-    a_col: u32,
-    rows_per_split: u32,
-    splits: u32,
-    tiles_k: u32,
 }
 
 /// What `mlp_tile_layer` computes: a layer's forward (activation `act`) or its backward to the input (masked by the
@@ -585,11 +595,7 @@ impl Mlp {
             let out_w = if m == nh { out_cols } else { rows };
             let d = if m == nh { out_deltas } else { hidden_deltas(m) };
             let a = if m == 0 { input } else { acts(m - 1) };
-            if self.tiling.shared_tiles {
-                self.tile_wgrad(rec, (d, a), (n, split_rows, splits), (out_w, in_w), bufs.scratch)?;
-            } else {
-                self.register_wgrad(rec, (d, a), (n, split_rows, splits), (out_w, in_w), bufs.scratch)?;
-            }
+            self.wgrad_partials(rec, (d, a), (n, split_rows, splits), (out_w, in_w), bufs.scratch)?;
             let push = ReducePush {
                 grads: grads.array.table_address()?,
                 shift: grads.array.chunk_shift(),
@@ -660,39 +666,10 @@ impl Mlp {
         rec.dispatch_named(label, &k, &bindings, deps, &push, groups as u64 * TILE_THREADS)
     }
 
-    /// One matrix's split-K weight-gradient partials through `mlp_tile_wgrad`: `n` rows in `splits` splits of
-    /// `split_rows`, for an `out_w` x `in_w` matrix.
-    fn tile_wgrad(
-        &self,
-        rec: &mut Recorder,
-        (d, a): (RowSlice, RowSlice),
-        (n, split_rows, splits): (usize, usize, usize),
-        (out_w, in_w): (usize, usize),
-        scratch: &GpuBuffer<f32>,
-    ) -> GpuResult<()> {
-        let tj = tile_columns(out_w);
-        let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
-        let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_WGRAD, &[(0, tj as u32), (1, tk as u32)])?;
-        let tiles_k = in_w.div_ceil(tk);
-        let push = TileWgradPush {
-            n: n as u32,
-            out_w: out_w as u32,
-            in_w: in_w as u32,
-            d_stride: d.stride as u32,
-            d_col: d.col as u32,
-            a_stride: a.stride as u32,
-            a_col: a.col as u32,
-            rows_per_split: split_rows as u32,
-            splits: splits as u32,
-            tiles_k: tiles_k as u32,
-        };
-        let groups = out_w.div_ceil(tj) * tiles_k * splits;
-        let bindings = [d.buf.binding(), a.buf.binding(), scratch.binding()];
-        rec.dispatch_named("mlp_wgrad", &k, &bindings, &[], &push, groups as u64 * TILE_THREADS)
-    }
-
-    /// One matrix's split-K weight-gradient partials through the register tiles of `mlp_wgrad`.
-    fn register_wgrad(
+    /// One matrix's split-K weight-gradient partials into `scratch`: `n` rows in `splits` splits of `split_rows`,
+    /// for an `out_w` x `in_w` matrix, through `mlp_tile_wgrad` (shared-memory tiles: 256 threads per tile and
+    /// split) or `mlp_wgrad` (register tiles: one invocation per tile and split).
+    fn wgrad_partials(
         &self,
         rec: &mut Recorder,
         (d, a): (RowSlice, RowSlice),
@@ -701,29 +678,26 @@ impl Mlp {
         scratch: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
         let ctx = rec.context();
-        let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
-        let spec = [
-            (0, jt as u32),
-            (1, kt as u32),
-            (2, vec_width(&[d.stride, d.col, jt])),
-            (3, vec_width(&[a.stride, a.col, kt])),
-            (4, vec_width(&[in_w, kt])),
-            (5, self.tiling.wgrad_rows as u32),
-        ];
-        let k = Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?;
-        let push = WgradPush {
-            n: n as u32,
-            out_w: out_w as u32,
-            in_w: in_w as u32,
-            d_stride: d.stride as u32,
-            d_col: d.col as u32,
-            a_stride: a.stride as u32,
-            a_col: a.col as u32,
-            rows_per_split: split_rows as u32,
-            splits: splits as u32,
+        let (k, tiles_j, tiles_k, threads) = if self.tiling.shared_tiles {
+            let tj = tile_columns(out_w);
+            let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
+            let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &[(0, tj as u32), (1, tk as u32)])?;
+            (k, out_w.div_ceil(tj), in_w.div_ceil(tk), TILE_THREADS)
+        } else {
+            let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
+            let spec = [
+                (0, jt as u32),
+                (1, kt as u32),
+                (2, vec_width(&[d.stride, d.col, jt])),
+                (3, vec_width(&[a.stride, a.col, kt])),
+                (4, vec_width(&[in_w, kt])),
+                (5, self.tiling.wgrad_rows as u32),
+            ];
+            (Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?, out_w / jt, in_w / kt, 1)
         };
+        let push = WgradPush::new((d, a), (n, split_rows, splits), (out_w, in_w), tiles_k);
+        let work = (tiles_j * tiles_k * splits) as u64 * threads;
         let bindings = [d.buf.binding(), a.buf.binding(), scratch.binding()];
-        let work = (splits * (out_w / jt) * (in_w / kt)) as u64;
         rec.dispatch_named("mlp_wgrad", &k, &bindings, &[], &push, work)
     }
 }

@@ -1,0 +1,80 @@
+//! `msnerf bench kernels` and `msnerf bench train` through the CLI: the JSON names the device and carries every
+//! figure the docs quote (wall-clock and timestamp throughput, the CPU sgemm comparison on a CPU device, the batch
+//! and chunk sizes), and bad flags are refused with the flag's name.
+
+use std::process::Command;
+
+fn msnerf() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_msnerf"))
+}
+
+fn json(args: &[&str]) -> serde_json::Value {
+    let out = msnerf().args(args).output().expect("run msnerf");
+    assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
+}
+
+#[test]
+fn bench_kernels_reports_the_proposal_grid_and_mlp() {
+    let v = json(&[
+        "bench",
+        "kernels",
+        "--filter",
+        "nerfacto proposal",
+        "--points",
+        "4096",
+        "--rows",
+        "2048",
+        "--repeats",
+        "1",
+        "--json",
+    ]);
+    assert!(!v["device"].as_str().unwrap_or("").is_empty(), "device named: {v}");
+    let hash = v["hash"].as_array().expect("hash");
+    assert_eq!(hash.len(), 1, "the filter keeps the proposal grid only: {v}");
+    assert!(hash[0]["forward_mpts_per_s"].as_f64().unwrap() > 0.0);
+    let mlp = v["mlp"].as_array().expect("mlp");
+    assert_eq!(mlp.len(), 1, "{v}");
+    let m = &mlp[0];
+    assert_eq!(m["shape"], "16-16-1");
+    assert_eq!(m["rows"], 2048);
+    for key in ["forward_gflops", "train_gflops", "train_kernel_gflops"] {
+        assert!(m[key].as_f64().is_some_and(|g| g > 0.0), "{key}: {m}");
+    }
+    let kernels: Vec<&str> =
+        m["train_kernels"].as_array().unwrap().iter().map(|k| k["name"].as_str().unwrap()).collect();
+    for k in ["mlp_fwd", "mlp_bwd", "mlp_wgrad", "mlp_wgrad_reduce", "mlp_out_delta"] {
+        assert!(kernels.contains(&k), "{k} timed: {kernels:?}");
+    }
+    // The device kind decides the kernel family and whether the CPU sgemm comparison is there.
+    let is_cpu = m["cpu_sgemm_gflops"].as_f64().is_some();
+    assert_eq!(m["shared_tiles"].as_bool(), Some(!is_cpu), "{m}");
+}
+
+#[test]
+fn bench_train_takes_the_batch_and_chunk_sizes() {
+    let v = json(&[
+        "bench",
+        "train",
+        "--models",
+        "tiny",
+        "--bands",
+        "3",
+        "--rays-per-batch",
+        "48",
+        "--rays-per-chunk",
+        "32",
+        "--steps",
+        "1",
+        "--json",
+    ]);
+    let rows = v.as_array().expect("one row per model and band count");
+    assert_eq!(rows.len(), 1);
+    let r = &rows[0];
+    assert_eq!((r["model"].as_str(), r["bands"].as_u64()), (Some("tiny"), Some(3)));
+    assert_eq!((r["rays_per_batch"].as_u64(), r["rays_per_chunk"].as_u64()), (Some(48), Some(32)));
+    assert!(r["ms_per_step"].as_f64().is_some_and(|t| t > 0.0) && r["gpu_ms_per_step"].as_f64().is_some());
+    let out = msnerf().args(["bench", "train", "--models", "tiny", "--rays-per-chunk", "0"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--rays-per-chunk"), "the error names the flag");
+}
