@@ -1,10 +1,10 @@
-//! Vulkan instance: loads libvulkan at run time, enables `VK_LAYER_KHRONOS_validation` when asked, and records
+//! Vulkan instance: loads libvulkan at run time (once per process), enables `VK_LAYER_KHRONOS_validation` when asked, and records
 //! every validation message (warning or error) so tests can fail on any of them.
 
 use super::error::{GpuError, GpuResult, VkCheck};
 use ash::vk;
 use std::ffi::{c_void, CStr};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 pub const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
 
@@ -53,9 +53,14 @@ pub fn validation_available(entry: &ash::Entry) -> bool {
         .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER))
 }
 
+/// The Vulkan loader, loaded once per process and never unloaded. Loading it per context meant that the last
+/// context to go (tests create and drop them on several threads at once) unloaded the loader, and with it the
+/// driver and layer libraries, possibly while a driver thread still ran their code: an unexplained segfault in one
+/// H100 run of the suite (docs/benchmarks.md) fits that pattern. One load also makes each context cheaper.
 pub fn load_entry() -> GpuResult<ash::Entry> {
+    static ENTRY: OnceLock<Result<ash::Entry, String>> = OnceLock::new();
     // SAFETY: loading the system Vulkan loader; nothing else in the process has loaded a conflicting one.
-    unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))
+    ENTRY.get_or_init(|| unsafe { ash::Entry::load() }.map_err(|e| e.to_string())).clone().map_err(GpuError::Loader)
 }
 
 impl InstanceShared {
