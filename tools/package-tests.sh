@@ -12,6 +12,7 @@ trap 'rm -rf "$stage"' EXIT
 pkg="$stage/msnerf-tests"
 mkdir -p "$pkg/lib" "$pkg/layers"
 
+command -v python3 >/dev/null || { echo "package-tests: needs python3 (apt-get install python3)" >&2; exit 1; }
 cargo build --release
 # One line per test executable: path, target name, target kind (lib and bin unit tests get fixed names).
 cargo test --release --no-run --message-format=json 2>/dev/null | python3 -c '

@@ -78,9 +78,8 @@ impl Context {
 }
 
 /// One buffer range of a batched transfer ([`Context::upload_parts`], [`Context::download_parts`]): several
-/// ranges go through one staging buffer and one submission, so a training step pays one host-device round trip
-/// for all its inputs and one for all its outputs (about 1-2 ms each on the H100 virtual machine measured in
-/// docs/benchmarks.md).
+/// ranges go through one staging buffer and one submission, so a training step waits once for all its inputs and
+/// once for all its outputs instead of once per buffer.
 pub struct Part<'a> {
     raw: vk::Buffer,
     base: u64,

@@ -634,16 +634,14 @@ impl Mlp {
     ) -> GpuResult<()> {
         let (k_dim, cols) = shape;
         let bn = tile_columns(cols);
-        let (epi, act, mask) = match op {
-            TileOp::Forward(act) => (0, act.code(), None),
-            TileOp::Backward(Some(m)) => (1, 0, Some(m)),
-            TileOp::Backward(None) => (2, 0, None),
+        // Forward: W(t, c) = W[c][t] over the layer's k_dim inputs; backward: W(t, c) = W[t][c], cols inputs.
+        let (epi, act, mask, label, (ws_t, ws_c)) = match op {
+            TileOp::Forward(act) => (0, act.code(), None, "mlp_fwd", (1, k_dim)),
+            TileOp::Backward(Some(m)) => (1, 0, Some(m), "mlp_bwd", (cols, 1)),
+            TileOp::Backward(None) => (2, 0, None, "mlp_bwd", (cols, 1)),
         };
         let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_LAYER, &[(0, bn as u32), (1, epi), (2, act)])?;
         let m = mask.unwrap_or(a);
-        // The layer's input width: forward, the matrix's columns (k_dim); backward, the written columns.
-        let in_w = if matches!(op, TileOp::Forward(_)) { k_dim } else { cols };
-        let (ws_t, ws_c) = if matches!(op, TileOp::Forward(_)) { (1, in_w) } else { (in_w, 1) };
         let col_tiles = cols.div_ceil(bn);
         let push = TileLayerPush {
             w_addr,
@@ -660,7 +658,6 @@ impl Mlp {
             c_col: out.col as u32,
             col_tiles: col_tiles as u32,
         };
-        let label = if matches!(op, TileOp::Forward(_)) { "mlp_fwd" } else { "mlp_bwd" };
         let groups = n.div_ceil(4096 / bn) * col_tiles;
         let bindings = [a.buf.binding(), m.buf.binding(), out.buf.binding()];
         rec.dispatch_named(label, &k, &bindings, deps, &push, groups as u64 * TILE_THREADS)
