@@ -130,6 +130,20 @@ fn tiny_with_appearance_and_one_proposal_matches_the_plan() {
 }
 
 #[test]
+fn tiny_with_fp16_activations_matches_the_plan_and_halves_them() {
+    use msnerf::nerf::config::ActivationStorage;
+    let mut c = with_rays(ModelConfig::resolve("tiny").unwrap(), 192, 96, 128);
+    let bytes = |c: &ModelConfig| {
+        let shapes = msnerf::nerf::model::ModelShapes::new(c, 6, 5);
+        [&shapes.field_mlp, &shapes.colour_mlp].iter().map(|m| m.hidden_floats(96)).sum::<usize>()
+    };
+    let full = bytes(&c);
+    c.mlp_activations = ActivationStorage::F16;
+    assert_eq!(bytes(&c) * 2, full, "fp16 stores two activations per float");
+    check(c, 6, 5);
+}
+
+#[test]
 fn table1_model_at_256_rays_matches_the_plan() {
     let c = with_rays(ModelConfig::resolve("multispectral-nerf").unwrap(), 256, 256, 256);
     check(c, 6, 4);

@@ -23,7 +23,14 @@ use stability_support::*;
 
 /// nerfacto's colour head for B bands: [SH 16 | geo 15] (+ one 1.0 padding column) -> 64 -> 64 -> B, sigmoid.
 fn colour_head(bands: usize) -> MlpConfig {
-    MlpConfig { n_input: 31, n_output: bands, width: 64, n_hidden_layers: 2, output_activation: Activation::Sigmoid }
+    MlpConfig {
+        n_input: 31,
+        n_output: bands,
+        width: 64,
+        n_hidden_layers: 2,
+        output_activation: Activation::Sigmoid,
+        half_activations: false,
+    }
 }
 
 fn xavier(c: &MlpConfig, seed: u64, out_gain: f32) -> Vec<f32> {

@@ -9,7 +9,7 @@ mod common;
 
 use common::{gpu, rng};
 use msnerf::data::camera::{Camera, CameraModel, Distortion};
-use msnerf::nerf::config::ModelConfig;
+use msnerf::nerf::config::{ActivationStorage, ModelConfig};
 use msnerf::nerf::model::{Model, POSE_SLOT};
 use msnerf::nerf::pipeline::{Batch, Pipeline};
 use msnerf::nerf::rays::GpuCamera;
@@ -130,7 +130,11 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
     assert_eq!(stats.proposals_updated, update);
     assert!(!stats.skipped, "no NaN in a healthy step: {:?}", stats.poisoned);
     let want = train_step(&pipe.model, &params, &refs, step, update);
-    let close = |a: f64, b: f64, what: &str| assert!((a - b).abs() <= 1e-4 * b.abs() + 1e-9, "{what}: gpu {a} ref {b}");
+    // fp16 hidden activations: the GPU's fp32 sums and the twin's f64 ones round a few activations to neighbouring
+    // halves, so every tolerance is 10x looser (the kernel tests' fp16 tolerances are 100x looser).
+    let loose = if cfg.mlp_activations == ActivationStorage::F16 { 10.0 } else { 1.0 };
+    let close =
+        |a: f64, b: f64, what: &str| assert!((a - b).abs() <= 1e-4 * loose * b.abs() + 1e-9, "{what}: gpu {a} ref {b}");
     close(stats.loss_rgb, want.loss_rgb, "rgb loss");
     close(stats.loss_distortion, want.loss_distortion, "distortion loss");
     close(stats.loss_interlevel, want.loss_interlevel, "interlevel loss");
@@ -165,7 +169,7 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
         let p99 = rel[(rel.len() * 99) / 100];
         // Proposal gradients come through the interlevel loss, whose NeRF edges are resampled from fp32 weights on the
         // GPU and f64 weights here: with sharp densities a few edges, hence sample positions, move across hash cells.
-        let tol = if is_prop { 1e-2 } else { 2e-3 };
+        let tol = if is_prop { 1e-2 } else { 2e-3 } * loose;
         assert!(p99 < tol, "{}: 99th percentile relative gradient error {p99:e} over {} entries", slot.name, rel.len());
     }
     assert!(
@@ -206,4 +210,10 @@ fn whole_step_matches_reference_with_pose_refinement() {
     for (update, seed) in [(true, 13), (false, 12)] {
         check_step_with(update, seed, |c| c.camera_optimizer.mode = CameraOptMode::SO3xR3);
     }
+}
+
+#[test]
+fn whole_step_matches_reference_with_fp16_activations() {
+    // The twin rounds the hidden activations to fp16 where the kernels store them, so the step still matches.
+    check_step_with(true, 13, |c| c.mlp_activations = ActivationStorage::F16);
 }

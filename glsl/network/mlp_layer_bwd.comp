@@ -9,7 +9,8 @@
 //           when MASK = 1), 2 d_in rows (out_stride, KB floats from out_col, written).
 // Push:     w_addr (device address of W[0][k0], the block's first column), n, d_stride, d_col, a_stride, a_col,
 //           out_stride, out_col.
-// Spec:     0 OUT_W, 1 IN_W, 2 KB, 3 MASK, 4 VEC_D, 5 VEC_A, 6 VEC_OUT (access widths, floats).
+// Spec:     0 OUT_W, 1 IN_W, 2 KB, 3 MASK, 4 VEC_D, 5 VEC_A, 6 VEC_OUT (access widths, in the rows' element type),
+//           7 HALF_A (1: act_in rows are fp16, a_stride and a_col in halves).
 // Threads:  one invocation per row, 64 per group, folded into 2D past 65535 groups; rows past n are not written.
 #version 460
 #define WG_SIZE 64
@@ -24,6 +25,7 @@ layout(constant_id = 3) const uint MASK = 1;
 layout(constant_id = 4) const uint VEC_D = 1;
 layout(constant_id = 5) const uint VEC_A = 1;
 layout(constant_id = 6) const uint VEC_OUT = 1;
+layout(constant_id = 7) const uint HALF_A = 0;
 const uint ACC = KB < 8u ? KB : 8u; // inputs accumulated together (independent add chains)
 
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Weights { vec4 v[]; };
@@ -56,7 +58,7 @@ void main() {
     }
     if (MASK != 0u) {
         float h[KB];
-        ROWS_LOAD(ain, VEC_A, r * pc.a_stride + pc.a_col, h, 0u, KB)
+        ROWS_LOAD_X(HALF_A, ain, VEC_A, r * pc.a_stride + pc.a_col, h, 0u, KB)
         [[unroll]] for (uint k = 0u; k < KB; ++k) g[k] = h[k] > 0.0 ? g[k] : 0.0;
     }
     if (row < pc.n) ROWS_STORE(din, VEC_OUT, row * pc.out_stride + pc.out_col, g, 0u, KB)

@@ -8,7 +8,8 @@
 // IN_W x JB under a budget: lavapipe's compile time grows faster than linearly with unrolled code.
 // Bindings: 0 input rows (in_stride, IN_W floats from in_col), 1 output rows (out_stride, JB floats from out_col).
 // Push:     w_addr (device address of the block's first weight W[j0][0]), n, in_stride, in_col, out_stride, out_col.
-// Spec:     0 IN_W, 1 JB, 2 ACT (0 none, 1 sigmoid, 2 exp, 3 ReLU), 3 VEC_IN, 4 VEC_OUT (access widths, floats).
+// Spec:     0 IN_W, 1 JB, 2 ACT (0 none, 1 sigmoid, 2 exp, 3 ReLU), 3 VEC_IN, 4 VEC_OUT (access widths, in the
+//           rows' element type), 5 HALF_IN, 6 HALF_OUT (1: those rows are fp16, strides and columns in halves).
 // Threads:  one invocation per row, 64 per group, folded into 2D past 65535 groups; rows past n are computed on
 //           row n-1 and not written.
 #version 460
@@ -22,6 +23,8 @@ layout(constant_id = 1) const uint JB = 64;
 layout(constant_id = 2) const uint ACT = 3;
 layout(constant_id = 3) const uint VEC_IN = 1;
 layout(constant_id = 4) const uint VEC_OUT = 1;
+layout(constant_id = 5) const uint HALF_IN = 0;
+layout(constant_id = 6) const uint HALF_OUT = 0;
 #include "network/activation.glsl"
 const uint ACC = JB < 8u ? JB : 8u; // outputs accumulated together (independent add chains)
 
@@ -36,7 +39,7 @@ void main() {
     uint row = global_index();
     Weights w = Weights(pc.w_addr);
     float x[IN_W];
-    ROWS_LOAD(xin, VEC_IN, min(row, pc.n - 1u) * pc.in_stride + pc.in_col, x, 0u, IN_W)
+    ROWS_LOAD_X(HALF_IN, xin, VEC_IN, min(row, pc.n - 1u) * pc.in_stride + pc.in_col, x, 0u, IN_W)
     float y[JB];
     [[unroll]] for (uint j0 = 0u; j0 < JB; j0 += ACC) {
         float acc[ACC];
@@ -51,5 +54,5 @@ void main() {
         }
         [[unroll]] for (uint a = 0u; a < ACC; ++a) if (j0 + a < JB) y[j0 + a] = out_activation(acc[a]);
     }
-    if (row < pc.n) ROWS_STORE(yout, VEC_OUT, row * pc.out_stride + pc.out_col, y, 0u, JB)
+    if (row < pc.n) ROWS_STORE_X(HALF_OUT, yout, VEC_OUT, row * pc.out_stride + pc.out_col, y, 0u, JB)
 }

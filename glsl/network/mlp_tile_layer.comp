@@ -13,7 +13,8 @@
 // Push:     w_addr (device address of W[0][0]), n, k_dim, cols, ws_t, ws_c, a_stride, a_col, m_stride, m_col,
 //           c_stride, c_col, col_tiles (column tiles per row tile).
 // Spec:     0 BN (columns per tile: 16, 32 or 64; BM = 4096 / BN rows), 1 EPI (0 activation, 1 ReLU mask, 2 none),
-//           2 ACT (as activation.glsl).
+//           2 ACT (as activation.glsl), 3 HALF_A, 4 HALF_M, 5 HALF_C (1: those rows are fp16, two per 32-bit word,
+//           strides and columns in halves; a fp16 C has even cols, c_stride and c_col).
 // Threads:  one workgroup of 256 per tile, tiles row-major (col_tiles per row tile), folded into 2D past 65535
 //           groups; thread t owns rows 4 (t / (BN / 4)) + 0..3 and columns 4 (t % (BN / 4)) + 0..3 of the tile.
 #version 460
@@ -26,6 +27,9 @@ layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint BN = 64;
 layout(constant_id = 1) const uint EPI = 0;
 layout(constant_id = 2) const uint ACT = 3;
+layout(constant_id = 3) const uint HALF_A = 0;
+layout(constant_id = 4) const uint HALF_M = 0;
+layout(constant_id = 5) const uint HALF_C = 0;
 #include "network/activation.glsl"
 const uint BM = 4096u / BN;
 const uint BK = 16u;
@@ -35,6 +39,13 @@ layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Wei
 layout(std430, binding = 0) readonly buffer ABuf { float a[]; };
 layout(std430, binding = 1) readonly buffer MBuf { float m[]; };
 layout(std430, binding = 2) writeonly buffer CBuf { float c[]; };
+layout(std430, binding = 0) readonly buffer ABufH { uint a_h[]; };
+layout(std430, binding = 1) readonly buffer MBufH { uint m_h[]; };
+layout(std430, binding = 2) writeonly buffer CBufH { uint c_h[]; };
+
+// Element i of a row buffer stored as floats or, when half, as pairs of halves.
+float load_a(uint i) { return HALF_A != 0u ? unpackHalf2x16(a_h[i / 2u])[i % 2u] : a[i]; }
+float load_m(uint i) { return HALF_M != 0u ? unpackHalf2x16(m_h[i / 2u])[i % 2u] : m[i]; }
 layout(push_constant) uniform Push {
     uint64_t w_addr; uint n; uint k_dim; uint cols; uint ws_t; uint ws_c; uint a_stride; uint a_col;
     uint m_stride; uint m_col; uint c_stride; uint c_col; uint col_tiles;
@@ -59,7 +70,7 @@ void main() {
             uint e = tid + i * WG_SIZE;
             uint r = e / BK, t = e % BK;
             uint row = row0 + r, tt = t0 + t;
-            a_tile[t][r / 4u][r % 4u] = (row < pc.n && tt < pc.k_dim) ? a[row * pc.a_stride + pc.a_col + tt] : 0.0;
+            a_tile[t][r / 4u][r % 4u] = (row < pc.n && tt < pc.k_dim) ? load_a(row * pc.a_stride + pc.a_col + tt) : 0.0;
         }
         [[unroll]] for (uint i = 0u; i < BK * BN / WG_SIZE; ++i) {
             uint e = tid + i * WG_SIZE;
@@ -78,13 +89,21 @@ void main() {
     [[unroll]] for (uint i = 0u; i < 4u; ++i) {
         uint row = row0 + 4u * tr + i;
         if (row >= pc.n) break;
+        float v[4];
         [[unroll]] for (uint j = 0u; j < 4u; ++j) {
+            uint col = min(col0 + 4u * tc + j, pc.cols - 1u);
+            v[j] = acc[i][j];
+            if (EPI == 0u) v[j] = out_activation(v[j]);
+            if (EPI == 1u && !(load_m(row * pc.m_stride + pc.m_col + col) > 0.0)) v[j] = 0.0;
+        }
+        uint at = row * pc.c_stride + pc.c_col + col0 + 4u * tc;
+        [[unroll]] for (uint j = 0u; j < 4u; j += 2u) {
             uint col = col0 + 4u * tc + j;
-            if (col < pc.cols) {
-                float v = acc[i][j];
-                if (EPI == 0u) v = out_activation(v);
-                if (EPI == 1u && !(m[row * pc.m_stride + pc.m_col + col] > 0.0)) v = 0.0;
-                c[row * pc.c_stride + pc.c_col + col] = v;
+            if (HALF_C != 0u) {
+                if (col < pc.cols) c_h[(at + j) / 2u] = packHalf2x16(vec2(v[j], v[j + 1u]));
+            } else {
+                if (col < pc.cols) c[at + j] = v[j];
+                if (col + 1u < pc.cols) c[at + j + 1u] = v[j + 1u];
             }
         }
     }

@@ -6,7 +6,8 @@
 // Bindings: 0 delta rows (d_stride, from d_col), 1 act_in rows (a_stride, from a_col), 2 partial
 //           (float[splits][out_w][in_w], written).
 // Push:     n, out_w, in_w, d_stride, d_col, a_stride, a_col, rows_per_split, splits, tiles_k.
-// Spec:     0 TJ (16, 32 or 64), 1 TK (16 to 256; TJ x TK <= 4096).
+// Spec:     0 TJ (16, 32 or 64), 1 TK (16 to 256; TJ x TK <= 4096), 2 HALF_A (1: act_in rows are fp16, two per
+//           32-bit word, a_stride and a_col in halves).
 // Threads:  one workgroup of 256 per (tile, split), consecutive groups on consecutive splits of one tile, folded
 //           into 2D past 65535 groups; thread t < (TJ / 4)(TK / 4) owns rows 4 (t / (TK / 4)) + 0..3 and columns
 //           4 (t % (TK / 4)) + 0..3 of the tile, the others only help stage.
@@ -17,12 +18,16 @@
 layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint TJ = 64;
 layout(constant_id = 1) const uint TK = 64;
+layout(constant_id = 2) const uint HALF_A = 0;
 const uint RB = 16u;
 const uint THREADS_K = TK / 4u;
 
 layout(std430, binding = 0) readonly buffer DBuf { float delta[]; };
 layout(std430, binding = 1) readonly buffer ABuf { float act[]; };
 layout(std430, binding = 2) writeonly buffer PBuf { float partial[]; };
+layout(std430, binding = 1) readonly buffer ABufH { uint act_h[]; };
+
+float load_act(uint i) { return HALF_A != 0u ? unpackHalf2x16(act_h[i / 2u])[i % 2u] : act[i]; }
 layout(push_constant) uniform Push {
     uint n; uint out_w; uint in_w; uint d_stride; uint d_col; uint a_stride; uint a_col; uint rows_per_split;
     uint splits; uint tiles_k;
@@ -55,7 +60,7 @@ void main() {
             uint e = tid + q * WG_SIZE;
             uint r = e / TK, k = e % TK;
             uint row = r0 + r, col = k0 + k;
-            a_tile[r][k / 4u][k % 4u] = (row < end && col < pc.in_w) ? act[row * pc.a_stride + pc.a_col + col] : 0.0;
+            a_tile[r][k / 4u][k % 4u] = (row < end && col < pc.in_w) ? load_act(row * pc.a_stride + pc.a_col + col) : 0.0;
         }
         barrier();
         if (owns) {

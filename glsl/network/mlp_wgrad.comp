@@ -6,7 +6,8 @@
 //           (float[splits][out_w][in_w], written).
 // Push:     n, out_w, in_w, d_stride, d_col, a_stride, a_col, rows_per_split, splits, tiles_k (in_w / KT).
 // Spec:     0 JT, 1 KT (tile; they divide out_w and in_w), 2 VEC_D, 3 VEC_A, 4 VEC_P (access widths, floats),
-//           5 ROWS (rows per loop iteration).
+//           5 ROWS (rows per loop iteration), 6 HALF_A (1: act_in rows are fp16, a_stride, a_col and VEC_A in
+//           halves).
 // Threads:  one invocation per (tile, split), consecutive invocations on consecutive splits of one tile, 64 per
 //           group, folded into 2D past 65535 groups.
 #version 460
@@ -20,6 +21,7 @@ layout(constant_id = 2) const uint VEC_D = 1;
 layout(constant_id = 3) const uint VEC_A = 1;
 layout(constant_id = 4) const uint VEC_P = 1;
 layout(constant_id = 5) const uint ROWS = 1;
+layout(constant_id = 6) const uint HALF_A = 0;
 ROWS_DECLARE(0, delta, readonly)
 ROWS_DECLARE(1, act, readonly)
 ROWS_DECLARE(2, partial, writeonly)
@@ -47,7 +49,7 @@ void main() {
         [[unroll]] for (uint r = 0u; r < ROWS; ++r) {
             uint row = min(row0 + r, end - 1u);
             ROWS_LOAD(delta, VEC_D, row * pc.d_stride + pc.d_col + j0, d[r], 0u, JT)
-            ROWS_LOAD(act, VEC_A, row * pc.a_stride + pc.a_col + k0, a[r], 0u, KT)
+            ROWS_LOAD_X(HALF_A, act, VEC_A, row * pc.a_stride + pc.a_col + k0, a[r], 0u, KT)
             if (row0 + r >= end) [[unroll]] for (uint j = 0u; j < JT; ++j) d[r][j] = 0.0;
         }
         [[unroll]] for (uint j = 0u; j < JT; ++j) {

@@ -78,3 +78,87 @@ uint64_t rows_pack(float a, float b) {
     } \
     [[unroll]] for (uint i_ = e2_; i_ < (COUNT); ++i_) NAME##_1[b_ + i_] = src[(SOFF) + i_]; \
 }
+
+// Half-precision rows (hidden activations stored as fp16, MlpConfig::half_activations): the same buffers, read and
+// written as pairs of halves packed in 32 bits (packHalf2x16 / unpackHalf2x16: core GLSL, no 16-bit storage feature
+// needed; the arithmetic stays fp32). base, COUNT and VEC count halves: VEC (16, 8, 4 or 2) divides base, COUNT is
+// even (every MLP width is a multiple of 16 and every block of one a multiple of 4).
+// ROWS_LOAD_H(NAME, VEC, base, dst, DOFF, COUNT): dst[DOFF + i] = half NAME[base + i] for i < COUNT;
+// ROWS_STORE_H(NAME, VEC, base, src, SOFF, COUNT): half NAME[base + i] = src[SOFF + i] for i < COUNT.
+
+void rows_unpack_h4(uint64_t u, out vec4 f) {
+    uvec2 p = unpackUint2x32(u);
+    f = vec4(unpackHalf2x16(p.x), unpackHalf2x16(p.y));
+}
+
+uint64_t rows_pack_h4(float a, float b, float c, float d) {
+    return packUint2x32(uvec2(packHalf2x16(vec2(a, b)), packHalf2x16(vec2(c, d))));
+}
+
+#define ROWS_SPLIT_H(VEC, COUNT) \
+    uint e16_ = ROWS_END(VEC, 16u, 0u, COUNT); \
+    uint e8h_ = ROWS_END(VEC, 8u, e16_, COUNT); \
+    uint e4h_ = ROWS_END(VEC, 4u, e8h_, COUNT);
+
+#define ROWS_LOAD_H(NAME, VEC, base, dst, DOFF, COUNT) { \
+    ROWS_SPLIT_H(VEC, COUNT) \
+    uint b_ = (base); \
+    [[unroll]] for (uint i_ = 0u; i_ < e16_; i_ += 16u) { \
+        u64vec4 t_ = NAME##_8[(b_ + i_) / 16u]; \
+        [[unroll]] for (uint c_ = 0u; c_ < 4u; ++c_) { \
+            vec4 f_; \
+            rows_unpack_h4(t_[c_], f_); \
+            [[unroll]] for (uint q_ = 0u; q_ < 4u; ++q_) dst[(DOFF) + i_ + 4u * c_ + q_] = f_[q_]; \
+        } \
+    } \
+    [[unroll]] for (uint i_ = e16_; i_ < e8h_; i_ += 8u) { \
+        u64vec2 t_ = NAME##_4[(b_ + i_) / 8u]; \
+        vec4 f0_, f1_; \
+        rows_unpack_h4(t_.x, f0_); \
+        rows_unpack_h4(t_.y, f1_); \
+        [[unroll]] for (uint q_ = 0u; q_ < 4u; ++q_) { \
+            dst[(DOFF) + i_ + q_] = f0_[q_]; \
+            dst[(DOFF) + i_ + 4u + q_] = f1_[q_]; \
+        } \
+    } \
+    [[unroll]] for (uint i_ = e8h_; i_ < e4h_; i_ += 4u) { \
+        vec4 f_; \
+        rows_unpack_h4(NAME##_2[(b_ + i_) / 4u], f_); \
+        [[unroll]] for (uint q_ = 0u; q_ < 4u; ++q_) dst[(DOFF) + i_ + q_] = f_[q_]; \
+    } \
+    [[unroll]] for (uint i_ = e4h_; i_ < (COUNT); i_ += 2u) { \
+        vec2 f_ = unpackHalf2x16(floatBitsToUint(NAME##_1[(b_ + i_) / 2u])); \
+        dst[(DOFF) + i_] = f_.x; dst[(DOFF) + i_ + 1u] = f_.y; \
+    } \
+}
+
+#define ROWS_STORE_H(NAME, VEC, base, src, SOFF, COUNT) { \
+    ROWS_SPLIT_H(VEC, COUNT) \
+    uint b_ = (base); \
+    [[unroll]] for (uint i_ = 0u; i_ < e16_; i_ += 16u) { \
+        uint s_ = (SOFF) + i_; \
+        NAME##_8[(b_ + i_) / 16u] = u64vec4( \
+            rows_pack_h4(src[s_], src[s_ + 1u], src[s_ + 2u], src[s_ + 3u]), \
+            rows_pack_h4(src[s_ + 4u], src[s_ + 5u], src[s_ + 6u], src[s_ + 7u]), \
+            rows_pack_h4(src[s_ + 8u], src[s_ + 9u], src[s_ + 10u], src[s_ + 11u]), \
+            rows_pack_h4(src[s_ + 12u], src[s_ + 13u], src[s_ + 14u], src[s_ + 15u])); \
+    } \
+    [[unroll]] for (uint i_ = e16_; i_ < e8h_; i_ += 8u) { \
+        uint s_ = (SOFF) + i_; \
+        NAME##_4[(b_ + i_) / 8u] = u64vec2(rows_pack_h4(src[s_], src[s_ + 1u], src[s_ + 2u], src[s_ + 3u]), \
+                                           rows_pack_h4(src[s_ + 4u], src[s_ + 5u], src[s_ + 6u], src[s_ + 7u])); \
+    } \
+    [[unroll]] for (uint i_ = e8h_; i_ < e4h_; i_ += 4u) { \
+        uint s_ = (SOFF) + i_; \
+        NAME##_2[(b_ + i_) / 4u] = rows_pack_h4(src[s_], src[s_ + 1u], src[s_ + 2u], src[s_ + 3u]); \
+    } \
+    [[unroll]] for (uint i_ = e4h_; i_ < (COUNT); i_ += 2u) { \
+        NAME##_1[(b_ + i_) / 2u] = uintBitsToFloat(packHalf2x16(vec2(src[(SOFF) + i_], src[(SOFF) + i_ + 1u]))); \
+    } \
+}
+
+// Either form, by a (specialisation) constant: HALF != 0 reads halves (base, VEC in halves), else floats.
+#define ROWS_LOAD_X(HALF, NAME, VEC, base, dst, DOFF, COUNT) \
+    if ((HALF) != 0u) ROWS_LOAD_H(NAME, VEC, base, dst, DOFF, COUNT) else ROWS_LOAD(NAME, VEC, base, dst, DOFF, COUNT)
+#define ROWS_STORE_X(HALF, NAME, VEC, base, src, SOFF, COUNT) \
+    if ((HALF) != 0u) ROWS_STORE_H(NAME, VEC, base, src, SOFF, COUNT) else ROWS_STORE(NAME, VEC, base, src, SOFF, COUNT)

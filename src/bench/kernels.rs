@@ -318,6 +318,7 @@ pub fn mlp_profiles() -> Vec<(&'static str, MlpConfig)> {
         width,
         n_hidden_layers,
         output_activation: act,
+        half_activations: false,
     };
     vec![
         ("nerfacto density", mlp(32, 16, 64, 1, Activation::None)),
@@ -325,7 +326,13 @@ pub fn mlp_profiles() -> Vec<(&'static str, MlpConfig)> {
         ("nerfacto proposal", mlp(10, 1, 16, 1, Activation::None)),
         ("table1 density", mlp(32, 32, 128, 1, Activation::None)),
         ("table1 colour (6 bands)", mlp(79, 6, 128, 2, Activation::Sigmoid)),
+        ("table1 density, fp16 activations", half(mlp(32, 32, 128, 1, Activation::None))),
+        ("table1 colour (6 bands), fp16 activations", half(mlp(79, 6, 128, 2, Activation::Sigmoid))),
     ]
+}
+
+fn half(c: MlpConfig) -> MlpConfig {
+    MlpConfig { half_activations: true, ..c }
 }
 
 pub fn run(ctx: &Context, points: usize, rows: usize, repeats: usize, filter: Option<&str>) -> GpuResult<KernelBench> {

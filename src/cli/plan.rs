@@ -5,7 +5,7 @@
 use super::Cli;
 use crate::data::{load_dataset, LoadOptions};
 use crate::gpu::Context;
-use crate::nerf::config::ModelConfig;
+use crate::nerf::config::{ActivationStorage, ModelConfig};
 use crate::plan::fit::profile_rays;
 use crate::plan::{plan, DatasetShape, DeviceRule, HardwareProfile, PlanRequest, RayCounts};
 use std::path::PathBuf;
@@ -42,6 +42,9 @@ pub struct PlanArgs {
     /// Override the profile's evaluation rays per pass
     #[arg(long)]
     pub eval_rays_per_chunk: Option<usize>,
+    /// Override the model's storage of MLP hidden activations (f16: half their memory; sums stay fp32)
+    #[arg(long, value_enum)]
+    pub mlp_activations: Option<ActivationStorage>,
     /// Find the largest training and evaluation chunks that fit
     #[arg(long)]
     pub fit: bool,
@@ -54,7 +57,10 @@ pub struct PlanArgs {
 }
 
 pub fn run(cli: &Cli, a: &PlanArgs) -> anyhow::Result<()> {
-    let model = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    let mut model = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    if let Some(v) = a.mlp_activations {
+        model.mlp_activations = v;
+    }
     let data = match &a.data {
         Some(d) => DatasetShape::from_dataset(&load_dataset(d, &LoadOptions::default()).map_err(anyhow::Error::msg)?),
         None => {

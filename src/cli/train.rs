@@ -2,7 +2,7 @@
 
 use super::Cli;
 use crate::gpu::Context;
-use crate::nerf::config::ModelConfig;
+use crate::nerf::config::{ActivationStorage, ModelConfig};
 use crate::nerf::trainer::{train, TrainOptions};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -29,6 +29,9 @@ pub struct TrainArgs {
     /// Rays per GPU pass (bounds activation memory)
     #[arg(long)]
     pub rays_per_chunk: Option<usize>,
+    /// Override the model's storage of MLP hidden activations (f16: half their memory; sums stay fp32)
+    #[arg(long, value_enum)]
+    pub mlp_activations: Option<ActivationStorage>,
     #[arg(long)]
     pub seed: Option<u64>,
     /// Stop after this many seconds of training (the best held-out PSNR is reported)
@@ -81,6 +84,9 @@ fn apply_overrides(mut m: ModelConfig, a: &TrainArgs) -> anyhow::Result<ModelCon
     }
     if let Some(v) = a.eval_every {
         t.steps_per_eval = v.max(1);
+    }
+    if let Some(v) = a.mlp_activations {
+        m.mlp_activations = v;
     }
     m.validate().map_err(|e| anyhow::anyhow!("after command-line overrides: {e}"))?;
     Ok(m)

@@ -23,6 +23,19 @@ pub struct ModelConfig {
     #[serde(default)]
     pub camera_optimizer: CameraOptimizerConfig,
     pub trainer: TrainerConfig,
+    /// How the MLPs store their hidden activations between the forward and the backward pass: `f32` (default) or
+    /// `f16` (half the memory of the largest training buffers; sums stay fp32; tiny-cuda-nn keeps them in fp16).
+    #[serde(default)]
+    pub mlp_activations: ActivationStorage,
+}
+
+/// Storage type of the MLPs' hidden activations.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ActivationStorage {
+    #[default]
+    F32,
+    F16,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -2,7 +2,7 @@
 //! optional appearance embeddings) and the proposal density fields, with their parameters in one store
 //! (groups `fields` and `proposals`, nerfacto's optimiser split). Built from a [`ModelConfig`].
 
-use super::config::ModelConfig;
+use super::config::{ActivationStorage, ModelConfig};
 use crate::gpu::{Context, GpuResult};
 use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
 use crate::nn::mlp::{Activation, Mlp, MlpConfig};
@@ -50,31 +50,38 @@ pub struct ModelShapes {
     pub colour_mlp: MlpConfig,
 }
 
-fn density_mlp(grid: &HashGridConfig, width: usize, layers: usize, n_out: usize) -> MlpConfig {
+fn density_mlp(grid: &HashGridConfig, width: usize, layers: usize, n_out: usize, half: bool) -> MlpConfig {
     MlpConfig {
         n_input: grid.n_output(),
         n_output: n_out,
         width,
         n_hidden_layers: layers - 1,
         output_activation: Activation::None,
+        half_activations: half,
     }
 }
 
 impl ModelShapes {
     pub fn new(cfg: &ModelConfig, bands: usize, n_cameras: usize) -> Self {
         let f = &cfg.field;
+        let half = cfg.mlp_activations == ActivationStorage::F16;
         Self {
             cfg: cfg.clone(),
             bands,
             n_cameras,
-            proposal_mlps: cfg.proposals.iter().map(|p| density_mlp(&p.grid, p.hidden_dim, p.num_layers, 1)).collect(),
-            field_mlp: density_mlp(&f.grid, f.hidden_dim, f.num_layers, 1 + f.geo_feat_dim),
+            proposal_mlps: cfg
+                .proposals
+                .iter()
+                .map(|p| density_mlp(&p.grid, p.hidden_dim, p.num_layers, 1, half))
+                .collect(),
+            field_mlp: density_mlp(&f.grid, f.hidden_dim, f.num_layers, 1 + f.geo_feat_dim, half),
             colour_mlp: MlpConfig {
                 n_input: Model::colour_inputs(cfg),
                 n_output: bands,
                 width: f.hidden_dim_color,
                 n_hidden_layers: f.num_layers_color - 1,
                 output_activation: Activation::Sigmoid,
+                half_activations: half,
             },
         }
     }

@@ -24,6 +24,10 @@
 //! block is kept under a multiply-add budget.
 //! Rows are read and written as wide as their alignment allows (`row_io.glsl`). Why this shape, and what it
 //! reaches against a CPU sgemm: docs/benchmarks.md.
+//!
+//! With `MlpConfig::half_activations` every kernel that writes or reads the hidden activations (forward outputs,
+//! the backward pass's ReLU mask, the weight gradients' inputs) stores them as fp16 pairs in 32-bit words (spec
+//! constants `HALF_*`); inputs, outputs, deltas and all arithmetic stay fp32.
 
 use super::{vec_width, ParamSlice, RowSlice};
 use crate::gpu::{Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder};
@@ -61,6 +65,11 @@ pub struct MlpConfig {
     pub width: usize,
     pub n_hidden_layers: usize,
     pub output_activation: Activation,
+    /// Hidden activations stored as fp16 (the products and sums stay fp32): halves the largest buffers of a
+    /// training step and the memory traffic of the layers that read them. Inputs, outputs, deltas and gradients
+    /// stay fp32. The ReLU mask of the backward pass and the weight gradients use the stored fp16 values.
+    #[serde(default)]
+    pub half_activations: bool,
 }
 
 impl MlpConfig {
@@ -97,14 +106,30 @@ impl MlpConfig {
         self.matrices().iter().map(|(r, c)| r * c).sum()
     }
 
-    /// Floats of stored hidden activations (and of hidden deltas) for `n` rows.
-    pub fn hidden_floats(&self, n: usize) -> usize {
+    /// Hidden activation values of `n` rows (as many hidden deltas).
+    pub fn hidden_values(&self, n: usize) -> usize {
         self.n_hidden_layers * n * self.width
     }
 
-    /// Floats of the deltas buffer for `n` rows: hidden deltas, then output deltas.
+    /// Floats of storage for the hidden activations of `n` rows: one per value, or one per two when
+    /// `half_activations` (laid out as half[N_HIDDEN][n][WIDTH], strides and columns counted in halves).
+    pub fn hidden_floats(&self, n: usize) -> usize {
+        if self.half_activations {
+            self.hidden_values(n).div_ceil(2)
+        } else {
+            self.hidden_values(n)
+        }
+    }
+
+    /// Floats of the deltas buffer for `n` rows: hidden deltas, then output deltas (always fp32).
     pub fn delta_floats(&self, n: usize) -> usize {
-        self.hidden_floats(n) + n * self.out_pad()
+        self.hidden_values(n) + n * self.out_delta_cols()
+    }
+
+    /// Columns (and row stride) of the output deltas: n_output rounded up to 4, the widest the kernels that read
+    /// them need (zeros past n_output); not `out_pad`, which for one density output would store 16.
+    pub fn out_delta_cols(&self) -> usize {
+        self.n_output.next_multiple_of(4).min(self.out_pad())
     }
 
     /// Floats of the split-K scratch of the weight gradients for `n` rows.
@@ -461,9 +486,11 @@ impl Mlp {
             let src = if layer == 0 { input } else { RowSlice { col: (layer - 1) * n * c.width, ..hidden } };
             let dst = if last { output } else { RowSlice { col: layer * n * c.width, ..hidden } };
             let act = if last { c.output_activation } else { Activation::Relu };
+            let (half_in, half_out) = (c.half_activations && layer > 0, c.half_activations && !last);
             if self.tiling.shared_tiles {
                 let w_addr = base + 4 * offsets[layer] as u64;
-                self.tile_layer(rec, w_addr, &deps, TileOp::Forward(act), src, dst, n, (in_w, out_w))?;
+                let halves = (half_in, false, half_out);
+                self.tile_layer(rec, (w_addr, &deps), TileOp::Forward(act), (src, dst, halves), n, (in_w, out_w))?;
                 continue;
             }
             for b in blocks(out_w, self.tiling.mac_budget / in_w) {
@@ -471,8 +498,10 @@ impl Mlp {
                     (0, in_w as u32),
                     (1, b.len() as u32),
                     (2, act.code()),
-                    (3, vec_width(&[src.stride, src.col])),
-                    (4, vec_width(&[dst.stride, dst.col + b.start])),
+                    (3, row_vec(half_in, &[src.stride, src.col])),
+                    (4, row_vec(half_out, &[dst.stride, dst.col + b.start])),
+                    (5, u32::from(half_in)),
+                    (6, u32::from(half_out)),
                 ];
                 let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_FWD, &spec)?;
                 let push = LayerFwdPush {
@@ -514,18 +543,17 @@ impl Mlp {
         let c = &self.config;
         let ctx = rec.context();
         let (nh, width) = (c.n_hidden_layers, c.width);
-        let hidden_total = c.hidden_floats(n);
-        let out_deltas = RowSlice { buf: bufs.deltas, stride: c.out_pad(), col: hidden_total };
+        let hidden_total = c.hidden_values(n);
+        let out_cols = c.out_delta_cols();
+        let out_deltas = RowSlice { buf: bufs.deltas, stride: out_cols, col: hidden_total };
         let hidden_deltas = |m: usize| RowSlice { buf: bufs.deltas, stride: width, col: m * n * width };
         let acts = |m: usize| RowSlice { buf: bufs.acts, stride: width, col: m * n * width };
 
-        // The output deltas' columns that later kernels read: n_output, rounded up to 4 (zeros past n_output).
-        let out_cols = c.n_output.next_multiple_of(4).min(c.out_pad());
         let spec = [
             (0, c.n_output as u32),
             (1, out_cols as u32),
             (2, c.output_activation.code()),
-            (3, vec_width(&[c.out_pad(), hidden_total])),
+            (3, vec_width(&[out_cols, hidden_total])),
         ];
         let k = Kernel::with_spec(ctx, &shaders::MLP_OUT_DELTA, &spec)?;
         let push = OutDeltaPush {
@@ -534,7 +562,7 @@ impl Mlp {
             y_col: output.col as u32,
             dy_stride: dy.stride as u32,
             dy_col: dy.col as u32,
-            d_stride: c.out_pad() as u32,
+            d_stride: out_cols as u32,
             d_col: hidden_total as u32,
         };
         let bindings = [output.buf.binding(), dy.buf.binding(), bufs.deltas.binding()];
@@ -554,9 +582,11 @@ impl Mlp {
                 (0, None) => break,
                 _ => (hidden_deltas(m - 1), Some(acts(m - 1))),
             };
+            let half_mask = c.half_activations && mask.is_some();
             if self.tiling.shared_tiles {
                 let w_addr = base + 4 * offsets[m] as u64;
-                self.tile_layer(rec, w_addr, &deps, TileOp::Backward(mask), d_in, target, n, (d_w, in_w))?;
+                let io = (d_in, target, (false, half_mask, false));
+                self.tile_layer(rec, (w_addr, &deps), TileOp::Backward(mask), io, n, (d_w, in_w))?;
                 continue;
             }
             let a = mask.unwrap_or(d_in);
@@ -567,8 +597,9 @@ impl Mlp {
                     (2, b.len() as u32),
                     (3, u32::from(mask.is_some())),
                     (4, vec_width(&[d_in.stride, d_in.col])),
-                    (5, if mask.is_some() { vec_width(&[a.stride, a.col + b.start]) } else { 1 }),
+                    (5, if mask.is_some() { row_vec(half_mask, &[a.stride, a.col + b.start]) } else { 1 }),
                     (6, vec_width(&[target.stride, target.col + b.start])),
+                    (7, u32::from(half_mask)),
                 ];
                 let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_BWD, &spec)?;
                 let push = LayerBwdPush {
@@ -595,7 +626,8 @@ impl Mlp {
             let out_w = if m == nh { out_cols } else { rows };
             let d = if m == nh { out_deltas } else { hidden_deltas(m) };
             let a = if m == 0 { input } else { acts(m - 1) };
-            self.wgrad_partials(rec, (d, a), (n, split_rows, splits), (out_w, in_w), bufs.scratch)?;
+            let half_a = c.half_activations && m > 0;
+            self.wgrad_partials(rec, (d, a, half_a), (n, split_rows, splits), (out_w, in_w), bufs.scratch)?;
             let push = ReducePush {
                 grads: grads.array.table_address()?,
                 shift: grads.array.chunk_shift(),
@@ -618,17 +650,15 @@ impl Mlp {
         Ok(())
     }
 
-    /// One layer's forward or backward product through `mlp_tile_layer`: `shape` is (k_dim, cols), the summed and
-    /// the written widths.
-    #[allow(clippy::too_many_arguments)]
+    /// One layer's forward or backward product through `mlp_tile_layer`: A rows into C rows (which of A, the mask
+    /// and C hold fp16) with the weights at `w_addr` (in `deps`), `shape` is (k_dim, cols), the summed and the
+    /// written widths.
     fn tile_layer(
         &self,
         rec: &mut Recorder,
-        w_addr: u64,
-        deps: &[ash::vk::Buffer],
+        (w_addr, deps): (u64, &[ash::vk::Buffer]),
         op: TileOp,
-        a: RowSlice,
-        out: RowSlice,
+        (a, out, (half_a, half_m, half_c)): (RowSlice, RowSlice, (bool, bool, bool)),
         n: usize,
         shape: (usize, usize),
     ) -> GpuResult<()> {
@@ -640,7 +670,8 @@ impl Mlp {
             TileOp::Backward(Some(m)) => (1, 0, Some(m), "mlp_bwd", (cols, 1)),
             TileOp::Backward(None) => (2, 0, None, "mlp_bwd", (cols, 1)),
         };
-        let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_LAYER, &[(0, bn as u32), (1, epi), (2, act)])?;
+        let spec = [(0, bn as u32), (1, epi), (2, act), (3, half_a.into()), (4, half_m.into()), (5, half_c.into())];
+        let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_LAYER, &spec)?;
         let m = mask.unwrap_or(a);
         let col_tiles = cols.div_ceil(bn);
         let push = TileLayerPush {
@@ -669,7 +700,7 @@ impl Mlp {
     fn wgrad_partials(
         &self,
         rec: &mut Recorder,
-        (d, a): (RowSlice, RowSlice),
+        (d, a, half_a): (RowSlice, RowSlice, bool),
         (n, split_rows, splits): (usize, usize, usize),
         (out_w, in_w): (usize, usize),
         scratch: &GpuBuffer<f32>,
@@ -678,7 +709,8 @@ impl Mlp {
         let (k, tiles_j, tiles_k, threads) = if self.tiling.shared_tiles {
             let tj = tile_columns(out_w);
             let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
-            let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &[(0, tj as u32), (1, tk as u32)])?;
+            let spec = [(0, tj as u32), (1, tk as u32), (2, half_a.into())];
+            let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &spec)?;
             (k, out_w.div_ceil(tj), in_w.div_ceil(tk), TILE_THREADS)
         } else {
             let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
@@ -686,9 +718,10 @@ impl Mlp {
                 (0, jt as u32),
                 (1, kt as u32),
                 (2, vec_width(&[d.stride, d.col, jt])),
-                (3, vec_width(&[a.stride, a.col, kt])),
+                (3, row_vec(half_a, &[a.stride, a.col, kt])),
                 (4, vec_width(&[in_w, kt])),
                 (5, self.tiling.wgrad_rows as u32),
+                (6, half_a.into()),
             ];
             (Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?, out_w / jt, in_w / kt, 1)
         };
@@ -696,6 +729,16 @@ impl Mlp {
         let work = (tiles_j * tiles_k * splits) as u64 * threads;
         let bindings = [d.buf.binding(), a.buf.binding(), scratch.binding()];
         rec.dispatch_named("mlp_wgrad", &k, &bindings, &[], &push, work)
+    }
+}
+
+/// Access width of a row run for `row_io.glsl`: [`vec_width`] for floats; for fp16 rows the widest of 16, 8, 4
+/// halves dividing every offset, else 2 (fp16 rows are only hidden activations, whose widths and blocks are even).
+fn row_vec(half: bool, offsets: &[usize]) -> u32 {
+    if half {
+        [16usize, 8, 4].into_iter().find(|v| offsets.iter().all(|o| o % v == 0)).unwrap_or(2) as u32
+    } else {
+        vec_width(offsets)
     }
 }
 

@@ -1,4 +1,5 @@
-//! CPU twin of the fused MLP kernels (`glsl/network/mlp_*.comp`), generic over f32 and f64.
+//! CPU twin of the fused MLP kernels (`glsl/network/mlp_*.comp`), generic over f32 and f64. With
+//! `half_activations` the hidden activations are rounded to fp16 (round to nearest even) as the kernels store them.
 
 use crate::nn::mlp::{Activation, MlpConfig};
 use num_traits::Float;
@@ -31,6 +32,16 @@ fn act_grad<T: Float>(a: Activation, y: T) -> T {
     }
 }
 
+/// A hidden activation as stored: itself, or rounded to fp16.
+fn stored<T: Float>(c: &MlpConfig, v: T) -> T {
+    if c.half_activations {
+        let h = half::f16::from_f64(v.to_f64().expect("finite")).to_f64();
+        T::from(h).expect("f16 fits")
+    } else {
+        v
+    }
+}
+
 /// Forward of one row: (hidden post-ReLU activations per layer, outputs (n_output)). `x` has in_pad values.
 pub fn forward<T: Float>(c: &MlpConfig, w: &[T], x: &[T]) -> (Vec<Vec<T>>, Vec<T>) {
     let mut a = x.to_vec();
@@ -45,7 +56,7 @@ pub fn forward<T: Float>(c: &MlpConfig, w: &[T], x: &[T]) -> (Vec<Vec<T>>, Vec<T
                 if last {
                     act(c.output_activation, s)
                 } else {
-                    s.max(T::zero())
+                    stored(c, s.max(T::zero()))
                 }
             })
             .collect();
