@@ -38,7 +38,8 @@ pub struct MlpResult {
     /// tiles' block sizes: unrolled multiply-adds per layer kernel and the weight-gradient tile.
     pub shared_tiles: bool,
     pub mac_budget: usize,
-    pub wgrad_tile: usize,
+    pub wgrad_tile_j: usize,
+    pub wgrad_tile_k: usize,
     /// From host wall-clock time per pass, the submission and the wait included (on a GPU a 65k-row pass takes
     /// well under a millisecond, so this is mostly the round trip).
     pub forward_gflops: f64,
@@ -191,7 +192,8 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
         rows,
         shared_tiles: mlp.tiling.shared_tiles,
         mac_budget: mlp.tiling.mac_budget,
-        wgrad_tile: mlp.tiling.wgrad_tile,
+        wgrad_tile_j: mlp.tiling.wgrad_tile_j,
+        wgrad_tile_k: mlp.tiling.wgrad_tile_k,
         train_kernels,
         forward_gflops: flop / fwd / 1e6,
         train_gflops: 3.0 * flop / train / 1e6,

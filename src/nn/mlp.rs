@@ -191,27 +191,32 @@ pub struct MlpTiling {
     /// Register tiles: most unrolled multiply-adds per row in one `mlp_layer_fwd` / `mlp_layer_bwd` pipeline: a
     /// layer whose inputs x outputs exceed it runs as several blocks of outputs, each reading the row's inputs again.
     pub mac_budget: usize,
-    /// Register tiles: largest weight-gradient tile (rows x columns of the matrix) one `mlp_wgrad` invocation
-    /// accumulates.
-    pub wgrad_tile: usize,
+    /// Register tiles: largest weight-gradient tile one `mlp_wgrad` invocation accumulates: rows of the matrix
+    /// (outputs of the layer) ...
+    pub wgrad_tile_j: usize,
+    /// ... and columns (its inputs).
+    pub wgrad_tile_k: usize,
     /// Register tiles: batch rows one `mlp_wgrad` loop iteration takes (unrolled).
     pub wgrad_rows: usize,
 }
 
 impl MlpTiling {
-    /// CPU devices (lavapipe): register tiles, 8192 multiply-adds per pipeline (a 64 x 64 layer in one block, a
-    /// 128 x 128 one in two: 2-5 s of LLVM compile time each; 16k take 15 s) and 32 x 32 gradient tiles taking 4 rows
-    /// per iteration (each row's loads feed 1024 multiply-adds); lavapipe's SIMD lanes each own a row, and its
-    /// shared memory and barriers are slow. GPUs: shared-memory tiles. A register tile keeps a row's inputs and a
-    /// block of outputs in registers: at 128 inputs and an 8192 budget that is 192 live floats, which NVIDIA's
-    /// compiler spills to local memory or refuses (measured on an H100: `vkCreateComputePipelines` failed), and
-    /// every thread re-reads all weights. The register-tile fields below still apply when `shared=0`: 4096, 4 x 4.
-    /// `MSNERF_MLP_TILING=shared=0|1,mac_budget=N,wgrad_tile=N,wgrad_rows=N` overrides any of them (benchmarks).
+    /// CPU devices (lavapipe): register tiles, 16384 multiply-adds per pipeline (a 128 x 128 layer in one block:
+    /// about 15 s of LLVM compile time the first time, kept by Mesa's disk cache; at 8192 it ran as two blocks each
+    /// re-reading the row, and Table 1's colour head trained 15 % slower) and 64 x 64 gradient tiles taking 4 rows
+    /// per iteration (16384 multiply-adds; Table 1's colour head's weight gradient takes 84-90 ms per 65,536 rows
+    /// against 90-116 with 64 x 32 and 125-141 with 32 x 32, docs/benchmarks.md); lavapipe's SIMD lanes each own a row, and its shared memory and barriers are slow.
+    /// GPUs: shared-memory tiles. A register tile keeps a row's inputs and a block of outputs in registers: at 128
+    /// inputs and an 8192 budget that is 192 live floats, which NVIDIA's compiler spills to local memory or refuses
+    /// (measured on an H100: `vkCreateComputePipelines` failed), and every thread re-reads all weights. The
+    /// register-tile fields below still apply when `shared=0`: 4096, 4 x 4.
+    /// `MSNERF_MLP_TILING=shared=0|1,mac_budget=N,wgrad_tile=N,wgrad_tile_j=N,wgrad_tile_k=N,wgrad_rows=N`
+    /// overrides any of them (benchmarks; `wgrad_tile` sets both tile sides).
     pub fn for_device(caps: &DeviceCaps) -> GpuResult<Self> {
         let t = if caps.is_cpu {
-            Self { shared_tiles: false, mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 4 }
+            Self { shared_tiles: false, mac_budget: 16384, wgrad_tile_j: 64, wgrad_tile_k: 64, wgrad_rows: 4 }
         } else {
-            Self { shared_tiles: true, mac_budget: 4096, wgrad_tile: 4, wgrad_rows: 1 }
+            Self { shared_tiles: true, mac_budget: 4096, wgrad_tile_j: 4, wgrad_tile_k: 4, wgrad_rows: 1 }
         };
         match std::env::var("MSNERF_MLP_TILING") {
             Ok(v) => t.with_overrides(&v).map_err(|msg| GpuError::Buffer { name: "MSNERF_MLP_TILING".into(), msg }),
@@ -231,16 +236,20 @@ impl MlpTiling {
                 self.shared_tiles = n == 1;
                 continue;
             }
-            let field = match key.trim() {
-                "mac_budget" => &mut self.mac_budget,
-                "wgrad_tile" => &mut self.wgrad_tile,
-                "wgrad_rows" => &mut self.wgrad_rows,
-                other => return Err(format!("unknown key {other:?} (shared, mac_budget, wgrad_tile, wgrad_rows)")),
-            };
             if n == 0 || n > 1 << 16 {
                 return Err(format!("{key}: {n} is outside 1..=65536"));
             }
-            *field = n;
+            match key.trim() {
+                "mac_budget" => self.mac_budget = n,
+                "wgrad_tile" => (self.wgrad_tile_j, self.wgrad_tile_k) = (n, n),
+                "wgrad_tile_j" => self.wgrad_tile_j = n,
+                "wgrad_tile_k" => self.wgrad_tile_k = n,
+                "wgrad_rows" => self.wgrad_rows = n,
+                other => {
+                    let keys = "shared, mac_budget, wgrad_tile, wgrad_tile_j, wgrad_tile_k, wgrad_rows";
+                    return Err(format!("unknown key {other:?} ({keys})"));
+                }
+            }
         }
         Ok(self)
     }
@@ -713,7 +722,7 @@ impl Mlp {
             let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &spec)?;
             (k, out_w.div_ceil(tj), in_w.div_ceil(tk), TILE_THREADS)
         } else {
-            let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile), tile(in_w, self.tiling.wgrad_tile));
+            let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile_j), tile(in_w, self.tiling.wgrad_tile_k));
             let spec = [
                 (0, jt as u32),
                 (1, kt as u32),
@@ -812,9 +821,13 @@ mod tests {
 
     #[test]
     fn tiling_overrides_name_the_bad_key() {
-        let t = MlpTiling { shared_tiles: false, mac_budget: 4096, wgrad_tile: 32, wgrad_rows: 4 };
-        let o = t.with_overrides("mac_budget=8192, wgrad_rows=8,shared=1").expect("valid");
-        assert_eq!(o, MlpTiling { shared_tiles: true, mac_budget: 8192, wgrad_tile: 32, wgrad_rows: 8 });
+        let t = MlpTiling { shared_tiles: false, mac_budget: 4096, wgrad_tile_j: 32, wgrad_tile_k: 32, wgrad_rows: 4 };
+        let o = t.with_overrides("mac_budget=8192, wgrad_rows=8,shared=1,wgrad_tile_j=64").expect("valid");
+        let want =
+            MlpTiling { shared_tiles: true, mac_budget: 8192, wgrad_tile_j: 64, wgrad_tile_k: 32, wgrad_rows: 8 };
+        assert_eq!(o, want);
+        let both = t.with_overrides("wgrad_tile=16").expect("valid");
+        assert_eq!((both.wgrad_tile_j, both.wgrad_tile_k), (16, 16));
         assert!(t.with_overrides("shared=2").unwrap_err().contains("shared"));
         assert!(t.with_overrides("tile=3").unwrap_err().contains("unknown key \"tile\""));
         assert!(t.with_overrides("wgrad_tile=x").unwrap_err().contains("wgrad_tile"));
