@@ -102,6 +102,16 @@ fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling
         for (l, h) in hidden.iter().enumerate() {
             for (j, &want) in h.iter().enumerate() {
                 let got = got_acts[(l * n + i) * c.width + j] as f64;
+                if c.half_activations && l == 0 {
+                    // The first layer's inputs are exact, so the GPU's fp16 value and the twin's (its f64 sum
+                    // rounded to nearest) are one fp16 step apart at most, plus the fp32 sum's own error (1e-6
+                    // covers it where the sum cancels down to a small value, whose step is small too).
+                    let step = half_step(want);
+                    assert!(
+                        (got - want).abs() <= step + 1e-6,
+                        "{c:?} {tiling:?} hidden layer 0 row {i} unit {j}: got {got} want {want} (step {step})"
+                    );
+                }
                 assert!(
                     close(got as f32, want as f32),
                     "{c:?} {tiling:?} hidden layer {l} row {i} unit {j}: got {got} want {want}"
@@ -135,6 +145,12 @@ fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling
         off += rows * cols;
     }
     assert!(got_g[..offset].iter().all(|&v| v == 0.0), "gradients outside the module untouched");
+}
+
+/// Distance from a non-negative fp16 value to the next one up.
+fn half_step(v: f64) -> f64 {
+    let h = half::f16::from_f64(v);
+    half::f16::from_bits(h.to_bits() + 1).to_f64() - h.to_f64()
 }
 
 /// The activations buffer as values: floats, or pairs of fp16 packed in each float (low half first).
@@ -183,6 +199,21 @@ fn weight_gradients_over_many_splits() {
     // 70001 rows: 274 splits of 256 rows for the register tiles; the shared-memory tiles cap the splits at 256 and
     // take 288 rows per split (244 splits, the last one short).
     check_both_precisions(&gpu(), &cfg(16, 3, 16, 1, Activation::None), 70_001, 12);
+}
+
+#[test]
+fn twin_stores_fp16_activations_exactly_representable() {
+    let c = MlpConfig { half_activations: true, ..cfg(20, 3, 32, 3, Activation::Exponential) };
+    let w: Vec<f64> = weights(&c, 21).iter().map(|&v| v as f64).collect();
+    let mut r = rng(22);
+    let x: Vec<f64> = (0..c.in_pad()).map(|_| r.random_range(-1.0..1.0)).collect();
+    let (hidden, _) = twin::forward(&c, &w, &x);
+    let (full, _) = twin::forward(&MlpConfig { half_activations: false, ..c.clone() }, &w, &x);
+    for (h, f) in hidden[0].iter().zip(&full[0]) {
+        assert_eq!(half::f16::from_f64(*h).to_f64(), *h, "{h} is an fp16 value");
+        assert_eq!(*h, half::f16::from_f64(*f).to_f64(), "the first layer is the fp32 twin's, rounded");
+    }
+    assert!(hidden.iter().flatten().all(|v| half::f16::from_f64(*v).to_f64() == *v), "every layer stored as fp16");
 }
 
 #[test]

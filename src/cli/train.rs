@@ -114,7 +114,11 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         use crate::plan::{train as pt, DatasetShape};
         let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref()).map_err(anyhow::Error::msg)?;
         let shape = DatasetShape::from_dataset(&ds);
-        let base = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+        let mut base = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+        // What changes the model's memory must be in place before `auto` sizes the chunks to it.
+        if let Some(v) = a.mlp_activations {
+            base.mlp_activations = v;
+        }
         let profile = pt::resolve_profile(&ctx, h, &base, &shape).map_err(anyhow::Error::msg)?;
         let mut m = base;
         pt::apply_profile(&mut m, &profile);

@@ -204,8 +204,9 @@ impl MlpTiling {
     /// CPU devices (lavapipe): register tiles, 16384 multiply-adds per pipeline (a 128 x 128 layer in one block:
     /// about 15 s of LLVM compile time the first time, kept by Mesa's disk cache; at 8192 it ran as two blocks each
     /// re-reading the row, and Table 1's colour head trained 15 % slower) and 64 x 64 gradient tiles taking 4 rows
-    /// per iteration (16384 multiply-adds; Table 1's colour head's weight gradient takes 84-90 ms per 65,536 rows
-    /// against 90-116 with 64 x 32 and 125-141 with 32 x 32, docs/benchmarks.md); lavapipe's SIMD lanes each own a row, and its shared memory and barriers are slow.
+    /// per iteration (16384 multiply-adds; Table 1's colour head's weight gradient takes 88-90 ms per 65,536 rows
+    /// against 90-116 with 64 x 32 and 125-141 with 32 x 32, docs/benchmarks.md; short batches get smaller tiles,
+    /// `register_wgrad_tile`); lavapipe's SIMD lanes each own a row, and its shared memory and barriers are slow.
     /// GPUs: shared-memory tiles. A register tile keeps a row's inputs and a block of outputs in registers: at 128
     /// inputs and an 8192 budget that is 192 live floats, which NVIDIA's compiler spills to local memory or refuses
     /// (measured on an H100: `vkCreateComputePipelines` failed), and every thread re-reads all weights. The
@@ -470,7 +471,8 @@ impl Mlp {
         self.record_forward(rec, &params, input, n, output, acts)
     }
 
-    /// Every layer over `n` rows, hidden outputs into `acts` laid out as float[N_HIDDEN][n][WIDTH].
+    /// Every layer over `n` rows, hidden outputs into `acts` laid out as float[N_HIDDEN][n][WIDTH] (half[...] with
+    /// `half_activations`).
     fn record_forward(
         &self,
         rec: &mut Recorder,
@@ -722,7 +724,7 @@ impl Mlp {
             let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &spec)?;
             (k, out_w.div_ceil(tj), in_w.div_ceil(tk), TILE_THREADS)
         } else {
-            let (jt, kt) = (tile(out_w, self.tiling.wgrad_tile_j), tile(in_w, self.tiling.wgrad_tile_k));
+            let (jt, kt) = register_wgrad_tile(&self.tiling, (out_w, in_w), splits);
             let spec = [
                 (0, jt as u32),
                 (1, kt as u32),
@@ -741,10 +743,35 @@ impl Mlp {
     }
 }
 
+/// Invocations of `mlp_wgrad` below which its tile shrinks: 4 workgroups of 64, so that a short batch still
+/// spreads over the host's threads (lavapipe runs a workgroup on one thread; at 12,288 rows a 64 x 64 matrix in one
+/// 64 x 64 tile was 48 invocations, one workgroup, and its weight gradient took 16-18 ms against 13-15 with the
+/// old 32 x 32 tiles).
+const WGRAD_MIN_INVOCATIONS: usize = 256;
+
+/// `mlp_wgrad`'s tile (rows, columns of the matrix) for an `out_w` x `in_w` matrix in `splits` splits: the
+/// tiling's sizes (the largest power-of-two divisors of the matrix's sides up to them, at least 4), halved (the
+/// longer side, columns first: taller tiles measured faster) while the dispatch would have fewer than
+/// [`WGRAD_MIN_INVOCATIONS`] invocations, down to 4 x 4. Both sides stay multiples of 4 (every MLP width is a
+/// multiple of 16), which fp16 rows need.
+fn register_wgrad_tile(t: &MlpTiling, (out_w, in_w): (usize, usize), splits: usize) -> (usize, usize) {
+    let pow2 = |m: usize| 1usize << (usize::BITS - 1 - m.max(4).leading_zeros());
+    let (mut jt, mut kt) = (tile(out_w, pow2(t.wgrad_tile_j)), tile(in_w, pow2(t.wgrad_tile_k)));
+    while (out_w / jt) * (in_w / kt) * splits < WGRAD_MIN_INVOCATIONS && jt.max(kt) > 4 {
+        if kt >= jt {
+            kt /= 2;
+        } else {
+            jt /= 2;
+        }
+    }
+    (jt, kt)
+}
+
 /// Access width of a row run for `row_io.glsl`: [`vec_width`] for floats; for fp16 rows the widest of 16, 8, 4
 /// halves dividing every offset, else 2 (fp16 rows are only hidden activations, whose widths and blocks are even).
 fn row_vec(half: bool, offsets: &[usize]) -> u32 {
     if half {
+        debug_assert!(offsets.iter().all(|o| o % 2 == 0), "fp16 rows at odd offsets {offsets:?}");
         [16usize, 8, 4].into_iter().find(|v| offsets.iter().all(|o| o % v == 0)).unwrap_or(2) as u32
     } else {
         vec_width(offsets)
@@ -833,6 +860,24 @@ mod tests {
         assert!(t.with_overrides("wgrad_tile=x").unwrap_err().contains("wgrad_tile"));
         assert!(t.with_overrides("wgrad_rows=0").unwrap_err().contains("wgrad_rows"));
         assert!(t.with_overrides("mac_budget").unwrap_err().contains("key=value"));
+    }
+
+    #[test]
+    fn register_wgrad_tiles_shrink_for_short_batches_and_stay_multiples_of_4() {
+        use super::{register_wgrad_tile, WGRAD_MIN_INVOCATIONS};
+        let t = MlpTiling { shared_tiles: false, mac_budget: 16384, wgrad_tile_j: 64, wgrad_tile_k: 64, wgrad_rows: 4 };
+        // 65,536 rows: 256 splits, the full tile.
+        assert_eq!(register_wgrad_tile(&t, (128, 128), 256), (64, 64));
+        assert_eq!(register_wgrad_tile(&t, (8, 80), 256), (8, 16));
+        // 12,288 rows (48 splits) of a 64 x 64 matrix: halved until 256 invocations.
+        let (jt, kt) = register_wgrad_tile(&t, (64, 64), 48);
+        assert_eq!((jt, kt), (32, 16));
+        assert!((64 / jt) * (64 / kt) * 48 >= WGRAD_MIN_INVOCATIONS);
+        // A tiny batch stops at 4 x 4; an override of 1 or 3 still gives multiples of 4.
+        assert_eq!(register_wgrad_tile(&t, (16, 16), 1), (4, 4));
+        let odd = MlpTiling { wgrad_tile_j: 3, wgrad_tile_k: 5, ..t };
+        let (jt, kt) = register_wgrad_tile(&odd, (32, 48), 1000);
+        assert!(jt % 4 == 0 && kt % 4 == 0, "{jt} x {kt}");
     }
 
     #[test]
