@@ -49,6 +49,8 @@ fn bench_kernels_reports_the_proposal_grid_and_mlp() {
     // The device kind decides the kernel family and whether the CPU sgemm comparison is there.
     let is_cpu = m["cpu_sgemm_gflops"].as_f64().is_some();
     assert_eq!(m["shared_tiles"].as_bool(), Some(!is_cpu), "{m}");
+    // The ratio comes from paired timings: present exactly when the sgemm is, positive.
+    assert_eq!(m["sgemm_ratio"].as_f64().is_some_and(|r| r > 0.0), is_cpu, "{m}");
 }
 
 #[test]

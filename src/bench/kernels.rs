@@ -51,6 +51,10 @@ pub struct MlpResult {
     pub train_kernels: Vec<KernelTime>,
     /// The same layers through the CPU sgemm (forward + both backward products), when the device is a CPU.
     pub cpu_sgemm_gflops: Option<f64>,
+    /// On a CPU device: our forward+backward pass and the sgemm are timed back to back in every repeat, and this
+    /// is the median over repeats of sgemm time / our time (our GFLOP/s as a fraction of the sgemm's, measured
+    /// under the same load: this virtual machine's speed drifts between minutes, not within one pair).
+    pub sgemm_ratio: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -178,14 +182,18 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
         mlp.forward(rec, p, xs, rows, ys, &acts)?;
         mlp.backward(rec, p, g, (xs, ys, dys), rows, &bufs, Some(dxs))
     };
-    let train = time_ms(repeats, || run_recorded(ctx, &train_pass))?;
+    let (train, cpu_sgemm_gflops, sgemm_ratio) = if ctx.caps().is_cpu {
+        let (ours, sgemm, ratio) = paired_with_sgemm(cfg, rows, repeats, || run_recorded(ctx, &train_pass))?;
+        (ours, Some(3.0 * 2.0 * rows as f64 * cfg.macs_per_row() as f64 / sgemm / 1e6), Some(ratio))
+    } else {
+        (time_ms(repeats, || run_recorded(ctx, &train_pass))?, None, None)
+    };
     let mut rec = ctx.recorder("bench")?;
     train_pass(&mut rec)?;
     let train_kernels = rec.submit_and_wait()?.by_kernel();
     let flop = 2.0 * rows as f64 * cfg.macs_per_row() as f64;
     let kernel_ms: f64 = train_kernels.iter().map(|k| k.total_ms).sum();
     let train_kernel_gflops = (kernel_ms > 0.0).then(|| 3.0 * flop / kernel_ms / 1e6);
-    let cpu_sgemm_gflops = ctx.caps().is_cpu.then(|| cpu_sgemm_gflops(cfg, rows, repeats));
     Ok(MlpResult {
         name: name.into(),
         shape: shape(cfg),
@@ -199,7 +207,38 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
         train_gflops: 3.0 * flop / train / 1e6,
         train_kernel_gflops,
         cpu_sgemm_gflops,
+        sgemm_ratio,
     })
+}
+
+/// `ours` (one forward+backward pass) and the same shapes through the CPU sgemm, each timed once per repeat, back
+/// to back, after one warm-up of each: (median ms of ours, median ms of the sgemm, median of sgemm / ours).
+fn paired_with_sgemm(
+    cfg: &MlpConfig,
+    rows: usize,
+    repeats: usize,
+    mut ours: impl FnMut() -> GpuResult<()>,
+) -> GpuResult<(f64, f64, f64)> {
+    let mut sgemm = cpu_sgemm_pass(cfg, rows);
+    ours()?;
+    sgemm();
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (mut a, mut b, mut r) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..repeats.max(1) {
+        let s = Instant::now();
+        ours()?;
+        let t_ours = s.elapsed().as_secs_f64() * 1e3;
+        let s = Instant::now();
+        sgemm();
+        let t_sgemm = s.elapsed().as_secs_f64() * 1e3;
+        a.push(t_ours);
+        b.push(t_sgemm);
+        r.push(t_sgemm / t_ours);
+    }
+    Ok((median(a), median(b), median(r)))
 }
 
 fn shape(c: &MlpConfig) -> String {
@@ -211,8 +250,8 @@ fn shape(c: &MlpConfig) -> String {
 }
 
 /// Forward (Y = X W^T per layer) plus the two backward products (dX = dY W, dW = dY^T X) through
-/// `matrixmultiply::sgemm`, on the same shapes; GFLOP/s of the whole.
-pub fn cpu_sgemm_gflops(cfg: &MlpConfig, rows: usize, repeats: usize) -> f64 {
+/// `matrixmultiply::sgemm`, on the same shapes: one call runs one pass.
+fn cpu_sgemm_pass(cfg: &MlpConfig, rows: usize) -> impl FnMut() {
     let mats = cfg.layer_shapes();
     let widest = mats.iter().map(|(r, c)| (*r).max(*c)).max().unwrap_or(16);
     let w: Vec<Vec<f32>> = mats.iter().enumerate().map(|(i, (r, c))| random(r * c, -0.1, 0.1, 10 + i as u64)).collect();
@@ -221,7 +260,7 @@ pub fn cpu_sgemm_gflops(cfg: &MlpConfig, rows: usize, repeats: usize) -> f64 {
     let mut d_a = vec![0.0f32; rows * widest];
     let mut d_b = vec![0.0f32; rows * widest];
     let mut dw = vec![0.0f32; widest * widest];
-    let mut run = || {
+    move || {
         for (m, &(r, c)) in mats.iter().enumerate() {
             let (head, tail) = acts.split_at_mut(m + 1);
             // Y (rows x r) = X (rows x c) * W^T (c x r): W is r x c row-major, so W^T has strides (1, c).
@@ -283,17 +322,7 @@ pub fn cpu_sgemm_gflops(cfg: &MlpConfig, rows: usize, repeats: usize) -> f64 {
             }
             std::mem::swap(&mut d_a, &mut d_b);
         }
-    };
-    run();
-    let mut t: Vec<f64> = (0..repeats.max(1))
-        .map(|_| {
-            let s = Instant::now();
-            run();
-            s.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    3.0 * 2.0 * rows as f64 * cfg.macs_per_row() as f64 / t[t.len() / 2] / 1e9
+    }
 }
 
 /// Hash grids of both model profiles (nerfacto defaults; Multispectral-NeRF Table 1).
@@ -388,10 +417,8 @@ impl KernelBench {
             "MLP", "shape", "rows", "fwd GFLOP/s", "train GFLOP/s", "train, kernels", "CPU sgemm", "ratio"
         );
         for m in &self.mlp {
-            let (cpu, ratio) = match m.cpu_sgemm_gflops {
-                Some(c) => (format!("{c:.1}"), format!("{:.0}%", 100.0 * m.train_gflops / c)),
-                None => ("-".into(), "-".into()),
-            };
+            let cpu = m.cpu_sgemm_gflops.map_or("-".into(), |c| format!("{c:.1}"));
+            let ratio = m.sgemm_ratio.map_or("-".into(), |r| format!("{:.0}%", 100.0 * r));
             let kernels = m.train_kernel_gflops.map_or("-".into(), |g| format!("{g:.2}"));
             s += &format!(
                 "{:<26} {:<18} {:>8} {:>11.2} {:>13.2} {:>14} {:>12} {:>7}\n",
