@@ -74,8 +74,13 @@ fn time_ms(repeats: usize, mut f: impl FnMut() -> GpuResult<()>) -> GpuResult<f6
         f()?;
         t.push(s.elapsed().as_secs_f64() * 1e3);
     }
-    t.sort_by(f64::total_cmp);
-    Ok(t[t.len() / 2])
+    Ok(median(t))
+}
+
+/// The middle value (the upper one of an even count); `v` is not empty.
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
 
 fn random(n: usize, lo: f32, hi: f32, seed: u64) -> Vec<f32> {
@@ -222,10 +227,6 @@ fn paired_with_sgemm(
     let mut sgemm = cpu_sgemm_pass(cfg, rows);
     ours()?;
     sgemm();
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
     let (mut a, mut b, mut r) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..repeats.max(1) {
         let s = Instant::now();

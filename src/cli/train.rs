@@ -63,10 +63,20 @@ pub struct TrainArgs {
 }
 
 pub fn model_with_overrides(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
-    let m = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
-    apply_overrides(m, a)
+    apply_overrides(resolve_model(a)?, a)
 }
 
+/// The `--model` profile with the flags that change the model's memory (`--mlp-activations`): a hardware profile
+/// sizes its chunks from this.
+fn resolve_model(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
+    let mut m = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    if let Some(v) = a.mlp_activations {
+        m.mlp_activations = v;
+    }
+    Ok(m)
+}
+
+/// The trainer flags (they win over a hardware profile's ray counts), then validation.
 fn apply_overrides(mut m: ModelConfig, a: &TrainArgs) -> anyhow::Result<ModelConfig> {
     let t = &mut m.trainer;
     if let Some(v) = a.max_steps {
@@ -84,9 +94,6 @@ fn apply_overrides(mut m: ModelConfig, a: &TrainArgs) -> anyhow::Result<ModelCon
     }
     if let Some(v) = a.eval_every {
         t.steps_per_eval = v.max(1);
-    }
-    if let Some(v) = a.mlp_activations {
-        m.mlp_activations = v;
     }
     m.validate().map_err(|e| anyhow::anyhow!("after command-line overrides: {e}"))?;
     Ok(m)
@@ -114,11 +121,7 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         use crate::plan::{train as pt, DatasetShape};
         let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref()).map_err(anyhow::Error::msg)?;
         let shape = DatasetShape::from_dataset(&ds);
-        let mut base = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
-        // What changes the model's memory must be in place before `auto` sizes the chunks to it.
-        if let Some(v) = a.mlp_activations {
-            base.mlp_activations = v;
-        }
+        let base = resolve_model(a)?;
         let profile = pt::resolve_profile(&ctx, h, &base, &shape).map_err(anyhow::Error::msg)?;
         let mut m = base;
         pt::apply_profile(&mut m, &profile);
