@@ -169,3 +169,57 @@ fn fisheye_direction_uses_theta() {
     }
     assert!((r.direction_norm - 1.0).abs() < 1e-12);
 }
+
+/// The aerial normalisation (issue 18) on the built-in scenes' camera layouts, with UTM offsets: the ground
+/// (z = world_offset z) must land at normalised z = -0.5 within 2 % of the cube, the ground the cameras look at
+/// inside the cube, and the up axis stays vertical; a forward-looking rig and a nadir grid fall back (an error
+/// naming why).
+#[test]
+fn aerial_normalisation_puts_the_ground_at_minus_one_half() {
+    use msnerf::data::aerial::{normalize_poses_aerial, NotAerial};
+    use msnerf::sim::{cameras, SceneDesc};
+    for name in ["campus", "ci-small"] {
+        let scene = SceneDesc::load(name).expect("scene");
+        let off = scene.world_offset;
+        let cam = cameras::intrinsics(scene.image.width, scene.image.height, scene.image.hfov_deg);
+        let poses: Vec<Mat4> = cameras::scene_poses(&scene, None)
+            .expect("poses")
+            .into_iter()
+            .map(|mut p| {
+                for i in 0..3 {
+                    p[i][3] += off[i];
+                }
+                p
+            })
+            .collect();
+        let frames: Vec<(Mat4, Camera)> = poses.iter().map(|p| (*p, cam)).collect();
+        let t = normalize_poses_aerial(&frames).expect("an aerial layout");
+        // Ground points below the cameras' look-at points.
+        for q in [[0.0, 0.0], [10.0, -5.0], [-12.0, 7.0]] {
+            let g = t.to_normalized([off[0] + q[0], off[1] + q[1], off[2]]);
+            assert!((g[2] + 0.5).abs() < 0.02, "{name}: ground at normalised z {}", g[2]);
+            assert!(g[0].abs() < 1.0 && g[1].abs() < 1.0, "{name}: ground point {g:?} inside the cube");
+        }
+        // Vertical stays vertical: a 10 m mast maps to a vertical segment.
+        let a = t.to_normalized([off[0], off[1], off[2]]);
+        let b = t.to_normalized([off[0], off[1], off[2] + 10.0]);
+        assert!((a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9, "{name}: up axis kept");
+        // The round trip is exact to a micrometre at UTM offsets.
+        let w = t.to_world(t.to_normalized([off[0] + 3.0, off[1] - 4.0, off[2] + 5.0]));
+        assert!((w[0] - off[0] - 3.0).abs() < 1e-6 && (w[2] - off[2] - 5.0).abs() < 1e-6, "{w:?}");
+    }
+    let cam = cameras::intrinsics(64, 48, 49.6);
+    // A rig looking at the horizon.
+    let level: Vec<(Mat4, Camera)> =
+        (0..8).map(|i| (pose(rot(0.0, i as f64 * 0.7), [i as f64, 0.0, 2.0]), cam)).collect();
+    assert!(matches!(normalize_poses_aerial(&level), Err(NotAerial::NotLookingDown(_))));
+    // A nadir grid: parallel axes never meet (and the mean camera-up is horizontal, as for nerfstudio's `up`).
+    let nadir: Vec<(Mat4, Camera)> =
+        (0..16).map(|i| (pose(rot(0.0, 0.0), [(i % 4) as f64 * 10.0, (i / 4) as f64 * 10.0, 50.0]), cam)).collect();
+    assert!(normalize_poses_aerial(&nadir).is_err());
+    // Oblique cameras all looking the same way: their axes are parallel.
+    let parallel: Vec<(Mat4, Camera)> =
+        (0..16).map(|i| (pose(rot(0.6, 0.0), [(i % 4) as f64 * 10.0, (i / 4) as f64 * 10.0, 50.0]), cam)).collect();
+    let e = normalize_poses_aerial(&parallel).expect_err("parallel axes");
+    assert!(matches!(e, NotAerial::AxesDoNotMeet(_) | NotAerial::NotLookingDown(_)), "{e}");
+}

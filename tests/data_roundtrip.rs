@@ -301,7 +301,7 @@ fn masks_depth_band_files_and_nan_masking() {
     let e = load_dataset(td.path(), &LoadOptions::default()).unwrap().read_frame(0).unwrap_err();
     assert!(matches!(e, msnerf::data::DataError::NonFinite { count: 1, .. }), "{e}");
     assert!(e.to_string().contains("b0.tif"), "{e}");
-    let ds = load_dataset(td.path(), &LoadOptions { mask_non_finite: true }).unwrap();
+    let ds = load_dataset(td.path(), &LoadOptions { mask_non_finite: true, ..Default::default() }).unwrap();
     let r = ds.read_frame(0).unwrap();
     let m = r.mask.as_ref().unwrap();
     assert_eq!(m[0], 0); // masked by the mask file and by the NaN

@@ -244,3 +244,70 @@ fn eval_report_has_ns_eval_keys_per_band_and_per_view_entries() {
     assert!(e.contains("frame_000"), "{e}");
     let _ = band("x", None, None);
 }
+
+/// Depth metrics (`eval --depth`) against a direct f64 computation written from the definitions in the issue:
+/// error = truth - prediction (positive = in front), footprint = truth / focal, pooled medians over views.
+#[test]
+fn depth_metrics_match_a_direct_computation() {
+    use msnerf::output::metrics::depth::{DepthErrors, DepthReport};
+    let mut rng = Rng(0x9e3779b97f4a7c15);
+    let focal = 277.0;
+    let mut views = Vec::new();
+    let mut all_signed = Vec::new();
+    let mut all_fp = Vec::new();
+    for v in 0..3 {
+        let n = 101 + 2 * v;
+        let truth: Vec<f32> = (0..n).map(|_| 80.0 + 60.0 * rng.f64() as f32).collect();
+        // A biased prediction: 0.3 m in front with noise of about one footprint, plus a masked-out pixel and an
+        // invalid truth pixel that must not count.
+        let mut pred: Vec<f32> = truth.iter().map(|&t| t - 0.3 + 0.4 * (rng.f64() as f32 - 0.5)).collect();
+        let mut truth2 = truth.clone();
+        truth2[0] = f32::NAN;
+        pred[1] = f32::NAN; // a non-finite prediction counts with an infinite error
+        let mask: Vec<bool> = (0..n).map(|i| i != 2).collect();
+        let e = DepthErrors::of_view(&pred, &truth2, focal, Some(&mask)).expect("depth errors");
+        for i in 0..n {
+            if i == 0 || i == 2 {
+                continue;
+            }
+            let p = if pred[i].is_finite() { pred[i] as f64 } else { f64::INFINITY };
+            all_signed.push(truth2[i] as f64 - p);
+            all_fp.push(truth2[i] as f64 / focal);
+        }
+        views.push((format!("view{v}"), e));
+    }
+    let r = DepthReport::new("median", &views);
+    let med = |v: &mut Vec<f64>| {
+        v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        let m = v.len() / 2;
+        if v.len() % 2 == 1 {
+            v[m]
+        } else {
+            0.5 * (v[m - 1] + v[m])
+        }
+    };
+    let n = all_signed.len();
+    assert_eq!(r.overall.pixels, n);
+    assert_eq!(r.overall.pixels, 3 * 101 + 2 + 4 - 6, "masked and invalid pixels excluded");
+    let mut abs: Vec<f64> = all_signed.iter().map(|e| e.abs()).collect();
+    let mut signed = all_signed.clone();
+    let mut fp = all_fp.clone();
+    let mut rel: Vec<f64> = all_signed.iter().zip(&all_fp).map(|(e, f)| e / f).collect();
+    let within = |k: f64| all_signed.iter().zip(&all_fp).filter(|(e, f)| e.abs() <= k * **f).count() as f64 / n as f64;
+    let o = r.overall;
+    assert!((o.median_abs_error - med(&mut abs)).abs() < 1e-12);
+    assert!((o.median_bias - med(&mut signed)).abs() < 1e-12);
+    assert!((o.median_bias_footprints - med(&mut rel)).abs() < 1e-12);
+    assert!((o.median_footprint - med(&mut fp)).abs() < 1e-12);
+    assert!((o.within_half_footprint - within(0.5)).abs() < 1e-12);
+    assert!((o.within_one_footprint - within(1.0)).abs() < 1e-12);
+    assert!(o.mean_abs_error.is_infinite(), "the NaN prediction is an infinite error");
+    assert!(o.median_bias > 0.2 && o.median_bias < 0.4, "in front by about 0.3 m: {}", o.median_bias);
+    assert_eq!(r.views.len(), 3);
+    let json = serde_json::to_string(&r).expect("json");
+    assert!(json.contains("\"median_bias\"") && json.contains("\"view0\""), "{json}");
+    // Shape errors name what is wrong.
+    let err = DepthErrors::of_view(&[1.0, 2.0], &[1.0], focal, None).expect_err("length mismatch").to_string();
+    assert!(err.contains("depth"), "{err}");
+    assert!(DepthErrors::of_view(&[1.0], &[1.0], 0.0, None).is_err(), "zero focal length refused");
+}

@@ -294,7 +294,7 @@ fn composite_matches_twin_for_every_background() {
         let dyd = zeros(&g, "dy density", nr * n * stride);
         let dyc = zeros(&g, "dy colour", nr * n * bb);
         let wts = zeros(&g, "weights", nr * n);
-        let out = zeros(&g, "ray out", nr * (6 + bb));
+        let out = zeros(&g, "ray out", nr * (8 + bb));
         let p = CompositeParams {
             bands: bb,
             density_stride: stride,
@@ -347,13 +347,14 @@ fn composite_matches_twin_for_every_background() {
                 assert!(t.d_raw.iter().zip(&plain.d_raw).all(|(a, b)| a.abs() <= b.abs() + 1e-15));
             }
             check_vals(&gw[i * n..(i + 1) * n], &t.weights, "weights");
-            let ro = &go[i * (6 + bb)..(i + 1) * (6 + bb)];
+            let ro = &go[i * (8 + bb)..(i + 1) * (8 + bb)];
             check_vals(
                 &ro[..5],
                 &[t.loss_rgb, t.loss_dist, t.accumulation, t.median_depth, t.expected_depth],
                 "ray outputs",
             );
-            check_vals(&ro[6..], &t.colour, "colour");
+            check_vals(&ro[6..8], &[t.depth_q25, t.depth_q75], "depth quantiles");
+            check_vals(&ro[8..], &t.colour, "colour");
             let draw: Vec<f32> = (0..n).map(|s| gd[(i * n + s) * stride]).collect();
             check_grad(&draw, &t.d_raw, "dL/draw");
             check_grad(&gc[i * n * bb..(i + 1) * n * bb], &t.d_colour, "dL/dc");

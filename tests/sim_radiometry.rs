@@ -254,3 +254,53 @@ cameras:\n  - poses:\n      - {{position: [0, -40, 30], look_at: [0, 0, 0]}}\n  
     // oblique views are darker: the factor spans a real range.
     assert!(max_f <= 1.0 + 1e-9 && max_f > 0.95 && min_f < 0.8, "factor range {min_f}..{max_f}");
 }
+
+/// Albedo texture (issue 18): off unless a material asks for it; on, each pixel is the material's reflectance times
+/// f(p) = max(0, 1 + c n(p)) with n in [-1, 1] fractal value noise of the hit point, the same factor in every band
+/// (band ratios, hence indices, unchanged), deterministic, and spatially smooth (the pattern is a property of the
+/// surface, so two views of one ground point see one value: checked here through the factor function itself).
+#[test]
+fn texture_multiplies_every_band_alike_and_is_a_property_of_the_surface() {
+    use msnerf::sim::texture::TextureDesc;
+    let tex = "  panel: {flat: 0.4, texture: {scale: 4.0, contrast: 0.3}}";
+    let yaml = panel_scene(32, 24, "").replace("  panel: {flat: 0.4}", tex);
+    assert!(yaml.contains("texture"), "the panel material is textured");
+    let (_t, ds) = run_yaml(&yaml);
+    let (mut lo, mut hi) = (f32::MAX, f32::MIN);
+    for i in 0..ds.frames.len() {
+        let r = frame(&ds, i);
+        for row in 0..24 {
+            for col in 0..32 {
+                let v0 = r.get(row, col, 0);
+                for b in 1..6 {
+                    assert_eq!(r.get(row, col, b), v0, "flat material: every band gets the same factor");
+                }
+                lo = lo.min(v0);
+                hi = hi.max(v0);
+            }
+        }
+    }
+    assert!(lo >= 0.4 * 0.7 - 1e-6 && hi <= 0.4 * 1.3 + 1e-6, "within 1 +- contrast: {lo} .. {hi}");
+    assert!(hi - lo > 0.04, "the texture varies across the images: {lo} .. {hi}");
+    // The factor itself: deterministic, within bounds, mean near 1, smooth below its finest octave, seed-dependent.
+    let t = TextureDesc { scale: 4.0, contrast: 0.3, octaves: 3 };
+    let (mut sum, mut n, mut max_step) = (0.0, 0, 0.0f64);
+    for i in 0..2000 {
+        let p = [i as f64 * 0.37 - 300.0, (i * 7 % 113) as f64 * 0.91, 0.0];
+        let f = t.factor(5, 2, p);
+        assert_eq!(f, t.factor(5, 2, p), "deterministic");
+        assert!((0.7..=1.3).contains(&f), "{f}");
+        let g = t.factor(5, 2, [p[0] + 0.01, p[1], p[2]]);
+        max_step = max_step.max((f - g).abs());
+        sum += f;
+        n += 1;
+    }
+    assert!((sum / n as f64 - 1.0).abs() < 0.05, "mean factor {}", sum / n as f64);
+    assert!(max_step < 0.02, "smooth at 1 cm: largest change {max_step}");
+    assert_ne!(t.factor(5, 2, [1.3, 2.7, 0.0]), t.factor(6, 2, [1.3, 2.7, 0.0]), "the seed changes the pattern");
+    // Bad values name the key.
+    let bad = panel_scene(8, 6, "")
+        .replace("  panel: {flat: 0.4}", "  panel: {flat: 0.4, texture: {scale: 0, contrast: 0.3}}");
+    let err = msnerf::sim::SceneDesc::from_yaml(&bad, "test.yaml").expect_err("scale 0").to_string();
+    assert!(err.contains("materials.panel.texture.scale"), "{err}");
+}

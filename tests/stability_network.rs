@@ -133,9 +133,9 @@ fn check_head(c: &MlpConfig, w: &[f32], x: &[f32], case: &CompositeCase, got: &H
             dist_norm: case.dist_norm() as f64,
             grad_scaling: false,
         });
-        let ro = &got.comp.ray_out[i * (6 + bb)..(i + 1) * (6 + bb)];
+        let ro = &got.comp.ray_out[i * (8 + bb)..(i + 1) * (8 + bb)];
         check_vals(&ro[..3], &[t.loss_rgb, t.loss_dist, t.accumulation], &format!("{what}: ray {i} losses"));
-        check_vals(&ro[6..], &t.colour, &format!("{what}: ray {i} composite colour"));
+        check_vals(&ro[8..], &t.colour, &format!("{what}: ray {i} composite colour"));
         check_grad(&got.comp.d_raw[i * n..(i + 1) * n], &t.d_raw, &format!("{what}: ray {i} dL/draw"));
         check_grad(&got.comp.d_colour[i * n * bb..(i + 1) * n * bb], &t.d_colour, &format!("{what}: ray {i} dL/dc"));
         for k in 0..n {

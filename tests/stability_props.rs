@@ -190,7 +190,7 @@ fn gpu_weights_resampling_and_composite_keep_the_invariants() {
             let out = r.composite(&c, true);
             prop_assert!(out.d_raw.iter().chain(&out.d_colour).chain(&out.ray_out).all(|v| v.is_finite()));
             for i in 0..rays.len() {
-                let a = out.ray_out[i * 8 + 2];
+                let a = out.ray_out[i * (8 + 2) + 2]; // 8 fixed columns, 2 bands
                 prop_assert!((-1e-6..=1.0 + 1e-5).contains(&a), "accumulation {a}");
             }
             Ok(())

@@ -168,7 +168,7 @@ fn dense_media_weights_resampling_composite_and_interlevel_stay_finite() {
         c.background = bg;
         let out = composite_matches_twin(&r, &c, "dense composite");
         for i in 0..nr {
-            let a = out.ray_out[i * (6 + bands) + 2];
+            let a = out.ray_out[i * (8 + bands) + 2];
             assert!((a - 1.0).abs() < 1e-5, "ray {i}: opaque ray accumulates 1, got {a}");
         }
     }
@@ -205,7 +205,7 @@ fn empty_space_gives_zero_weights_and_finite_everything() {
             if raw_v == -200.0 {
                 assert!(out.weights.iter().all(|&w| w == 0.0), "all weights zero");
                 for i in 0..nr {
-                    let ro = &out.ray_out[i * (6 + bands)..(i + 1) * (6 + bands)];
+                    let ro = &out.ray_out[i * (8 + bands)..(i + 1) * (8 + bands)];
                     assert_eq!(ro[2], 0.0, "accumulation");
                     assert_eq!(ro[4], 0.0, "expected depth of an empty ray");
                     assert_eq!(ro[1], 0.0, "distortion of an empty ray");
@@ -340,8 +340,47 @@ fn saturated_reflectance_and_targets_outside_the_unit_interval() {
         composite_matches_twin(&r, &c, "saturated composite");
         let eval = r.composite(&c, false);
         for i in 0..nr {
-            let col = &eval.ray_out[i * (6 + bands) + 6..(i + 1) * (6 + bands)];
+            let col = &eval.ray_out[i * (8 + bands) + 8..(i + 1) * (8 + bands)];
             assert!(col.iter().all(|v| (0.0..=1.0).contains(v)), "evaluation colours clamped: {col:?}");
         }
+    }
+}
+
+/// The median and the depth quantiles are exact crossings, not interval midpoints: a slab of constant density sigma
+/// from t_a to t_b (empty before and after) accumulates A(t) = 1 - exp(-sigma (t - t_a)), so the median lies at
+/// t_a + ln 2 / sigma and the crossing of q A_total at t_a - ln(1 - q A_total) / sigma (closed form, plain f64, not
+/// the twin). The slab is cut into 10 intervals, so a midpoint estimate would miss by up to half of one.
+#[test]
+fn median_and_quantiles_are_exact_crossings() {
+    let g = gpu();
+    let r = Render::new(&g);
+    let (n, bands) = (24usize, 3usize);
+    let geo = Geometry { near: 0.05, far: 1000.0, contraction: false };
+    // A ray along +x from the origin stays inside the [-1, 1]^3 box up to t = 1: the slab is [0.3, 0.8].
+    let rays = Rays::same(3, [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
+    // s in [0, 0.45] maps to t < 1 (the linear branch of the spacing: t = 2 (s g(far) + (1 - s) g(near))).
+    let edges_one: Vec<f32> = (0..=n).map(|i| i as f32 / n as f32 * 0.45).collect();
+    let ts: Vec<f64> = edges_one.iter().map(|&s| tw::edge_to_t(s as f64, 0.05, 1000.0)).collect();
+    let (ia, ib) = (ts.iter().position(|&t| t >= 0.3).unwrap(), ts.iter().position(|&t| t >= 0.8).unwrap());
+    let (t_a, t_b) = (ts[ia], ts[ib]);
+    assert!(ib - ia >= 8, "the slab spans several intervals ({} .. {})", ia, ib);
+    for sigma in [2.0f64, 8.0, 40.0] {
+        let tau: Vec<f64> = (0..n).map(|i| if i >= ia && i < ib { sigma * (ts[i + 1] - ts[i]) } else { 0.0 }).collect();
+        let raw = raw_for_tau(&edges_one, geo, &tau);
+        let c = case(rays.clone(), n, bands, edges_one.repeat(3), raw.repeat(3), geo);
+        let out = composite_matches_twin(&r, &c, "slab composite");
+        let ro = &out.ray_out[..8 + bands];
+        let total = 1.0 - (-sigma * (t_b - t_a)).exp();
+        let cross = |level: f64| t_a - (1.0 - level).ln() / sigma;
+        let cell = (t_b - t_a) / (ib - ia) as f64;
+        let tol = 2e-4 + 1e-3 * cell;
+        assert!(((ro[2] as f64) - total).abs() < 1e-4, "sigma {sigma}: accumulation {} want {total}", ro[2]);
+        if total >= 0.5 {
+            let want = t_a + 2f64.ln() / sigma;
+            assert!((ro[3] as f64 - want).abs() < tol, "sigma {sigma}: median {} want {want}", ro[3]);
+        }
+        let (q25, q75) = (cross(0.25 * total), cross(0.75 * total));
+        assert!((ro[6] as f64 - q25).abs() < tol, "sigma {sigma}: q25 {} want {q25}", ro[6]);
+        assert!((ro[7] as f64 - q75).abs() < tol, "sigma {sigma}: q75 {} want {q75}", ro[7]);
     }
 }

@@ -31,6 +31,7 @@ fn point(t: f64, psnr: f64, bands: &[&str]) -> TimePoint {
             .enumerate()
             .map(|(i, b)| BandScore { name: b.to_string(), psnr: psnr + i as f64, ssim: 0.5 })
             .collect(),
+        geometry: None,
     }
 }
 

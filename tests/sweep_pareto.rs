@@ -66,6 +66,7 @@ fn cell(index: usize, points: &[(f64, f64)]) -> CellResult {
                 psnr: p,
                 ssim: 0.5,
                 bands: vec![],
+                geometry: None,
             })
             .collect(),
         trainer_best_eval_psnr: None,
@@ -121,6 +122,7 @@ fn shared_band_psnr_averages_the_squared_errors_not_the_decibels() {
         psnr: 0.0,
         ssim: 0.0,
         bands: vec![band("blue", 20.0), band("green", 30.0), band("nir", 10.0)],
+        geometry: None,
     };
     let (b, g, n) = ("blue".to_string(), "green".to_string(), "nir".to_string());
     // MSE 1e-2 and 1e-3: mean 5.5e-3.

@@ -217,3 +217,25 @@ fn whole_step_matches_reference_with_fp16_activations() {
     // The twin rounds the hidden activations to fp16 where the kernels store them, so the step still matches.
     check_step_with(true, 13, |c| c.mlp_activations = ActivationStorage::F16);
 }
+
+/// `loss.distortion_ramp`: off by default (the constant weight at every step), linear between its steps when set,
+/// and refused when its steps are out of order.
+#[test]
+fn distortion_ramp_interpolates_and_validates() {
+    use msnerf::nerf::config::{DistortionRamp, ModelConfig};
+    let mut c = ModelConfig::resolve("tiny").expect("tiny");
+    assert_eq!(c.loss.distortion_ramp, None);
+    for s in [0, 500, 100_000] {
+        assert_eq!(c.loss.distortion_at(s), c.loss.distortion_mult);
+    }
+    c.loss.distortion_mult = 0.002;
+    c.loss.distortion_ramp = Some(DistortionRamp { from_step: 100, to_step: 300, mult: 0.01 });
+    assert_eq!(c.loss.distortion_at(50), 0.002);
+    assert!((c.loss.distortion_at(200) - 0.006).abs() < 1e-7);
+    assert_eq!(c.loss.distortion_at(300), 0.01);
+    assert_eq!(c.loss.distortion_at(5000), 0.01);
+    c.validate().expect("a valid ramp");
+    c.loss.distortion_ramp = Some(DistortionRamp { from_step: 300, to_step: 300, mult: 0.01 });
+    let e = c.validate().expect_err("empty ramp");
+    assert!(e.contains("loss.distortion_ramp"), "{e}");
+}

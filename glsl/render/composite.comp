@@ -7,12 +7,18 @@
 // Backward: g_i = <G, c_i - bg> + dLd/dw_i; dL/dsigma_k = delta_k (g_k T_{k+1} - sum_{i>k} g_i w_i);
 //   dL/draw_k = dL/dsigma_k * scale exp(clamp(raw_k, -15, 15)); dL/dc_i = w_i G (+ (1 - A) G for the last sample with
 //   last_sample background). The exclusive prefix of sigma delta is parked in dy_density during the forward pass.
-// Outputs per ray (ray_out, stride 6 + B): loss_rgb, loss_dist, accumulation, median depth, expected depth,
-//   squared error (unweighted, summed over bands), C_0..C_{B-1} (clamped to [0,1] in evaluation).
+// Outputs per ray (ray_out, stride 8 + B): loss_rgb, loss_dist, accumulation, median depth, expected depth,
+//   squared error (unweighted, summed over bands), depth quantiles q25 and q75 of the normalised weights,
+//   C_0..C_{B-1} (clamped to [0,1] in evaluation).
+// Depths are exact crossings inside an interval, not its midpoint: inside [t0, t1) the density is constant, so the
+//   accumulation there is A_prev + T_i (1 - exp(-sigma (t - t0))) and the level L is crossed at
+//   t = t0 + delta * crossing_frac(u, tau), u = (L - A_prev) / w_i (see render_common.glsl). The median is the
+//   crossing of A = 0.5 (nerfstudio's median level; the last midpoint when A never reaches it); q25 and q75 cross
+//   0.25 A and 0.75 A, so q75 - q25 measures how spread the weights are along the ray (second pass over the weights).
 // Bindings: 0 edges (float[R][N+1]), 1 density rows (raw at column 0 of density_stride), 2 colours (float[R*N][B]),
 //           3 targets (float[R][B+1]: B values then the ray weight), 4 band weights (float[B]),
 //           5 dy_density (rows of density_stride: column 0 written), 6 dy_colour (float[R*N][B], written),
-//           7 weights (float[R][N], written), 8 ray_out (float[R][6+B], written), 9 origins, 10 directions.
+//           7 weights (float[R][N], written), 8 ray_out (float[R][8+B], written), 9 origins, 10 directions.
 // Push:     n_rays, n, bands, near, far, density_stride, density_scale, background (0 last_sample, 1 constant,
 //           2 random: a uniform colour per ray and band from (seed, step, ray_offset + ray), as nerfstudio's `random`),
 //           bg_value, rgb_norm, dist_norm, train, contraction, grad_scaling (1: nerfacto's optional gradient
@@ -71,7 +77,8 @@ void main() {
     // Forward.
     float acc = 0.0, A = 0.0, W = 0.0, M = 0.0, dist = 0.0, depth_sum = 0.0;
     float median = -1.0;
-    float t0 = edge_to_t(edges[e0], pc.near, pc.far);
+    float t_first = edge_to_t(edges[e0], pc.near, pc.far);
+    float t0 = t_first;
     float tmid_last = t0;
     for (uint i = 0u; i < pc.n; ++i) {
         float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
@@ -88,22 +95,39 @@ void main() {
         dist += 2.0 * w * (m * W - M) + w * w * (s1 - s0) / 3.0;
         W += w;
         M += w * m;
+        if (median < 0.0 && A + w >= 0.5 && w > 0.0) median = t0 + (t1 - t0) * crossing_frac((0.5 - A) / w, tau);
         A += w;
         depth_sum += w * tmid;
-        if (median < 0.0 && A >= 0.5) median = tmid;
         tmid_last = tmid;
         t0 = t1;
     }
     if (median < 0.0) median = tmid_last;
+    // Second pass: the crossings of 0.25 A and 0.75 A (weights and intervals as stored above). Below A = 1e-4 the ray
+    // holds no surface and the quantiles of its rounding-level weights mean nothing: both are the last midpoint.
+    float q25 = -1.0, q75 = -1.0, Ap = 0.0;
+    t0 = t_first;
+    for (uint i = 0u; i < pc.n && q75 < 0.0 && A >= 1e-4; ++i) {
+        float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
+        float w = weights[r * pc.n + i];
+        if (w > 0.0) {
+            float tau = sigma_of(r, i, o, d, 0.5 * (t0 + t1)) * (t1 - t0);
+            if (q25 < 0.0 && Ap + w >= 0.25 * A) q25 = t0 + (t1 - t0) * crossing_frac((0.25 * A - Ap) / w, tau);
+            if (q75 < 0.0 && Ap + w >= 0.75 * A) q75 = t0 + (t1 - t0) * crossing_frac((0.75 * A - Ap) / w, tau);
+        }
+        Ap += w;
+        t0 = t1;
+    }
+    if (q25 < 0.0) q25 = tmid_last;
+    if (q75 < 0.0) q75 = tmid_last;
     float ray_w = targets[r * (B + 1u) + B];
     float loss = 0.0, sq = 0.0;
-    uint ro = r * (6u + B);
+    uint ro = r * (8u + B);
     for (uint b = 0u; b < B; ++b) {
         float c = C[b] + bg_of(r, b) * (1.0 - A);
         float e = c - targets[r * (B + 1u) + b];
         loss += band_w[b] * e * e;
         sq += e * e;
-        ray_out[ro + 6u + b] = pc.train != 0u ? c : clamp(isnan(c) ? 0.0 : c, 0.0, 1.0);
+        ray_out[ro + 8u + b] = pc.train != 0u ? c : clamp(isnan(c) ? 0.0 : c, 0.0, 1.0);
         C[b] = 2.0 * band_w[b] * e * pc.rgb_norm * ray_w; // from here on C holds G = dL/dC
     }
     ray_out[ro] = loss * pc.rgb_norm * ray_w;
@@ -112,6 +136,8 @@ void main() {
     ray_out[ro + 3u] = median;
     ray_out[ro + 4u] = depth_sum / (A + 1e-10);
     ray_out[ro + 5u] = sq * ray_w;
+    ray_out[ro + 6u] = q25;
+    ray_out[ro + 7u] = q75;
     if (pc.train == 0u) return;
 
     // Backward: reverse pass with suffix sums S = sum_{i>k} g_i w_i, Sw = sum_{i>k} w_i, Swm = sum_{i>k} w_i m_i.

@@ -72,6 +72,15 @@ float alpha_of(float tau) {
     return tau < 0.0078125 ? tau * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0)))) : 1.0 - exp(-tau);
 }
 
+// Where inside an interval of optical thickness tau the accumulation reaches a fraction u in (0, 1] of the interval's
+// weight: 1 - exp(-tau f) = u (1 - exp(-tau)), so f = -log((1 - u) + u exp(-tau)) / tau (written so that nothing
+// cancels); f -> u as tau -> 0 (a thin interval fills linearly). Clamped to [0, 1].
+float crossing_frac(float u, float tau) {
+    u = clamp(u, 0.0, 1.0);
+    if (tau < 1e-4) return u;
+    return clamp(-log((1.0 - u) + u * exp(-tau)) / tau, 0.0, 1.0);
+}
+
 // d sigma / d raw with trunc_exp's clamped derivative: scale * exp(clamp(raw, -15, 15)).
 float density_grad_scale(float raw, float scale) {
     return scale * exp(clamp(raw, -15.0, 15.0));

@@ -89,7 +89,8 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
 
     println!("[3/6] evaluating held-out views");
     let mut run = LoadedRun::load(&ctx, &run_dir).map_err(anyhow::Error::msg)?;
-    let report = super::eval::evaluate(&mut run, Split::Eval, Some(a.eval_views), None)?;
+    let has_depth = run.ds.frames.iter().all(|f| f.depth.is_some());
+    let report = super::eval::evaluate(&mut run, Split::Eval, Some(a.eval_views), None, has_depth)?;
     report.write(&run_dir.join("eval.json"))?;
 
     println!("[4/6] rendering CIR and NDVI previews");
@@ -117,8 +118,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
 
     println!("[5/6] exporting the multispectral point cloud");
     let raw =
-        export_points(&mut run, &ExportOptions { rays: 100_000, min_accumulation: 0.5, seed: 42, normals: false })
-            .map_err(anyhow::Error::msg)?;
+        export_points(&mut run, &ExportOptions { rays: 100_000, ..Default::default() }).map_err(anyhow::Error::msg)?;
     let pargs = PointcloudArgs {
         run: run_dir.clone(),
         out: cloud_path.clone(),
@@ -130,6 +130,12 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         points: None,
         seed: 42,
         normals: false,
+        max_spread_cells: 8.0,
+        check_views: 6,
+        min_agree: 2,
+        agree_tolerance: 2.0,
+        gsd: None,
+        legacy: false,
     };
     let cloud = filter(raw, &pargs)?;
     write_cloud(&cloud, &cloud_path)?;

@@ -1,13 +1,15 @@
 //! `msnerf eval RUN [--split eval|train]`: renders every view of a split and reports PSNR (data range 1, stated in the
 //! output) and SSIM (scikit-image's Gaussian convention) per band, per view and overall, with the render time; JSON in
 //! nerfstudio's `ns-eval` layout plus per-band entries. LPIPS (AlexNet, on natural-colour composites) when
-//! `--lpips-weights` names a weights file; otherwise it is reported as not computed.
+//! `--lpips-weights` names a weights file; otherwise it is reported as not computed. `--depth`: the rendered median
+//! depth against the dataset's depth maps ([`crate::output::metrics::depth`]).
 
 use super::Cli;
 use crate::data::Split;
 use crate::gpu::Context;
 use crate::nerf::run::LoadedRun;
 use crate::output::image::SpectralImage;
+use crate::output::metrics::depth::{DepthErrors, DepthReport};
 use crate::output::metrics::lpips::Lpips;
 use crate::output::metrics::{image_metrics, EvalReport, MetricOptions, ViewEval};
 use crate::output::raster::preview::{COMPOSITE_TOLERANCE_NM, NATURAL_COLOUR_NM};
@@ -30,6 +32,11 @@ pub struct EvalArgs {
     /// natural-colour composites (bands nearest 660, 555, 450 nm)
     #[arg(long)]
     pub lpips_weights: Option<PathBuf>,
+    /// Also compare the rendered median depth with the dataset's depth maps (`depth_file_path`): median |error|,
+    /// signed bias (+ = in front of the surface) and the fraction within 0.5 and 1 pixel footprint, per view and
+    /// overall. An error when the frames have no depth maps.
+    #[arg(long)]
+    pub depth: bool,
 }
 
 pub fn parse_split(s: &str) -> anyhow::Result<Split> {
@@ -72,6 +79,7 @@ pub fn evaluate(
     split: Split,
     max_views: Option<usize>,
     lpips: Option<&Lpips>,
+    depth: bool,
 ) -> anyhow::Result<EvalReport> {
     let mut frames = run.ds.split_indices(split);
     if let Some(m) = max_views.filter(|&m| m > 0 && m < frames.len()) {
@@ -81,6 +89,16 @@ pub fn evaluate(
     let mut views = Vec::new();
     let mut lpips_values = Vec::new();
     let mut lpips_bands = [0usize; 3];
+    if depth {
+        if let Some(&f) = frames.iter().find(|&&f| run.ds.frames[f].depth.is_none()) {
+            anyhow::bail!(
+                "--depth: frame `{}` of {} has no `depth_file_path`",
+                run.ds.frames[f].name,
+                run.ds.transforms_path.display()
+            );
+        }
+    }
+    let mut depth_views = Vec::new();
     for f in frames {
         let rv = run.render_view(f).map_err(anyhow::Error::msg)?;
         let pred = SpectralImage::from_interleaved(rv.width, rv.height, run.ds.bands.clone(), &rv.colour)?;
@@ -93,6 +111,9 @@ pub fn evaluate(
             lpips_values
                 .push(net.distance(&a, &b, pred.width, pred.height).map_err(|e| anyhow::anyhow!("{name}: {e}"))?);
             lpips_bands = idx;
+        }
+        if depth {
+            depth_views.push((run.ds.frames[f].name.clone(), depth_errors(run, f, &rv.depth, mask.as_deref())?));
         }
         views.push(ViewEval {
             name: run.ds.frames[f].name.clone(),
@@ -115,7 +136,27 @@ pub fn evaluate(
         let note = format!("AlexNet LPIPS v0.1 on natural-colour composites (R, G, B = {})", names.join(", "));
         report.set_lpips_with_note(&lpips_values, &note)?;
     }
+    if depth {
+        report.depth = Some(DepthReport::new("median", &depth_views));
+    }
     Ok(report)
+}
+
+/// Depth errors of frame `f`: its depth map (converted to distance along the ray when it stores z) against the
+/// rendered median depth `rendered` (world units along the unit ray).
+pub fn depth_errors(run: &LoadedRun, f: usize, rendered: &[f32], mask: Option<&[bool]>) -> anyhow::Result<DepthErrors> {
+    let frame = &run.ds.frames[f];
+    let mut truth = run.ds.read_depth(f)?.ok_or_else(|| anyhow::anyhow!("frame `{}` has no depth map", frame.name))?;
+    let cam = &frame.camera;
+    if run.ds.depth_is_z {
+        let w = cam.width as usize;
+        for (q, t) in truth.iter_mut().enumerate() {
+            let ray = cam.ray_f64(&frame.c2w, (q / w) as u32, (q % w) as u32);
+            *t = (*t as f64 * ray.direction_norm) as f32;
+        }
+    }
+    DepthErrors::of_view(rendered, &truth, 0.5 * (cam.fx + cam.fy), mask)
+        .map_err(|e| anyhow::anyhow!("frame `{}`: {e}", frame.name))
 }
 
 pub fn run(cli: &Cli, a: &EvalArgs) -> anyhow::Result<()> {
@@ -123,7 +164,7 @@ pub fn run(cli: &Cli, a: &EvalArgs) -> anyhow::Result<()> {
     let ctx = Context::new(&cli.context_desc())?;
     let lpips = a.lpips_weights.as_deref().map(Lpips::load).transpose().map_err(anyhow::Error::msg)?;
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
-    let report = evaluate(&mut run, split, None, lpips.as_ref())?;
+    let report = evaluate(&mut run, split, None, lpips.as_ref(), a.depth)?;
     let out = a.output.clone().unwrap_or_else(|| a.run.join("eval.json"));
     report.write(&out)?;
     if a.json {

@@ -2,11 +2,13 @@
 //! frame and units (see `msnerf::nerf::export`), with statistical outlier removal, an optional crop box and a target
 //! point count. PLY carries every band as float and a display RGB; LAS 1.4 point format 8 carries RGB + NIR and the
 //! other bands as Extra Bytes. `--normals` adds each point's surface normal from the density field (PLY `nx ny nz`,
-//! LAS Extra Bytes `NormalX/Y/Z`).
+//! LAS Extra Bytes `NormalX/Y/Z`). By default the export is the careful one of `msnerf::nerf::export` (exact median
+//! crossing, spread filter, multi-view consistency, confidence scalar fields, optional `--gsd` thinning); `--legacy`
+//! is the accumulation-threshold export that came before it.
 
 use super::Cli;
 use crate::gpu::Context;
-use crate::nerf::export::{export_points, ExportOptions};
+use crate::nerf::export::{export_points_with_stats, Consistency, ExportOptions, ExportStats};
 use crate::nerf::run::LoadedRun;
 use crate::output::pointcloud::{self, PointCloud};
 use std::path::PathBuf;
@@ -52,6 +54,70 @@ pub struct PointcloudArgs {
     /// Also write surface normals: -grad(density) of the NeRF field at each point, facing the camera that saw it
     #[arg(long)]
     pub normals: bool,
+    /// Drop rays whose weights' interquartile depth spread exceeds this many cells of the field's finest grid level
+    /// (0 turns the filter off)
+    #[arg(long, default_value_t = 8.0)]
+    pub max_spread_cells: f64,
+    /// Multi-view consistency: other training views checked per point (0 turns the check off)
+    #[arg(long, default_value_t = 6)]
+    pub check_views: usize,
+    /// Multi-view consistency: agreeing views a point needs
+    #[arg(long, default_value_t = 2)]
+    pub min_agree: usize,
+    /// Multi-view consistency: largest depth disagreement, in pixel footprints of the checking view
+    #[arg(long, default_value_t = 2.0)]
+    pub agree_tolerance: f64,
+    /// Thin to one point per cube of this edge (world units, e.g. metres): the most consistent, then the least
+    /// spread point of each cell
+    #[arg(long)]
+    pub gsd: Option<f64>,
+    /// The export before issue 18 (accumulation threshold only): no spread filter, no consistency check
+    #[arg(long)]
+    pub legacy: bool,
+}
+
+impl PointcloudArgs {
+    /// The library options these flags ask for; errors name the flag.
+    pub fn export_options(&self) -> anyhow::Result<ExportOptions> {
+        anyhow::ensure!(self.rays > 0, "--rays must be > 0");
+        anyhow::ensure!(
+            self.max_spread_cells.is_finite() && self.max_spread_cells >= 0.0,
+            "--max-spread-cells must be >= 0, got {}",
+            self.max_spread_cells
+        );
+        anyhow::ensure!(
+            self.agree_tolerance.is_finite() && self.agree_tolerance > 0.0,
+            "--agree-tolerance must be > 0, got {}",
+            self.agree_tolerance
+        );
+        anyhow::ensure!(
+            self.check_views == 0 || (1..=self.check_views).contains(&self.min_agree),
+            "--min-agree must be between 1 and --check-views ({}), got {}",
+            self.check_views,
+            self.min_agree
+        );
+        if let Some(g) = self.gsd {
+            anyhow::ensure!(g.is_finite() && g > 0.0, "--gsd must be > 0, got {g}");
+        }
+        if self.legacy {
+            return Ok(ExportOptions {
+                normals: self.normals,
+                ..ExportOptions::legacy(self.rays, self.min_accumulation, self.seed)
+            });
+        }
+        Ok(ExportOptions {
+            rays: self.rays,
+            min_accumulation: self.min_accumulation,
+            seed: self.seed,
+            normals: self.normals,
+            max_spread_cells: (self.max_spread_cells > 0.0).then_some(self.max_spread_cells),
+            consistency: (self.check_views > 0).then_some(Consistency {
+                views: self.check_views,
+                min_agree: self.min_agree,
+                tolerance: self.agree_tolerance,
+            }),
+        })
+    }
 }
 
 /// Filters a cloud as the flags ask.
@@ -62,6 +128,9 @@ pub fn filter(mut cloud: PointCloud, a: &PointcloudArgs) -> anyhow::Result<Point
     }
     if a.outlier_neighbours > 0 && cloud.len() > a.outlier_neighbours {
         cloud = pointcloud::filter::remove_statistical_outliers(&cloud, a.outlier_neighbours, a.outlier_std_ratio)?.0;
+    }
+    if let Some(g) = a.gsd {
+        cloud = pointcloud::thin::thin_to_grid(&cloud, g, &["agreeing_views"], &["depth_spread"])?.0;
     }
     if let Some(n) = a.points {
         cloud = pointcloud::filter::subsample(&cloud, n, a.seed)?.0;
@@ -82,20 +151,22 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
     let ExportWhat::Pointcloud(a) = &a.what;
     let ext_ok = matches!(a.out.extension().and_then(|e| e.to_str()), Some("ply" | "las" | "PLY" | "LAS"));
     anyhow::ensure!(ext_ok, "--out {}: the file must end in .ply or .las", a.out.display());
+    let opts = a.export_options()?;
     let ctx = Context::new(&cli.context_desc())?;
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
-    let opts = ExportOptions { rays: a.rays, min_accumulation: a.min_accumulation, seed: a.seed, normals: a.normals };
-    let raw = export_points(&mut run, &opts).map_err(anyhow::Error::msg)?;
-    let n_raw = raw.len();
+    let (raw, stats) = export_points_with_stats(&mut run, &opts).map_err(anyhow::Error::msg)?;
     let cloud = filter(raw, a)?;
     write_cloud(&cloud, &a.out)?;
-    println!(
-        "{} points ({} rays rendered, {} above accumulation {}) -> {}",
-        cloud.len(),
-        a.rays,
-        n_raw,
-        a.min_accumulation,
-        a.out.display()
-    );
+    println!("{}", summary(&stats, a.min_accumulation, cloud.len()));
+    println!("-> {}", a.out.display());
     Ok(())
+}
+
+/// One line per filter: what it removed.
+pub fn summary(s: &ExportStats, min_accumulation: f32, written: usize) -> String {
+    format!(
+        "{} rays rendered: {} below accumulation {min_accumulation}, {} with spread weights, {} inconsistent across \
+         views ({} check rays); {} points kept, {} written after outlier removal and thinning",
+        s.rays, s.below_accumulation, s.spread, s.inconsistent, s.check_rays, s.kept, written
+    )
 }

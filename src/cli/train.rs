@@ -119,7 +119,8 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         ((a.host_budget_gib * (1u64 << 30) as f64) as u64, a.resample_every);
     if let Some(h) = &a.hardware {
         use crate::plan::{train as pt, DatasetShape};
-        let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref()).map_err(anyhow::Error::msg)?;
+        let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref(), Default::default())
+            .map_err(anyhow::Error::msg)?;
         let shape = DatasetShape::from_dataset(&ds);
         let base = resolve_model(a)?;
         let profile = pt::resolve_profile(&ctx, h, &base, &shape).map_err(anyhow::Error::msg)?;

@@ -23,6 +23,8 @@ pub use super::transforms::Band;
 pub struct LoadOptions {
     /// Mask NaN/Inf pixels out instead of rejecting the image.
     pub mask_non_finite: bool,
+    /// How [`Dataset::pose_transform`] normalises the poses.
+    pub normalization: super::pose::PoseNormalization,
 }
 
 /// Where a frame's pixels come from.
@@ -341,10 +343,24 @@ impl Dataset {
         (0..self.frames.len()).filter(|&i| self.frames[i].split == split).collect()
     }
 
-    /// The pose normalisation over all frames (nerfstudio normalises before splitting).
+    /// The pose normalisation over all frames (nerfstudio normalises before splitting), as
+    /// `options.normalization` asks; `aerial` on a layout that is not aerial falls back to `poses`, with a warning.
     pub fn pose_transform(&self) -> PoseTransform {
+        use super::pose::PoseNormalization;
         let poses: Vec<Mat4> = self.frames.iter().map(|f| f.c2w).collect();
-        normalize_poses(&poses)
+        if self.options.normalization == PoseNormalization::Poses {
+            return normalize_poses(&poses);
+        }
+        let frames: Vec<(Mat4, super::camera::Camera)> = self.frames.iter().map(|f| (f.c2w, f.camera)).collect();
+        match super::aerial::normalize_poses_aerial(&frames) {
+            Ok(t) => t,
+            Err(why) => {
+                if self.options.normalization == PoseNormalization::Aerial {
+                    log::warn!("{}: aerial pose normalisation: {why}; using `poses`", self.transforms_path.display());
+                }
+                normalize_poses(&poses)
+            }
+        }
     }
 
     fn max_decode_bytes(&self) -> usize {

@@ -10,6 +10,7 @@
 //! - [`check`]: `dataset check` as a library function.
 //! - [`bench`]: cache/load benchmark.
 
+pub mod aerial;
 pub mod bench;
 pub mod cache;
 pub mod camera;
@@ -32,6 +33,6 @@ pub use camera::{Camera, CameraModel, Distortion, Ray};
 pub use check::{check_dataset, CheckReport};
 pub use error::{DataError, FrameRef};
 pub use loader::{load_dataset, Band, BandSelection, Dataset, Frame, ImageSource, LoadOptions};
-pub use pose::PoseTransform;
+pub use pose::{PoseNormalization, PoseTransform};
 pub use raster::{Raster, SampleType, Samples};
 pub use split::Split;

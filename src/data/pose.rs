@@ -10,6 +10,20 @@ use serde::{Deserialize, Serialize};
 /// A 4x4 camera-to-world matrix (rows).
 pub type Mat4 = [[f64; 4]; 4];
 
+/// How camera poses are mapped into the normalised frame the field lives in (model config
+/// `sampling.pose_normalization`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PoseNormalization {
+    /// nerfstudio's dataparser: up-oriented, centred on the cameras, farthest camera at 1 ([`normalize_poses`]).
+    #[default]
+    Poses,
+    /// The cube fitted to the ground the cameras see (`super::aerial`); an error when the layout is not aerial.
+    Aerial,
+    /// `aerial` when the cameras look down and their axes meet, `poses` otherwise.
+    Auto,
+}
+
 /// World → normalised mapping: `p_n = scale · (R · p_w + t)` with `transform = [R | t]`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PoseTransform {

@@ -114,7 +114,7 @@ pub struct ChunkBuffers<A: Alloc> {
 }
 
 /// Per-ray output columns of the composite kernel besides the B colours.
-pub const RAY_OUT_FIXED: usize = 6;
+pub const RAY_OUT_FIXED: usize = 8;
 
 /// An MLP's training buffers (activations, deltas, weight-gradient scratch); all None for inference.
 struct MlpTrain<A: Alloc> {

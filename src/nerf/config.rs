@@ -82,6 +82,10 @@ pub struct SamplingConfig {
     pub use_proposal_weight_anneal: bool,
     pub proposal_weights_anneal_slope: f64,
     pub proposal_weights_anneal_max_num_iters: u64,
+    /// How poses are normalised: `poses` (nerfstudio's, the default), `aerial` (the cube fitted to the ground the
+    /// cameras see, `data::aerial`) or `auto` (aerial when the cameras look down and their axes meet).
+    #[serde(default)]
+    pub pose_normalization: crate::data::PoseNormalization,
 }
 
 fn yes() -> bool {
@@ -118,11 +122,46 @@ pub struct LossConfig {
     /// clamp(t^2, 0, 1), damping near-camera floaters. Off costs nothing.
     #[serde(default)]
     pub gradient_scaling: bool,
+    /// Optional distortion-loss schedule (off by default: `distortion_mult` throughout): the weight goes linearly
+    /// from `distortion_mult` at step `from_step` to `mult` at step `to_step` and stays there. Concentrates the
+    /// weights on one surface once the field has found it (docs/geometry.md); from the first step it collapses it.
+    #[serde(default)]
+    pub distortion_ramp: Option<DistortionRamp>,
+}
+
+/// See [`LossConfig::distortion_ramp`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DistortionRamp {
+    pub from_step: u64,
+    pub to_step: u64,
+    pub mult: f32,
+}
+
+impl LossConfig {
+    /// The distortion weight at `step`.
+    pub fn distortion_at(&self, step: u64) -> f32 {
+        match self.distortion_ramp {
+            None => self.distortion_mult,
+            Some(r) if step <= r.from_step => self.distortion_mult,
+            Some(r) if step >= r.to_step => r.mult,
+            Some(r) => {
+                let f = (step - r.from_step) as f32 / (r.to_step - r.from_step) as f32;
+                self.distortion_mult + f * (r.mult - self.distortion_mult)
+            }
+        }
+    }
 }
 
 impl Default for LossConfig {
     fn default() -> Self {
-        Self { interlevel_mult: 1.0, distortion_mult: 0.002, band_weights: None, gradient_scaling: false }
+        Self {
+            interlevel_mult: 1.0,
+            distortion_mult: 0.002,
+            band_weights: None,
+            gradient_scaling: false,
+            distortion_ramp: None,
+        }
     }
 }
 
@@ -278,6 +317,14 @@ impl ModelConfig {
         }
         if s.num_nerf_samples == 0 {
             return Err("sampling.num_nerf_samples must be > 0".into());
+        }
+        if let Some(r) = &self.loss.distortion_ramp {
+            if r.to_step <= r.from_step || !(r.mult.is_finite() && r.mult >= 0.0) {
+                return Err(format!(
+                    "loss.distortion_ramp: need from_step < to_step and mult >= 0, got {} .. {} and {}",
+                    r.from_step, r.to_step, r.mult
+                ));
+            }
         }
         let co = &self.camera_optimizer;
         if !(co.lr >= 0.0 && co.lr_final >= 0.0 && co.trans_l2_penalty >= 0.0 && co.rot_l2_penalty >= 0.0) {

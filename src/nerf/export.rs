@@ -1,14 +1,47 @@
-//! Multispectral point clouds from a trained run (nerfstudio `ns-export pointcloud`, spec/nerfacto.md §6.7): render
-//! training rays, keep those whose accumulation passes a threshold, place a point at the median depth, and carry
-//! every band's value; positions go back to the dataset's own world frame and units. With `normals`, each point also
-//! gets the density field's normal there ([`super::normals`]), facing the camera that saw it, rotated back into the
-//! world frame.
+//! Multispectral point clouds from a trained run (nerfstudio `ns-export pointcloud`, spec/nerfacto.md §6.7, made
+//! careful as a multi-view-stereo fusion step; docs/geometry.md).
+//!
+//! 1. Render random training pixels; a ray gives a point at its **median depth** (the exact crossing of
+//!    accumulation 0.5 inside its interval, `glsl/render/composite.comp`) and every band's value there.
+//! 2. Keep rays whose accumulation passes `min_accumulation`.
+//! 3. **Spread filter** (`max_spread_cells`): the depth quantiles q25 and q75 of the ray's weights give the
+//!    interquartile spread; a ray whose weights spread over more than that many cells of the field's finest
+//!    hash-grid level (at the point, with the contraction's stretch outside the unit cube) has no single surface and
+//!    is dropped.
+//! 4. **Multi-view consistency** ([`Consistency`]): the point is projected into up to `views` other training views
+//!    that see it (in front, inside the image), spread evenly over the candidates; each renders the ray through that
+//!    pixel, and a view *agrees* when its median depth matches the distance to the point within `tolerance`
+//!    pixel footprints (footprint = distance / focal length). A point needs `min_agree` agreeing views (COLMAP's
+//!    stereo fusion keeps a pixel seen consistently by >= `min_num_pixels` views in the same way).
+//! 5. Per-point confidence as scalar fields: `accumulation`, `depth_spread` (q75 - q25 in world units),
+//!    `agreeing_views`, `checked_views`.
+//!
+//! Positions go back to the dataset's own world frame and units. With `normals`, each point also gets the density
+//! field's normal there ([`super::normals`]), facing the camera that saw it, rotated back into the world frame.
+//! [`ExportOptions::legacy`] is the earlier behaviour (steps 1-2 only), kept for comparison.
 
 use super::normals::{density_gradients, normal_from_gradient};
 use super::run::LoadedRun;
-use crate::data::Split;
+use crate::data::{camera, CameraModel, Split};
 use crate::output::pointcloud::PointCloud;
 use rand::{Rng, SeedableRng};
+
+/// The multi-view consistency check.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Consistency {
+    /// Other training views checked per point (at most).
+    pub views: usize,
+    /// Agreeing views a point needs.
+    pub min_agree: usize,
+    /// Largest |rendered depth - distance| for agreement, in pixel footprints of the checking view.
+    pub tolerance: f64,
+}
+
+impl Default for Consistency {
+    fn default() -> Self {
+        Self { views: 6, min_agree: 2, tolerance: 2.0 }
+    }
+}
 
 #[derive(Clone, Debug)]
 pub struct ExportOptions {
@@ -19,16 +52,75 @@ pub struct ExportOptions {
     pub seed: u64,
     /// Also compute each point's surface normal from the density field.
     pub normals: bool,
+    /// Drop rays whose weights' interquartile spread exceeds this many finest field cells (None: off).
+    pub max_spread_cells: Option<f64>,
+    /// Multi-view consistency (None: off).
+    pub consistency: Option<Consistency>,
 }
 
 impl Default for ExportOptions {
     fn default() -> Self {
-        Self { rays: 200_000, min_accumulation: 0.5, seed: 42, normals: false }
+        Self {
+            rays: 200_000,
+            min_accumulation: 0.5,
+            seed: 42,
+            normals: false,
+            max_spread_cells: Some(8.0),
+            consistency: Some(Consistency::default()),
+        }
     }
+}
+
+impl ExportOptions {
+    /// The export before issue 18: accumulation threshold only, no spread or consistency filter.
+    pub fn legacy(rays: usize, min_accumulation: f32, seed: u64) -> Self {
+        Self { rays, min_accumulation, seed, normals: false, max_spread_cells: None, consistency: None }
+    }
+}
+
+/// What each filter removed (for the command's summary).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExportStats {
+    pub rays: usize,
+    pub below_accumulation: usize,
+    pub spread: usize,
+    pub inconsistent: usize,
+    pub kept: usize,
+    /// Rays rendered for the consistency check.
+    pub check_rays: usize,
+}
+
+/// Size of one cell of the finest hash-grid level at normalised point `p`: 4 / max_resolution in contracted
+/// coordinates, stretched by the L-infinity contraction's radial derivative (m^2 at |p|_inf = m > 1).
+pub fn field_cell_size(p: [f64; 3], max_resolution: u32, contraction: bool) -> f64 {
+    let m = p.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    if contraction {
+        4.0 / max_resolution as f64 * m.max(1.0).powi(2)
+    } else {
+        2.0 / max_resolution as f64
+    }
+}
+
+/// One candidate point before the consistency check.
+struct Candidate {
+    frame: usize,
+    p: [f64; 3],
+    dir: [f64; 3],
+    accumulation: f32,
+    spread: f64,
+    ray: usize,
 }
 
 /// Renders random training pixels and returns the kept points (world frame) with their band values.
 pub fn export_points(run: &mut LoadedRun, opts: &ExportOptions) -> Result<PointCloud, String> {
+    export_points_with_stats(run, opts).map(|(c, _)| c)
+}
+
+/// [`export_points`] and what each filter removed.
+pub fn export_points_with_stats(
+    run: &mut LoadedRun,
+    opts: &ExportOptions,
+) -> Result<(PointCloud, ExportStats), String> {
     let frames = run.ds.split_indices(Split::Train);
     if frames.is_empty() {
         return Err(format!("{}: no training frames to export from", run.ds.transforms_path.display()));
@@ -44,14 +136,13 @@ pub fn export_points(run: &mut LoadedRun, opts: &ExportOptions) -> Result<PointC
         ]);
     }
     let out = run.pipe.render(&pixels).map_err(|e| format!("rendering export rays: {e}"))?;
-    let bands = run.ds.bands.clone();
-    let b = bands.len();
-    let mut positions = Vec::new();
-    let mut normalised = Vec::new();
-    let mut view_dirs = Vec::new();
-    let mut values = Vec::new();
+    let mut stats = ExportStats { rays: opts.rays, ..Default::default() };
+    let max_res = run.cfg.field.grid.max_resolution;
+    let contraction = run.cfg.sampling.scene_contraction;
+    let mut cands = Vec::new();
     for i in 0..opts.rays {
         if out.accumulation[i] < opts.min_accumulation || !out.median_depth[i].is_finite() {
+            stats.below_accumulation += 1;
             continue;
         }
         let (f, row, col) = (pixels[3 * i] as usize, pixels[3 * i + 1], pixels[3 * i + 2]);
@@ -59,12 +150,56 @@ pub fn export_points(run: &mut LoadedRun, opts: &ExportOptions) -> Result<PointC
         let ray = run.ds.frames[f].camera.ray_f64(&c2w, row, col);
         let t = out.median_depth[i] as f64;
         let p = [0, 1, 2].map(|k| ray.origin[k] + ray.direction[k] * t);
-        positions.push(run.transform.to_world(p));
-        normalised.push(p);
-        view_dirs.push(ray.direction);
-        values.extend_from_slice(&out.colour[i * b..(i + 1) * b]);
+        let spread = (out.depth_q75[i] - out.depth_q25[i]).max(0.0) as f64;
+        if let Some(max_cells) = opts.max_spread_cells {
+            let limit = max_cells * field_cell_size(p, max_res, contraction);
+            if spread.is_nan() || spread > limit {
+                stats.spread += 1;
+                continue;
+            }
+        }
+        cands.push(Candidate { frame: f, p, dir: ray.direction, accumulation: out.accumulation[i], spread, ray: i });
     }
+    let (agree, checked) = match &opts.consistency {
+        Some(c) => {
+            let (a, k, n) = consistency(run, &frames, &cands, c)?;
+            stats.check_rays = n;
+            (a, k)
+        }
+        None => (vec![0; cands.len()], vec![0; cands.len()]),
+    };
+    let bands = run.ds.bands.clone();
+    let b = bands.len();
+    let (mut positions, mut normalised, mut view_dirs, mut values) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut acc_attr, mut spread_attr, mut agree_attr, mut checked_attr) = (vec![], vec![], vec![], vec![]);
+    let inv_scale = 1.0 / run.transform.scale;
+    for (k, c) in cands.iter().enumerate() {
+        if let Some(cfg) = &opts.consistency {
+            if (agree[k] as usize) < cfg.min_agree {
+                stats.inconsistent += 1;
+                continue;
+            }
+        }
+        positions.push(run.transform.to_world(c.p));
+        normalised.push(c.p);
+        view_dirs.push(c.dir);
+        values.extend_from_slice(&out.colour[c.ray * b..(c.ray + 1) * b]);
+        acc_attr.push(c.accumulation);
+        spread_attr.push((c.spread * inv_scale) as f32);
+        agree_attr.push(agree[k] as f32);
+        checked_attr.push(checked[k] as f32);
+    }
+    stats.kept = positions.len();
     let mut cloud = PointCloud::new(positions, bands, values).map_err(|e| e.to_string())?;
+    let attr = |cloud: &mut PointCloud, name: &str, what: &str, v: Vec<f32>| {
+        cloud.add_attribute(name, what, v).map_err(|e| e.to_string())
+    };
+    attr(&mut cloud, "accumulation", "ray opacity", acc_attr)?;
+    attr(&mut cloud, "depth_spread", "q75-q25 of ray weights", spread_attr)?;
+    if opts.consistency.is_some() {
+        attr(&mut cloud, "agreeing_views", "views whose depth agrees", agree_attr)?;
+        attr(&mut cloud, "checked_views", "views that see the point", checked_attr)?;
+    }
     if opts.normals {
         let grads = density_gradients(&run.pipe.ctx, &run.pipe.model, &normalised)
             .map_err(|e| format!("density normals: {e}"))?;
@@ -78,5 +213,90 @@ pub fn export_points(run: &mut LoadedRun, opts: &ExportOptions) -> Result<PointC
             .collect();
         cloud.normals = Some(normals);
     }
-    Ok(cloud)
+    Ok((cloud, stats))
+}
+
+/// A training view in the normalised frame, ready for projection.
+struct View {
+    frame: usize,
+    origin: [f64; 3],
+    /// Rows of the camera-to-world rotation (columns are the camera axes).
+    rot: [[f64; 3]; 3],
+    cam: crate::data::Camera,
+}
+
+impl View {
+    /// Pixel (row, col) that sees normalised point `p`, and the distance to it; None behind the camera, outside the
+    /// image or for a fisheye camera (not projected here).
+    fn project(&self, p: [f64; 3]) -> Option<(u32, u32, f64)> {
+        if self.cam.model == CameraModel::OpenCvFisheye {
+            return None;
+        }
+        let d = [0, 1, 2].map(|k| p[k] - self.origin[k]);
+        // Camera axes (OpenGL: x right, y up, looking along -z) are the rotation's columns.
+        let xc = [0, 1, 2].map(|a| (0..3).map(|k| self.rot[k][a] * d[k]).sum::<f64>());
+        if xc[2] >= -1e-9 {
+            return None;
+        }
+        let (mut x, mut y) = (xc[0] / -xc[2], -xc[1] / -xc[2]);
+        if self.cam.model != CameraModel::Pinhole && !self.cam.distortion.is_zero() {
+            (x, y) = camera::distort(x, y, &self.cam.distortion.params());
+        }
+        let (u, v) = (self.cam.cx + self.cam.fx * x, self.cam.cy + self.cam.fy * y);
+        if !(u >= 0.0 && v >= 0.0 && u < self.cam.width as f64 && v < self.cam.height as f64) {
+            return None;
+        }
+        let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        Some((v as u32, u as u32, dist))
+    }
+}
+
+/// Per candidate: agreeing views, checked views; and the number of rays rendered.
+fn consistency(
+    run: &mut LoadedRun,
+    frames: &[usize],
+    cands: &[Candidate],
+    c: &Consistency,
+) -> Result<(Vec<u32>, Vec<u32>, usize), String> {
+    let views: Vec<View> = frames
+        .iter()
+        .map(|&f| {
+            let m = run.transform.pose_to_normalized(&run.ds.frames[f].c2w);
+            View {
+                frame: f,
+                origin: [m[0][3], m[1][3], m[2][3]],
+                rot: [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2]]),
+                cam: run.ds.frames[f].camera,
+            }
+        })
+        .collect();
+    // Checks: (candidate, distance, focal) per rendered pixel.
+    let mut pixels = Vec::new();
+    let mut checks: Vec<(u32, f64, f64)> = Vec::new();
+    let mut checked = vec![0u32; cands.len()];
+    let mut seen = Vec::new();
+    for (k, cand) in cands.iter().enumerate() {
+        seen.clear();
+        seen.extend(views.iter().filter(|v| v.frame != cand.frame).filter_map(|v| v.project(cand.p).map(|x| (v, x))));
+        let n = seen.len().min(c.views);
+        for j in 0..n {
+            // Evenly spread over the candidates (wide baselines test the surface hardest).
+            let (v, (row, col, dist)) = seen[j * seen.len() / n];
+            pixels.extend([v.frame as u32, row, col]);
+            checks.push((k as u32, dist, 0.5 * (v.cam.fx + v.cam.fy)));
+        }
+        checked[k] = n as u32;
+    }
+    let mut agree = vec![0u32; cands.len()];
+    if checks.is_empty() {
+        return Ok((agree, checked, 0));
+    }
+    let out = run.pipe.render(&pixels).map_err(|e| format!("rendering consistency rays: {e}"))?;
+    for (i, &(k, dist, focal)) in checks.iter().enumerate() {
+        let d = out.median_depth[i] as f64;
+        if (d - dist).abs() <= c.tolerance * dist / focal {
+            agree[k as usize] += 1;
+        }
+    }
+    Ok((agree, checked, checks.len()))
 }

@@ -60,6 +60,10 @@ pub struct RenderOut {
     pub accumulation: Vec<f32>,
     pub median_depth: Vec<f32>,
     pub expected_depth: Vec<f32>,
+    /// Where the accumulation crosses 0.25 and 0.75 of its total (normalised-frame distance along the unit ray):
+    /// q75 - q25 is how spread the ray's weights are.
+    pub depth_q25: Vec<f32>,
+    pub depth_q75: Vec<f32>,
     /// |direction| before normalisation, for z-depth conversion
     pub direction_norm: Vec<f32>,
     pub timing: TimingReport,
@@ -507,7 +511,7 @@ impl Pipeline {
         let cfg = &self.model.cfg;
         let norms = (
             (1.0 / (total_w.max(1.0) * bands as f64)) as f32,
-            (cfg.loss.distortion_mult as f64 / total_w.max(1.0)) as f32,
+            (cfg.loss.distortion_at(self.step) as f64 / total_w.max(1.0)) as f32,
             (cfg.loss.interlevel_mult as f64 / (n_rays * cfg.sampling.num_nerf_samples) as f64) as f32,
         );
         let update_props = self.schedule.decide(&cfg.sampling, self.step) && !self.model.proposals.is_empty();
@@ -672,6 +676,8 @@ impl Pipeline {
                     out.accumulation.push(row[2]);
                     out.median_depth.push(row[3]);
                     out.expected_depth.push(row[4]);
+                    out.depth_q25.push(row[6]);
+                    out.depth_q75.push(row[7]);
                     out.colour.extend_from_slice(&row[RAY_OUT_FIXED..]);
                 }
                 out.direction_norm.extend(bytemuck::pod_collect_to_vec::<u8, f32>(&got[1]));

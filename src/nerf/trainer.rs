@@ -175,8 +175,13 @@ fn add_kernel_times(totals: &mut Vec<KernelTime>, timing: &TimingReport) {
 }
 
 /// Loads the dataset a run trains on: `data` with only the bands in `bands` when given.
-pub fn load_run_dataset(data: &Path, bands: Option<&[usize]>) -> Result<Dataset, String> {
-    let mut ds = load_dataset(data, &LoadOptions::default()).map_err(|e| e.to_string())?;
+pub fn load_run_dataset(
+    data: &Path,
+    bands: Option<&[usize]>,
+    normalization: crate::data::PoseNormalization,
+) -> Result<Dataset, String> {
+    let opts = LoadOptions { normalization, ..Default::default() };
+    let mut ds = load_dataset(data, &opts).map_err(|e| e.to_string())?;
     if let Some(b) = bands {
         ds.select_bands(b).map_err(|e| e.to_string())?;
     }
@@ -186,7 +191,7 @@ pub fn load_run_dataset(data: &Path, bands: Option<&[usize]>) -> Result<Dataset,
 /// Runs training; returns the summary. Errors are messages that name the file, key or step.
 pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String> {
     let cfg = &opts.model;
-    let ds = load_run_dataset(&opts.data, opts.bands.as_deref())?;
+    let ds = load_run_dataset(&opts.data, opts.bands.as_deref(), cfg.sampling.pose_normalization)?;
     let bands = ds.n_bands();
     cfg.band_weights(bands)?;
     let train_frames = ds.split_indices(Split::Train);

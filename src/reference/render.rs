@@ -148,6 +148,19 @@ fn samples<T: Float>(g: &RayGeom<T>, edges: &[T], raw: &[T], scale: T) -> Vec<(T
         .collect()
 }
 
+/// The depth inside interval [tmid - delta/2, tmid + delta/2] (constant density sigma, transmittance exp(-excl) at its
+/// start, accumulation `a_prev` before it) where the accumulation reaches `level`: solves
+/// a_prev + exp(-excl) (1 - exp(-sigma (t - t0))) = level for t, clamped to the interval.
+fn level_crossing<T: Float>(level: T, a_prev: T, excl: T, sigma: T, delta: T, tmid: T) -> T {
+    let t0 = tmid - c::<T>(0.5) * delta;
+    let a = ((level - a_prev) * excl.exp()).max(T::zero());
+    if sigma <= T::zero() || a >= T::one() {
+        return if a >= T::one() { t0 + delta } else { t0 };
+    }
+    let t = t0 - (-a).ln_1p() / sigma;
+    t.max(t0).min(t0 + delta)
+}
+
 fn nan0<T: Float>(v: T) -> T {
     if v.is_nan() {
         T::zero()
@@ -230,8 +243,13 @@ pub struct Composite<T> {
     pub weights: Vec<T>,
     pub colour: Vec<T>,
     pub accumulation: T,
+    /// Where the accumulation crosses 0.5 (exactly, inside the interval); the last midpoint when it never does.
     pub median_depth: T,
     pub expected_depth: T,
+    /// Where the accumulation crosses 0.25 A and 0.75 A (A the ray's total): the spread of the weights; the last
+    /// midpoint when A < 1e-4.
+    pub depth_q25: T,
+    pub depth_q75: T,
     /// band-weighted squared error x rgb_norm x ray weight
     pub loss_rgb: T,
     pub loss_dist: T,
@@ -293,10 +311,26 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         big_a = big_a + wi;
         depth_sum = depth_sum + wi * tmid;
         if median.is_none() && big_a >= c(0.5) {
-            median = Some(tmid);
+            median = Some(level_crossing(c(0.5), big_a - wi, excl[i], sigma, delta, tmid));
         }
     }
-    let median_depth = median.unwrap_or(s[n - 1].2);
+    let last_mid = s[n - 1].2;
+    let median_depth = median.unwrap_or(last_mid);
+    let quantile = |q: T| {
+        if big_a < c(1e-4) {
+            return last_mid; // no surface: the quantiles of rounding-level weights mean nothing
+        }
+        let level = q * big_a;
+        let mut a_prev = T::zero();
+        for (i, &(sigma, delta, tmid)) in s.iter().enumerate() {
+            if w[i] > T::zero() && a_prev + w[i] >= level {
+                return level_crossing(level, a_prev, excl[i], sigma, delta, tmid);
+            }
+            a_prev = a_prev + w[i];
+        }
+        last_mid
+    };
+    let (depth_q25, depth_q75) = (quantile(c(0.25)), quantile(c(0.75)));
     let mut loss = T::zero();
     let mut g_c = vec![T::zero(); b_n];
     for b in 0..b_n {
@@ -343,6 +377,8 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         colour,
         accumulation: big_a,
         median_depth,
+        depth_q25,
+        depth_q75,
         expected_depth: depth_sum / (big_a + c(1e-10)),
         loss_rgb: loss * a.rgb_norm * a.ray_weight,
         loss_dist: dist * a.dist_norm * a.ray_weight,

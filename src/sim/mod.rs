@@ -28,6 +28,7 @@ pub mod output;
 pub mod render;
 pub mod scene;
 pub mod spectra;
+pub mod texture;
 pub mod writer;
 
 pub use error::SimError;
@@ -104,6 +105,7 @@ impl Prepared {
                     name: name.clone(),
                     refl: integrators.iter().map(|i| i.integrate(&s)).collect(),
                     vegetation: m.vegetation,
+                    texture: m.texture,
                 }
             })
             .collect();

@@ -21,6 +21,8 @@ pub struct Material {
     /// Band-integrated reflectance, one per band.
     pub refl: Vec<f64>,
     pub vegetation: bool,
+    /// Albedo texture factor of the hit point (all bands alike), when the scene asks for one.
+    pub texture: Option<super::texture::TextureDesc>,
 }
 
 /// An image-point transform p ↦ A·p + t (pixels), mapping a band's output point to its sampling point.
@@ -119,8 +121,12 @@ impl Prepared {
                             points.push((q, hit.material));
                         }
                     }
-                    let light = self.light(&hit, ray.origin, ray.direction, sun, brdf);
+                    let mut light = self.light(&hit, ray.origin, ray.direction, sun, brdf);
                     let m = &self.materials[hit.material];
+                    if let Some(tex) = &m.texture {
+                        let q = [0, 1, 2].map(|i| ray.origin[i] + hit.t * ray.direction[i]);
+                        light *= tex.factor(self.seed, hit.material, q);
+                    }
                     for ((bv, &bt), r) in band_val.iter_mut().zip(&self.band_transform).zip(&m.refl) {
                         if bt == ti {
                             *bv = r * light;

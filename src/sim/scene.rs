@@ -123,6 +123,9 @@ pub struct MaterialDesc {
     /// Gets the `vegetation_brdf` effect.
     #[serde(default)]
     pub vegetation: bool,
+    /// Albedo texture (opt-in; `super::texture`): `{scale: METRES, contrast: 0..1, octaves: N}`.
+    #[serde(default)]
+    pub texture: Option<super::texture::TextureDesc>,
 }
 
 /// The ground plane z = 0: a disc of radius `extent` around `center`, closed by a hemispherical backdrop
@@ -277,9 +280,10 @@ pub struct PoseDesc {
 }
 
 /// Names of the built-in scenes (`configs/scenes/<name>.yaml`, compiled in).
-pub const BUILTIN_SCENES: [(&str, &str); 2] = [
+pub const BUILTIN_SCENES: [(&str, &str); 3] = [
     ("campus", include_str!("../../configs/scenes/campus.yaml")),
     ("ci-small", include_str!("../../configs/scenes/ci-small.yaml")),
+    ("ci-textured", include_str!("../../configs/scenes/ci-textured.yaml")),
 ];
 
 impl SceneDesc {
@@ -396,6 +400,9 @@ impl SceneDesc {
                 }
                 (None, Some(f)) if !f.is_finite() => return bad(format!("{k}.flat"), "must be finite"),
                 _ => {}
+            }
+            if let Some(t) = &m.texture {
+                t.validate().map_err(|(key, e)| (format!("{k}.{key}"), e))?;
             }
         }
         if !has(&self.ground.material) {

@@ -26,6 +26,35 @@ pub struct TimePoint {
     pub psnr: f64,
     pub ssim: f64,
     pub bands: Vec<BandScore>,
+    /// Depth and point-cloud accuracy, when the dataset has depth maps and a `ground_truth.ply` (the simulator's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<GeometryScore>,
+}
+
+/// Geometry at one evaluation point (issue 18): the held-out views' median depth against their depth maps
+/// (`output::metrics::depth` conventions: + = in front of the surface) and the default careful point-cloud export
+/// against the ground-truth cloud (`output::compare`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GeometryScore {
+    pub depth_median_abs_m: Option<f64>,
+    pub depth_bias_m: Option<f64>,
+    pub depth_bias_footprints: Option<f64>,
+    pub depth_within_half_footprint: Option<f64>,
+    pub depth_within_one_footprint: Option<f64>,
+    pub median_footprint_m: Option<f64>,
+    pub cloud_points: Option<usize>,
+    /// Median distance of the cloud's points to the ground truth (accuracy).
+    pub cloud_accuracy_median_m: Option<f64>,
+    /// Median distance of the ground truth to the cloud (completeness).
+    pub cloud_completeness_median_m: Option<f64>,
+    /// F-score at `cloud_threshold_m`.
+    pub cloud_f_score: Option<f64>,
+    pub cloud_threshold_m: Option<f64>,
+    pub cloud_rmse_planar_m: Option<f64>,
+    pub cloud_rmse_vertical_m: Option<f64>,
+    pub cloud_median_signed_dz_m: Option<f64>,
+    /// The paper's standard (planar RMSE <= 0.3 m, vertical RMSE <= 0.5 m) met.
+    pub standard_pass: Option<bool>,
 }
 
 /// Mean time of one kernel per training step.

@@ -91,7 +91,8 @@ pub fn run_sweep(ctx: &Context, grid: &Grid, opts: &SweepOptions) -> Result<Swee
     for c in &grid.cells {
         let cc = grid.resolve(c)?;
         if let Some(b) = &cc.bands {
-            load_run_dataset(&opts.data, Some(b)).map_err(|e| format!("cell {} ({}): {e}", c.index, c.describe()))?;
+            load_run_dataset(&opts.data, Some(b), Default::default())
+                .map_err(|e| format!("cell {} ({}): {e}", c.index, c.describe()))?;
         }
     }
     std::fs::create_dir_all(opts.out.join("cells")).map_err(|e| format!("{}: {e}", opts.out.display()))?;
@@ -262,11 +263,63 @@ fn evaluate_point(
     step: u64,
 ) -> Result<(TimePoint, Vec<String>, u64), String> {
     let mut run = LoadedRun::load(ctx, dir)?;
-    let rep =
-        crate::cli::eval::evaluate(&mut run, Split::Eval, Some(views), None).map_err(|e| format!("evaluating: {e}"))?;
+    let has_depth = run.ds.split_indices(Split::Eval).iter().all(|&f| run.ds.frames[f].depth.is_some());
+    let rep = crate::cli::eval::evaluate(&mut run, Split::Eval, Some(views), None, has_depth)
+        .map_err(|e| format!("evaluating: {e}"))?;
     let bands =
         rep.bands.iter().map(|b| BandScore { name: b.name.clone(), psnr: b.psnr, ssim: b.ssim }).collect::<Vec<_>>();
     let names = bands.iter().map(|b| b.name.clone()).collect();
-    let point = TimePoint { target_s, elapsed_s, step, psnr: rep.results.psnr, ssim: rep.results.ssim, bands };
+    let geometry = geometry_score(&mut run, rep.depth.as_ref())?;
+    let point =
+        TimePoint { target_s, elapsed_s, step, psnr: rep.results.psnr, ssim: rep.results.ssim, bands, geometry };
     Ok((point, names, run.pipe.model.n_params() as u64))
+}
+
+/// Rays the sweep's point-cloud export renders per evaluation point.
+const SWEEP_EXPORT_RAYS: usize = 50_000;
+/// Distance threshold of the sweep's cloud F-score (metres).
+const SWEEP_CLOUD_THRESHOLD_M: f64 = 0.25;
+
+/// Depth statistics from the evaluation and, when the dataset folder holds the simulator's `ground_truth.ply`, the
+/// default careful export compared with it; None when neither is available.
+fn geometry_score(
+    run: &mut LoadedRun,
+    depth: Option<&crate::output::metrics::depth::DepthReport>,
+) -> Result<Option<super::result::GeometryScore>, String> {
+    use crate::output::compare::{compare_clouds_with, AccuracyOptions, CompareOptions};
+    let truth = run.ds.root.join("ground_truth.ply");
+    if depth.is_none() && !truth.is_file() {
+        return Ok(None);
+    }
+    let fin = |v: f64| v.is_finite().then_some(v);
+    let mut g = super::result::GeometryScore::default();
+    if let Some(d) = depth {
+        let o = &d.overall;
+        g.depth_median_abs_m = fin(o.median_abs_error);
+        g.depth_bias_m = fin(o.median_bias);
+        g.depth_bias_footprints = fin(o.median_bias_footprints);
+        g.depth_within_half_footprint = fin(o.within_half_footprint);
+        g.depth_within_one_footprint = fin(o.within_one_footprint);
+        g.median_footprint_m = fin(o.median_footprint);
+    }
+    if truth.is_file() {
+        let reference = crate::output::pointcloud::read_ply(&truth).map_err(|e| format!("{}: {e}", truth.display()))?;
+        let opts = crate::nerf::export::ExportOptions { rays: SWEEP_EXPORT_RAYS, ..Default::default() };
+        let cloud = crate::nerf::export::export_points(run, &opts)?;
+        if !cloud.is_empty() {
+            let c = CompareOptions { threshold: SWEEP_CLOUD_THRESHOLD_M, ..Default::default() };
+            let r = compare_clouds_with(&cloud, &reference, &c, &AccuracyOptions::default())
+                .map_err(|e| format!("comparing the exported cloud: {e}"))?;
+            g.cloud_accuracy_median_m = fin(r.accuracy.median);
+            g.cloud_completeness_median_m = fin(r.completeness.median);
+            g.cloud_f_score = fin(r.f_score);
+            g.cloud_rmse_planar_m = fin(r.position.rmse_planar);
+            g.cloud_rmse_vertical_m = fin(r.position.rmse_elevation);
+            g.cloud_median_signed_dz_m = fin(r.position.median_signed_dz);
+            g.standard_pass = Some(r.standard.pass);
+        }
+        g.cloud_points = Some(cloud.len());
+        g.cloud_threshold_m = Some(SWEEP_CLOUD_THRESHOLD_M);
+    }
+    Ok(Some(g))
 }

@@ -67,6 +67,18 @@ pub fn cells_csv(results: &[CellResult]) -> String {
             "on_time_front",
             "on_memory_front",
             "stopped",
+            "depth_median_abs_m",
+            "depth_bias_m",
+            "depth_bias_footprints",
+            "depth_within_1_footprint",
+            "cloud_points",
+            "cloud_accuracy_median_m",
+            "cloud_completeness_median_m",
+            "cloud_f_score",
+            "cloud_rmse_planar_m",
+            "cloud_rmse_vertical_m",
+            "cloud_median_signed_dz_m",
+            "standard_pass",
         ]
         .map(String::from),
     );
@@ -96,6 +108,23 @@ pub fn cells_csv(results: &[CellResult]) -> String {
                 front.contains(&i).to_string(),
                 mem_front.contains(&i).to_string(),
                 r.stopped.clone(),
+            ]);
+            // Geometry of the final point (empty when the dataset has no depth maps or ground-truth cloud).
+            let g = f.and_then(|p| p.geometry.clone()).unwrap_or_default();
+            let o = |v: Option<f64>| v.map_or(String::new(), num);
+            row.extend([
+                o(g.depth_median_abs_m),
+                o(g.depth_bias_m),
+                o(g.depth_bias_footprints),
+                o(g.depth_within_one_footprint),
+                g.cloud_points.map_or(String::new(), |n| n.to_string()),
+                o(g.cloud_accuracy_median_m),
+                o(g.cloud_completeness_median_m),
+                o(g.cloud_f_score),
+                o(g.cloud_rmse_planar_m),
+                o(g.cloud_rmse_vertical_m),
+                o(g.cloud_median_signed_dz_m),
+                g.standard_pass.map_or(String::new(), |b| b.to_string()),
             ]);
             row
         })

@@ -162,7 +162,7 @@ impl<'a> Render<'a> {
         let dyd = zeros(g, "dy density", nr * n * stride);
         let dyc = zeros(g, "dy colour", nr * n * bb);
         let wts = zeros(g, "weights", nr * n);
-        let out = zeros(g, "ray out", nr * (6 + bb));
+        let out = zeros(g, "ray out", nr * (8 + bb));
         let p = CompositeParams {
             bands: bb,
             density_stride: stride,
@@ -329,13 +329,14 @@ pub fn composite_matches_twin(r: &Render, c: &CompositeCase, what: &str) -> Comp
         let t = twin_composite(c, i);
         assert_finite64(&t.d_raw, &format!("{what}: twin dL/draw"));
         check_vals(&out.weights[i * n..(i + 1) * n], &t.weights, &format!("{what}: ray {i} weights"));
-        let ro = &out.ray_out[i * (6 + bb)..(i + 1) * (6 + bb)];
+        let ro = &out.ray_out[i * (8 + bb)..(i + 1) * (8 + bb)];
         check_vals(
             &ro[..5],
             &[t.loss_rgb, t.loss_dist, t.accumulation, t.median_depth, t.expected_depth],
             &format!("{what}: ray {i} (loss_rgb, loss_dist, accumulation, median, expected depth)"),
         );
-        check_vals(&ro[6..], &t.colour, &format!("{what}: ray {i} colour"));
+        check_vals(&ro[6..8], &[t.depth_q25, t.depth_q75], &format!("{what}: ray {i} depth quantiles q25, q75"));
+        check_vals(&ro[8..], &t.colour, &format!("{what}: ray {i} colour"));
         check_grad(&out.d_raw[i * n..(i + 1) * n], &t.d_raw, &format!("{what}: ray {i} dL/draw"));
         check_grad(&out.d_colour[i * n * bb..(i + 1) * n * bb], &t.d_colour, &format!("{what}: ray {i} dL/dc"));
     }

@@ -1,6 +1,6 @@
 //! Image metrics for evaluation: PSNR (data range a parameter, 1 for reflectance), SSIM in scikit-image's
 //! Gaussian convention ([`ssim`]), per band and over all bands, with optional masks; and the `ns-eval`-style
-//! JSON report ([`report`]).
+//! JSON report ([`report`]); depth accuracy against ground-truth depth maps ([`depth`]).
 //!
 //! Conventions (nerfstudio's `get_image_metrics_and_images`, generalised to B bands):
 //! - PSNR of an image = `10·log10(R² / MSE)` with the MSE over **all bands and pixels** (torchmetrics' PSNR on the
@@ -10,6 +10,7 @@
 //!   pixels of the cropped SSIM map (the local windows still see unmasked neighbours).
 //! - Computed in f64 from the f32 inputs.
 
+pub mod depth;
 pub mod lpips;
 pub mod report;
 pub mod ssim;

@@ -116,6 +116,9 @@ pub struct EvalReport {
     pub num_views: usize,
     pub bands: Vec<BandSummary>,
     pub views: Vec<ViewEntry>,
+    /// Depth accuracy (`msnerf eval --depth`), when the dataset has depth maps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth: Option<super::depth::DepthReport>,
 }
 
 /// Mean and sample standard deviation (n − 1; 0 for one value).
@@ -219,6 +222,7 @@ impl EvalReport {
             num_views: views.len(),
             bands: band_summaries,
             views: entries,
+            depth: None,
         })
     }
 
@@ -271,6 +275,9 @@ impl EvalReport {
             s += &format!("{:<20} {:>9} {:>8}\n", name, f(b.psnr, 3), f(b.ssim, 4));
         }
         s += &format!("{:<20} {:>9} {:>8}\n", "all bands", f(self.results.psnr, 3), f(self.results.ssim, 4));
+        if let Some(d) = &self.depth {
+            s += &d.table();
+        }
         s
     }
 }

@@ -1,4 +1,5 @@
-//! Point cloud filters.
+//! Point cloud filters. Each returns the kept points through [`PointCloud::select`], the one place that picks
+//! points by index, so band values, normals, colours and attributes stay aligned with their points.
 //!
 //! - [`remove_statistical_outliers`]: Open3D's `remove_statistical_outlier(nb_neighbors, std_ratio)`, exactly:
 //!   each point's mean distance to its k nearest neighbours **including itself** (distance 0); mean and sample

@@ -10,15 +10,19 @@
 //!   (data type 9 = float; name = the PLY property name, e.g. `refl_720`; description "RedEdge1 720nm").
 //! - Normals, when the cloud has them, are three more f32 Extra Bytes named `NormalX`, `NormalY`, `NormalZ`
 //!   (the names PDAL and CloudCompare use for normals in Extra Bytes); [`read_las`] reads them back.
-//! - A VLR `msnerf`/1 holds the band list as JSON (name, centre, FWHM, and where each band is stored), so
-//!   [`read_las`] restores the bands in their original order.
+//! - Attributes ([`super::ScalarField`]) follow as one f32 Extra Bytes each (data type 9), named after the
+//!   attribute, with the first 31 bytes of its description (CloudCompare shows them as scalar fields).
+//! - A VLR `msnerf`/1 holds the band list as JSON (name, centre, FWHM, and where each band is stored) and the
+//!   attributes' names and full descriptions, so [`read_las`] restores the bands in their original order.
 //! - Coordinates: `scale` (default 1 mm) and an `offset` (default: each axis' minimum rounded down to a
 //!   multiple of 1000 m), so UTM-sized coordinates fit the i32 records at millimetre resolution; a cloud that
 //!   does not fit is an error naming the axis.
 //! - An OGC WKT CRS can be attached (`LASF_Projection`/2112, WKT bit set).
 //!
-//! Reading a foreign LAS, the bands are its Extra Bytes (any numeric type, scale/offset applied) and `rgb` is its
-//! colour (high byte, or the value itself when every colour fits 8 bits).
+//! Reading, every Extra Bytes field (any numeric type, scale/offset applied) that is not a band or a normal is an
+//! attribute, in descriptor order (its name made valid and unique when it is not, as in the PLY reader). In a
+//! foreign LAS (no msnerf VLR) the bands are the Extra Bytes named `refl_*` (centre parsed from `refl_<nm>`) or
+//! `band_*`, and `rgb` is its colour (high byte, or the value itself when every colour fits 8 bits).
 
 use std::io::BufWriter;
 use std::path::Path;
@@ -27,7 +31,7 @@ use las::{point::Format, Builder, Color, Point, Reader, Transform, Vector, Vlr, 
 use serde::{Deserialize, Serialize};
 
 use super::ply::band_property_names;
-use super::PointCloud;
+use super::{attribute_name_from, PointCloud, ScalarField};
 use crate::output::image::{band, band_description, nearest_band};
 use crate::output::raster::preview::{Stretch, COMPOSITE_TOLERANCE_NM, NATURAL_COLOUR_NM};
 use crate::output::{atomic::AtomicFile, Band, OutputError, Result};
@@ -95,10 +99,10 @@ impl ExtraBytesDescriptor {
         let mut r = [0u8; 192];
         r[2] = self.data_type;
         r[3] = self.options;
+        // At most 31 bytes (a NUL stays), cut at a character boundary.
         let put_str = |r: &mut [u8; 192], at: usize, s: &str| {
-            let b = s.as_bytes();
-            let n = b.len().min(31);
-            r[at..at + n].copy_from_slice(&b[..n]);
+            let b = truncate_utf8(s, 31).as_bytes();
+            r[at..at + b.len()].copy_from_slice(b);
         };
         put_str(&mut r, 4, &self.name);
         r[112..120].copy_from_slice(&self.scale.to_le_bytes());
@@ -121,7 +125,7 @@ impl ExtraBytesDescriptor {
         }
     }
 
-    /// Bytes per value (type 0: `options` holds the size).
+    /// Bytes per value (type 0: `options` holds the size; 11-30: the deprecated 2- and 3-element arrays).
     pub fn size(&self) -> usize {
         match self.data_type {
             0 => self.options as usize,
@@ -129,6 +133,10 @@ impl ExtraBytesDescriptor {
             3 | 4 => 2,
             5 | 6 | 9 => 4,
             7 | 8 | 10 => 8,
+            t @ 11..=30 => {
+                let base = ExtraBytesDescriptor { data_type: (t - 1) % 10 + 1, ..self.clone() }.size();
+                base * if t <= 20 { 2 } else { 3 }
+            }
             _ => 0,
         }
     }
@@ -147,10 +155,31 @@ impl ExtraBytesDescriptor {
             10 => f64::from_le_bytes(b[..8].try_into().expect("8 bytes")),
             _ => return f64::NAN,
         };
-        let scale = if self.options & 8 != 0 { self.scale } else { 1.0 };
-        let offset = if self.options & 16 != 0 { self.offset } else { 0.0 };
-        v * scale + offset
+        // Only when their option bits are set, so unscaled values (-0.0 included) come back bit for bit.
+        let v = if self.options & 8 != 0 { v * self.scale } else { v };
+        if self.options & 16 != 0 {
+            v + self.offset
+        } else {
+            v
+        }
     }
+}
+
+/// The longest prefix of `s` of at most `max` bytes that ends at a character boundary.
+fn truncate_utf8(s: &str, max: usize) -> &str {
+    let mut n = s.len().min(max);
+    while !s.is_char_boundary(n) {
+        n -= 1;
+    }
+    &s[..n]
+}
+
+#[derive(Serialize, Deserialize)]
+struct AttributeRecord {
+    /// The Extra Bytes name.
+    name: String,
+    /// The whole description (the descriptor holds 31 bytes of it).
+    description: String,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -166,6 +195,9 @@ struct BandRecord {
 struct BandVlr {
     reflectance_u16_scale: f64,
     bands: Vec<BandRecord>,
+    /// Absent in files from before attributes existed.
+    #[serde(default)]
+    attributes: Vec<AttributeRecord>,
 }
 
 fn to_u16(v: f32) -> u16 {
@@ -204,8 +236,17 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
     let mut builder = Builder::from((1, 4));
     let mut format = Format::new(8).map_err(|e| OutputError::write(path, e))?;
     let n_normals = if cloud.normals.is_some() { 3 } else { 0 };
-    format.extra_bytes = u16::try_from((extra.len() + n_normals) * 4).map_err(|_| {
-        OutputError::invalid("bands", format!("{} extra-bytes bands are too many for LAS", extra.len()))
+    let attrs = &cloud.attributes;
+    let n_fields = extra.len() + n_normals + attrs.len();
+    format.extra_bytes = u16::try_from(n_fields * 4).map_err(|_| {
+        OutputError::invalid(
+            "bands",
+            format!(
+                "{} extra-bytes bands, {n_normals} normal components and {} attributes are too many for LAS",
+                extra.len(),
+                attrs.len()
+            ),
+        )
     })?;
     builder.point_format = format;
     builder.generating_software = "msnerf".into();
@@ -244,8 +285,8 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
         y: Transform { scale: opts.scale[1], offset: offset[1] },
         z: Transform { scale: opts.scale[2], offset: offset[2] },
     };
-    if !extra.is_empty() || n_normals > 0 {
-        let mut data = Vec::with_capacity(192 * (extra.len() + n_normals));
+    if n_fields > 0 {
+        let mut data = Vec::with_capacity(192 * n_fields);
         for &b in &extra {
             let d = ExtraBytesDescriptor::f32(&names[b], &band_description(&cloud.bands[b]));
             data.extend_from_slice(&d.pack());
@@ -255,6 +296,9 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
                 let d = ExtraBytesDescriptor::f32(name, &format!("unit surface normal, {axis}"));
                 data.extend_from_slice(&d.pack());
             }
+        }
+        for a in attrs {
+            data.extend_from_slice(&ExtraBytesDescriptor::f32(&a.name, &a.description).pack());
         }
         builder.vlrs.push(Vlr { user_id: "LASF_Spec".into(), record_id: 4, description: "Extra Bytes".into(), data });
     }
@@ -270,6 +314,10 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
                 fwhm_nm: b.fwhm_nm,
                 stored_as: s.clone(),
             })
+            .collect(),
+        attributes: attrs
+            .iter()
+            .map(|a| AttributeRecord { name: a.name.clone(), description: a.description.clone() })
             .collect(),
     };
     builder.vlrs.push(Vlr {
@@ -316,6 +364,7 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
                 .iter()
                 .map(|&b| v[b])
                 .chain(cloud.normals.as_ref().map(|n| n[i]).into_iter().flatten())
+                .chain(attrs.iter().map(|a| a.values[i]))
                 .flat_map(f32::to_le_bytes)
                 .collect(),
             ..Default::default()
@@ -329,7 +378,8 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
     Ok(atomic.commit()?)
 }
 
-/// Reads a LAS file (bands from the msnerf band VLR when present, otherwise from the Extra Bytes).
+/// Reads a LAS file (bands from the msnerf band VLR when present, otherwise from the Extra Bytes named `refl_*` or
+/// `band_*`; the other Extra Bytes except normals are attributes).
 pub fn read_las(path: &Path) -> Result<PointCloud> {
     let mut reader = Reader::from_path(path).map_err(|e| OutputError::read(path, e))?;
     let header = reader.header().clone();
@@ -357,6 +407,9 @@ pub fn read_las(path: &Path) -> Result<PointCloud> {
         ));
     }
     let extra_by_name = |name: &str| descriptors.iter().position(|d| d.name == name);
+    // Scalar fields this reader decodes (not undocumented bytes, not the deprecated arrays).
+    let readable = |d: &ExtraBytesDescriptor| (1..=10).contains(&d.data_type);
+    let normal_idx: Option<Vec<usize>> = NORMAL_NAMES.iter().map(|&nm| extra_by_name(nm)).collect();
 
     enum Source {
         Red,
@@ -393,7 +446,7 @@ pub fn read_las(path: &Path) -> Result<PointCloud> {
         }
         None => {
             for (i, d) in descriptors.iter().enumerate() {
-                if d.size() == 0 || d.data_type == 0 || NORMAL_NAMES.contains(&d.name.as_str()) {
+                if !readable(d) || !(d.name.starts_with("refl_") || d.name.starts_with("band_")) {
                     continue;
                 }
                 let centre = d.name.strip_prefix("refl_").and_then(|s| s.parse::<f64>().ok());
@@ -402,13 +455,30 @@ pub fn read_las(path: &Path) -> Result<PointCloud> {
             }
         }
     }
+    // Attributes: the remaining Extra Bytes, in descriptor order.
+    let mut taken = band_property_names(&bands);
+    let mut attr_idx = Vec::new();
+    let mut attributes = Vec::new();
+    for (i, d) in descriptors.iter().enumerate() {
+        let is_normal = normal_idx.as_ref().is_some_and(|v| v.contains(&i));
+        if !readable(d) || is_normal || sources.iter().any(|s| matches!(s, Source::Extra(e) if *e == i)) {
+            continue;
+        }
+        let name = attribute_name_from(&d.name, &taken);
+        taken.push(name.clone());
+        let description = band_vlr
+            .as_ref()
+            .and_then(|bv| bv.attributes.iter().find(|a| a.name == d.name))
+            .map_or_else(|| d.description.clone(), |a| a.description.clone());
+        attr_idx.push(i);
+        attributes.push(ScalarField { name, values: Vec::new(), description });
+    }
     let scale = band_vlr.as_ref().map(|b| b.reflectance_u16_scale).unwrap_or(REFLECTANCE_U16_SCALE);
     let data = reader.read_all().map_err(|e| OutputError::read(path, e))?;
     let n = data.len();
     let mut positions = Vec::with_capacity(n);
     let mut values = Vec::with_capacity(n * bands.len());
     let mut colours = Vec::with_capacity(n);
-    let normal_idx: Option<Vec<usize>> = NORMAL_NAMES.iter().map(|&nm| extra_by_name(nm)).collect();
     let mut normals = Vec::with_capacity(if normal_idx.is_some() { n } else { 0 });
     let has_color = header.point_format().has_color;
     for p in data.points() {
@@ -438,12 +508,16 @@ pub fn read_las(path: &Path) -> Result<PointCloud> {
                 p.extra_bytes.get(a..a + d.size()).map_or(f32::NAN, |b| d.decode(b) as f32)
             }));
         }
+        for (attr, &e) in attributes.iter_mut().zip(&attr_idx) {
+            let (d, a) = (&descriptors[e], at[e]);
+            attr.values.push(p.extra_bytes.get(a..a + d.size()).map_or(f32::NAN, |b| d.decode(b) as f32));
+        }
     }
     let eight_bit = colours.iter().all(|c| c.iter().all(|&v| v <= 255));
     let rgb = has_color
         .then(|| colours.iter().map(|c| c.map(|v| if eight_bit { v as u8 } else { (v >> 8) as u8 })).collect());
     let normals = normal_idx.map(|_| normals);
-    let cloud = PointCloud { positions, bands, values, normals, rgb };
+    let cloud = PointCloud { positions, bands, values, normals, rgb, attributes };
     cloud.validate().map_err(|e| OutputError::read(path, e))?;
     Ok(cloud)
 }

@@ -1,0 +1,136 @@
+//! Pose normalisation for aerial layouts (issue 18). nerfstudio's `poses` centring puts the centre of the unit cube
+//! at the cameras' centroid and scales so that the farthest camera sits at 1: for a flight at height H that puts the
+//! ground at z ~ -H / radius (-0.97 on the campus scene, -1.74 on ci-small: inside the contracted region), and half
+//! of the grid covers the air above the cameras. `aerial` keeps the up axis vertical (the same rotation as `poses`)
+//! but fits the cube to the ground the cameras see:
+//!
+//! 1. ground height z_g: the median height of the points where pairs of optical axes pass closest to each other
+//!    (pairs whose axes meet within 5 % of their distance from the cameras, in front of both; at most 20,000 pairs,
+//!    seeded); fewer than 10 such pairs (e.g. a nadir grid flight with parallel axes) -> no aerial normalisation;
+//! 2. footprint: the rays through each image's corners and centre cut the plane z = z_g (rays within ~3 degrees of
+//!    the horizon are skipped, hits farther than 10 flight heights are clamped); the 2nd-98th percentile box of the
+//!    hits in x and y;
+//! 3. scale 1 / E with E the larger half-side of that box; centre (box centre, z_g + E / 2), so the ground lies at
+//!    z = -0.5 and what stands on it up to 1.5 E is inside the cube.
+//!
+//! The result is a [`PoseTransform`] like any other (nerfstudio's `dataparser_transforms.json` format).
+
+use super::camera::{camera_direction, Camera};
+use super::pose::{rotation_between, Mat4, PoseTransform};
+
+/// Why the aerial normalisation does not apply (the caller falls back to `poses` and says so).
+#[derive(Debug, Clone, PartialEq)]
+pub enum NotAerial {
+    /// The cameras do not look down on average (mean forward z > -0.25 after levelling).
+    NotLookingDown(f64),
+    /// Too few optical axes meet to place the ground.
+    AxesDoNotMeet(usize),
+}
+
+impl std::fmt::Display for NotAerial {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            NotAerial::NotLookingDown(z) => write!(f, "the cameras do not look down (mean forward z {z:.2})"),
+            NotAerial::AxesDoNotMeet(n) => {
+                write!(f, "only {n} pairs of optical axes meet, too few to place the ground (a nadir flight?)")
+            }
+        }
+    }
+}
+
+fn mat_vec(r: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn percentile(v: &mut [f64], q: f64) -> f64 {
+    v.sort_unstable_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// The aerial normalisation of cameras `frames` (camera-to-world, intrinsics).
+pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform, NotAerial> {
+    let n = frames.len();
+    let mut up = [0.0; 3];
+    for (p, _) in frames {
+        for (i, u) in up.iter_mut().enumerate() {
+            *u += p[i][1];
+        }
+    }
+    let r = rotation_between(up, [0.0, 0.0, 1.0]);
+    // Levelled camera centres and forward axes (OpenGL cameras look along -z).
+    let centres: Vec<[f64; 3]> = frames.iter().map(|(p, _)| mat_vec(&r, [p[0][3], p[1][3], p[2][3]])).collect();
+    let fwd: Vec<[f64; 3]> = frames.iter().map(|(p, _)| mat_vec(&r, [-p[0][2], -p[1][2], -p[2][2]])).collect();
+    let mean_fz = fwd.iter().map(|a| a[2]).sum::<f64>() / n.max(1) as f64;
+    if mean_fz.is_nan() || mean_fz >= -0.25 {
+        return Err(NotAerial::NotLookingDown(mean_fz));
+    }
+    // 1. Where pairs of optical axes meet.
+    let pairs = n * (n.saturating_sub(1)) / 2;
+    let stride = (pairs / 20_000).max(1);
+    let mut meet_z = Vec::new();
+    let mut k = 0usize;
+    for i in 0..n {
+        for j in i + 1..n {
+            k += 1;
+            if k % stride != 0 {
+                continue;
+            }
+            let (c1, a1, c2, a2) = (centres[i], fwd[i], centres[j], fwd[j]);
+            let w = [0, 1, 2].map(|q| c1[q] - c2[q]);
+            let (b, d, e) = (dot(a1, a2), dot(a1, w), dot(a2, w));
+            let den = 1.0 - b * b;
+            if den < 0.0076 {
+                continue; // axes within 5 degrees of parallel
+            }
+            let (s, t) = ((b * e - d) / den, (e - b * d) / den);
+            if s <= 0.0 || t <= 0.0 {
+                continue;
+            }
+            let p1 = [0, 1, 2].map(|q| c1[q] + s * a1[q]);
+            let p2 = [0, 1, 2].map(|q| c2[q] + t * a2[q]);
+            let gap = ((p1[0] - p2[0]).powi(2) + (p1[1] - p2[1]).powi(2) + (p1[2] - p2[2]).powi(2)).sqrt();
+            if gap < 0.05 * s.min(t) {
+                meet_z.push(0.5 * (p1[2] + p2[2]));
+            }
+        }
+    }
+    if meet_z.len() < 10 {
+        return Err(NotAerial::AxesDoNotMeet(meet_z.len()));
+    }
+    let z_g = percentile(&mut meet_z, 0.5);
+    // 2. The footprint on z = z_g.
+    let height = centres.iter().map(|c| c[2] - z_g).sum::<f64>() / n as f64;
+    let max_reach = 10.0 * height.abs().max(1e-9);
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    for ((p, cam), c) in frames.iter().zip(&centres) {
+        let k = cam.intrinsics::<f64>();
+        let (w, h) = (cam.width as f64, cam.height as f64);
+        for (v, u) in [(0.0, 0.0), (0.0, w), (h, 0.0), (h, w), (0.5 * h, 0.5 * w)] {
+            let dc = camera_direction(&k, v, u);
+            let dw = [0, 1, 2].map(|i| p[i][0] * dc[0] + p[i][1] * dc[1] + p[i][2] * dc[2]);
+            let d = mat_vec(&r, dw);
+            let len = dot(d, d).sqrt();
+            if d[2].is_nan() || d[2] >= -0.05 * len {
+                continue;
+            }
+            let t = (z_g - c[2]) / d[2];
+            let (mut hx, mut hy) = (t * d[0], t * d[1]);
+            let reach = (hx * hx + hy * hy).sqrt();
+            if reach > max_reach {
+                (hx, hy) = (hx * max_reach / reach, hy * max_reach / reach);
+            }
+            xs.push(c[0] + hx);
+            ys.push(c[1] + hy);
+        }
+    }
+    let (x0, x1) = (percentile(&mut xs, 0.02), percentile(&mut xs, 0.98));
+    let (y0, y1) = (percentile(&mut ys, 0.02), percentile(&mut ys, 0.98));
+    // 3. Scale and centre.
+    let e = (0.5 * (x1 - x0)).max(0.5 * (y1 - y0)).max(0.25 * height.abs()).max(1e-9);
+    let centre = [0.5 * (x0 + x1), 0.5 * (y0 + y1), z_g + 0.5 * e];
+    Ok(PoseTransform { transform: [0, 1, 2].map(|i| [r[i][0], r[i][1], r[i][2], -centre[i]]), scale: 1.0 / e })
+}
