@@ -3,7 +3,7 @@ CARGO ?= cargo
 # The suite runs with the Khronos validation layer and fails on any message it prints.
 export MSNERF_REQUIRE_VALIDATION ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report
 
 setup:
 	@bash tools/setup-debian.sh
@@ -39,6 +39,10 @@ accuracy-report-5min: build
 mlp-precision-report: build
 	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/mlp-precision.yaml \
 		--out mlp-precision-output --report docs/mlp-precision.md
+
+# docs/geometry/: the raw numbers behind docs/geometry.md's ten-minute table (campus, demo profile, 600 s; ~13 min).
+geometry-report: build
+	bash tools/geometry-report.sh geometry-report-output 600
 
 clean:
 	$(CARGO) clean

@@ -223,3 +223,37 @@ fn aerial_normalisation_puts_the_ground_at_minus_one_half() {
     let e = normalize_poses_aerial(&parallel).expect_err("parallel axes");
     assert!(matches!(e, NotAerial::AxesDoNotMeet(_) | NotAerial::NotLookingDown(_)), "{e}");
 }
+
+/// The export's projection (`nerf::export::project_point`) inverts ray generation for every camera model: the ray
+/// through the centre of pixel (row, col), followed for t, projects back to (row, col) at distance t.
+#[test]
+fn projection_inverts_ray_generation() {
+    use msnerf::nerf::export::project_point;
+    let dist = Distortion { k1: -0.12, k2: 0.03, k3: 0.0, k4: 0.0, p1: 0.001, p2: -0.0005 };
+    let fisheye = Distortion { k1: 0.05, k2: -0.01, k3: 0.0, k4: 0.0, p1: 0.0, p2: 0.0 };
+    let c2w = pose(rot(0.4, -0.7), [3.0, -2.0, 7.0]);
+    let rows = [0, 1, 2].map(|r| [c2w[r][0], c2w[r][1], c2w[r][2]]);
+    for (model, d) in [
+        (CameraModel::Pinhole, Distortion::default()),
+        (CameraModel::OpenCv, dist),
+        (CameraModel::OpenCvFisheye, fisheye),
+    ] {
+        let c = cam(model, d);
+        for (row, col) in [(0u32, 0u32), (5, 17), (c.height / 2, c.width / 2), (c.height - 1, c.width - 1)] {
+            let ray = c.ray_f64(&c2w, row, col);
+            for t in [0.5, 5.0, 40.0] {
+                let p = [0, 1, 2].map(|k| ray.origin[k] + t * ray.direction[k]);
+                let (r2, c2, d2) = project_point(&c, [c2w[0][3], c2w[1][3], c2w[2][3]], &rows, p)
+                    .unwrap_or_else(|| panic!("{model:?} ({row}, {col}) t {t}: not projected"));
+                assert_eq!((r2, c2), (row, col), "{model:?} t {t}");
+                assert!((d2 - t).abs() < 1e-9 * t.max(1.0), "{model:?}: distance {d2} want {t}");
+            }
+        }
+        // Behind a pinhole camera: nothing.
+        if model == CameraModel::Pinhole {
+            let ray = c.ray_f64(&c2w, 3, 3);
+            let p = [0, 1, 2].map(|k| ray.origin[k] - 5.0 * ray.direction[k]);
+            assert!(project_point(&c, [c2w[0][3], c2w[1][3], c2w[2][3]], &rows, p).is_none());
+        }
+    }
+}

@@ -148,6 +148,12 @@ pub fn depth_errors(run: &LoadedRun, f: usize, rendered: &[f32], mask: Option<&[
     let frame = &run.ds.frames[f];
     let mut truth = run.ds.read_depth(f)?.ok_or_else(|| anyhow::anyhow!("frame `{}` has no depth map", frame.name))?;
     let cam = &frame.camera;
+    if run.ds.depth_is_z && cam.model == crate::data::CameraModel::OpenCvFisheye {
+        anyhow::bail!(
+            "--depth: frame `{}`: z-depth maps of fisheye cameras are not supported (use `depth_type: ray_distance`)",
+            frame.name
+        );
+    }
     if run.ds.depth_is_z {
         let w = cam.width as usize;
         for (q, t) in truth.iter_mut().enumerate() {

@@ -6,12 +6,15 @@
 //!
 //! 1. ground height z_g: the median height of the points where pairs of optical axes pass closest to each other
 //!    (pairs whose axes meet within 5 % of their distance from the cameras, in front of both; at most 20,000 pairs,
-//!    seeded); fewer than 10 such pairs (e.g. a nadir grid flight with parallel axes) -> no aerial normalisation;
+//!    every k-th of the n (n - 1) / 2); fewer than 10 such pairs (e.g. a nadir grid flight with parallel axes) -> no aerial normalisation;
 //! 2. footprint: the rays through each image's corners and centre cut the plane z = z_g (rays within ~3 degrees of
 //!    the horizon are skipped, hits farther than 10 flight heights are clamped); the 2nd-98th percentile box of the
 //!    hits in x and y;
 //! 3. scale 1 / E with E the larger half-side of that box; centre (box centre, z_g + E / 2), so the ground lies at
 //!    z = -0.5 and what stands on it up to 1.5 E is inside the cube.
+//!
+//! Up is the mean of the cameras' up vectors, as for `poses`: on a flight that mixes nadir images of one heading
+//! with obliques, the nadir images tilt it (the same limitation as nerfstudio's `up`).
 //!
 //! The result is a [`PoseTransform`] like any other (nerfstudio's `dataparser_transforms.json` format).
 
@@ -25,6 +28,8 @@ pub enum NotAerial {
     NotLookingDown(f64),
     /// Too few optical axes meet to place the ground.
     AxesDoNotMeet(usize),
+    /// No image corner or centre ray reaches the ground plane.
+    NoGroundInView,
 }
 
 impl std::fmt::Display for NotAerial {
@@ -34,6 +39,7 @@ impl std::fmt::Display for NotAerial {
             NotAerial::AxesDoNotMeet(n) => {
                 write!(f, "only {n} pairs of optical axes meet, too few to place the ground (a nadir flight?)")
             }
+            NotAerial::NoGroundInView => write!(f, "no image ray reaches the estimated ground plane"),
         }
     }
 }
@@ -70,7 +76,7 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
     }
     // 1. Where pairs of optical axes meet.
     let pairs = n * (n.saturating_sub(1)) / 2;
-    let stride = (pairs / 20_000).max(1);
+    let stride = pairs.div_ceil(20_000).max(1);
     let mut meet_z = Vec::new();
     let mut k = 0usize;
     for i in 0..n {
@@ -126,6 +132,9 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
             xs.push(c[0] + hx);
             ys.push(c[1] + hy);
         }
+    }
+    if xs.is_empty() {
+        return Err(NotAerial::NoGroundInView);
     }
     let (x0, x1) = (percentile(&mut xs, 0.02), percentile(&mut xs, 0.98));
     let (y0, y1) = (percentile(&mut ys, 0.02), percentile(&mut ys, 0.98));

@@ -79,6 +79,8 @@ pub struct Dataset {
     pub options: LoadOptions,
     /// Set by [`Dataset::select_bands`]: the dataset then reads and reports only these bands of its files.
     pub band_selection: Option<BandSelection>,
+    /// [`Dataset::pose_transform`], computed once (the aerial fit looks at pairs of cameras).
+    pub transform_cache: std::sync::OnceLock<PoseTransform>,
 }
 
 /// A subset of a dataset's bands (`msnerf train --bands`, sweep axis `bands`): the indices kept, in order, into
@@ -211,6 +213,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         depth_is_z: raw.depth_is_z,
         options: options.clone(),
         band_selection: None,
+        transform_cache: Default::default(),
     };
     // Probe the first frame: sample type, and band identity when the header does not name the bands.
     let probe = ds.decode_sources(0)?;
@@ -346,6 +349,10 @@ impl Dataset {
     /// The pose normalisation over all frames (nerfstudio normalises before splitting), as
     /// `options.normalization` asks; `aerial` on a layout that is not aerial falls back to `poses`, with a warning.
     pub fn pose_transform(&self) -> PoseTransform {
+        *self.transform_cache.get_or_init(|| self.compute_pose_transform())
+    }
+
+    fn compute_pose_transform(&self) -> PoseTransform {
         use super::pose::PoseNormalization;
         let poses: Vec<Mat4> = self.frames.iter().map(|f| f.c2w).collect();
         if self.options.normalization == PoseNormalization::Poses {

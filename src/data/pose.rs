@@ -18,7 +18,8 @@ pub enum PoseNormalization {
     /// nerfstudio's dataparser: up-oriented, centred on the cameras, farthest camera at 1 ([`normalize_poses`]).
     #[default]
     Poses,
-    /// The cube fitted to the ground the cameras see (`super::aerial`); an error when the layout is not aerial.
+    /// The cube fitted to the ground the cameras see (`super::aerial`); when the layout is not aerial, `poses` with a
+    /// warning that says why.
     Aerial,
     /// `aerial` when the cameras look down and their axes meet, `poses` otherwise.
     Auto,

@@ -225,13 +225,22 @@ fn write_points(prep: &Prepared, root: &Path, points: &[([f64; 3], usize)]) -> R
         prep.bands.iter().map(|b| crate::output::image::band(&b.name, Some(b.center_nm), Some(b.fwhm_nm))).collect();
     let o = prep.world_offset;
     let xyz: Vec<[f64; 3]> = points.iter().map(|(p, _)| [p[0] + o[0], p[1] + o[1], p[2] + o[2]]).collect();
-    let refl: Vec<f32> = points.iter().flat_map(|(_, m)| prep.materials[*m].refl.iter().map(|&r| r as f32)).collect();
+    // Textured materials: the reflectance times the texture factor at the point, as the images show it.
+    let refl: Vec<f32> = points
+        .iter()
+        .flat_map(|(p, m)| {
+            let mat = &prep.materials[*m];
+            let f = mat.texture.map_or(1.0, |t| t.factor(prep.seed, *m, *p));
+            mat.refl.iter().map(move |&r| (r * f) as f32)
+        })
+        .collect();
     let path = root.join("ground_truth.ply");
     let cloud = PointCloud::new(xyz, bands, refl)?;
     let comments = vec![
         format!("msnerf simulate scene {}", prep.name),
         format!("world frame: local scene frame + world_offset {} {} {} (metres, z up)", o[0], o[1], o[2]),
-        "values: band-integrated Lambertian reflectance of the surface (no light or sensor effects)".to_string(),
+        "values: band-integrated Lambertian reflectance of the surface times its texture factor (no light or sensor effects)"
+            .to_string(),
     ];
     Ok(write_ply(&path, &cloud, &PlyOptions { comments, ..Default::default() })?)
 }

@@ -129,7 +129,7 @@ pub struct CompositeOut {
     /// dL/draw per sample
     pub d_raw: Vec<f32>,
     pub d_colour: Vec<f32>,
-    /// R x (6 + B)
+    /// R x (8 + B)
     pub ray_out: Vec<f32>,
 }
 
