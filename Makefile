@@ -3,7 +3,7 @@ CARGO ?= cargo
 # The suite runs with the Khronos validation layer and fails on any message it prints.
 export MSNERF_REQUIRE_VALIDATION ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep
 
 setup:
 	@bash tools/setup-debian.sh
@@ -39,6 +39,11 @@ accuracy-report-5min: build
 mlp-precision-report: build
 	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/mlp-precision.yaml \
 		--out mlp-precision-output --report docs/mlp-precision.md
+
+# docs/geometry-vs-time.md: depth and cloud accuracy against time, poses against aerial normalisation (~12 min).
+geometry-sweep: build
+	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/geometry.yaml \
+		--out geometry-sweep-output --report docs/geometry-vs-time.md
 
 # docs/geometry/: the raw numbers behind docs/geometry.md's ten-minute table (campus, demo profile, 600 s; ~13 min).
 geometry-report: build

@@ -222,3 +222,48 @@ fn the_report_says_what_to_pick_for_1_5_and_15_minutes() {
     assert!(md.contains("compare the bands they share (blue, green, red)"), "band subsets are flagged");
     assert!(md.contains("| 0 ★ |") && md.contains("| 2 |"), "front cells are starred");
 }
+
+/// Geometry measured at an evaluation point shows up in the report and in `cells.csv`; without any, the report has
+/// no geometry section and the CSV columns are empty.
+#[test]
+fn geometry_appears_in_the_report_and_the_csv_when_measured() {
+    use msnerf::sweep::result::GeometryScore;
+    use msnerf::sweep::table::cells_csv;
+    let g = grid();
+    let m = machine();
+    let ctx = ReportContext {
+        grid: &g,
+        machine: &m,
+        data: "the built-in scene".into(),
+        command: "msnerf sweep --grid unit.yaml".into(),
+        plots_rel: "figs".into(),
+        date: "2026-11-25".into(),
+    };
+    let mut r = results();
+    let plain = report_markdown(&ctx, &r);
+    assert!(!plain.contains("## Geometry"), "no geometry section without measurements");
+    let last = r[0].points.len() - 1;
+    r[0].points[last].geometry = Some(GeometryScore {
+        depth_median_abs_m: Some(0.418),
+        depth_bias_m: Some(0.285),
+        depth_bias_footprints: Some(0.68),
+        depth_within_one_footprint: Some(0.502),
+        cloud_accuracy_median_m: Some(0.428),
+        cloud_f_score: Some(0.21),
+        cloud_threshold_m: Some(0.25),
+        standard_pass: Some(false),
+        ..Default::default()
+    });
+    let md = report_markdown(&ctx, &r);
+    assert!(md.contains("## Geometry at each evaluation point"), "{md}");
+    assert!(md.contains("| 0.418 | 0.285 | 0.68 | 50 % | 0.428 | 0.210 | 0.25 | not met |"), "{md}");
+    let csv = cells_csv(&r);
+    let mut rd = csv::Reader::from_reader(csv.as_bytes());
+    let head = rd.headers().expect("header").clone();
+    let col = |name: &str| head.iter().position(|h| h == name).unwrap_or_else(|| panic!("column {name}"));
+    let rows: Vec<csv::StringRecord> = rd.records().map(|x| x.expect("row")).collect();
+    assert_eq!(&rows[0][col("depth_bias_m")], "0.285");
+    assert_eq!(&rows[0][col("cloud_accuracy_median_m")], "0.428");
+    assert_eq!(&rows[0][col("standard_pass")], "false");
+    assert_eq!(&rows[1][col("depth_bias_m")], "", "a cell without geometry leaves the columns empty");
+}
