@@ -148,3 +148,37 @@ fn table1_model_at_256_rays_matches_the_plan() {
     let c = with_rays(ModelConfig::resolve("multispectral-nerf").unwrap(), 256, 256, 256);
     check(c, 6, 4);
 }
+
+/// Evaluation's appearance vector is the mean of the training cameras' rows only (nerfstudio averages the trained
+/// embeddings; eval frames' rows never get a gradient): rows set by hand, render once, read the spare row back.
+#[test]
+fn evaluation_appearance_is_the_mean_of_the_training_rows() {
+    let g = gpu();
+    let mut cfg = ModelConfig::resolve("tiny").expect("tiny");
+    cfg.field.appearance_embed_dim = 4;
+    let (bands, n_cams) = (3, 5);
+    let model = Model::new(&g, &cfg, bands, n_cams).expect("model");
+    let mut pipe = Pipeline::new(&g, model, &cameras(n_cams)).expect("pipeline");
+    let store = &pipe.model.store;
+    let slot = store.slot("field.appearance").expect("appearance slot").clone();
+    let mut emb = store.download_slot(store.params(), &slot).expect("download");
+    for r in 0..n_cams {
+        for k in 0..4 {
+            emb[r * 4 + k] = (10 * r + k) as f32;
+        }
+    }
+    store.upload_slot(store.params(), &slot, &emb).expect("upload");
+    for (rows, want_rows) in [(None, vec![0usize, 1, 2, 3, 4]), (Some(vec![0usize, 2, 3]), vec![0, 2, 3])] {
+        pipe.appearance_rows = rows;
+        pipe.render(&[1, 2, 3]).expect("render");
+        let got = pipe.model.store.download_slot(pipe.model.store.params(), &slot).expect("download");
+        for k in 0..4 {
+            let want = want_rows.iter().map(|&r| (10 * r + k) as f64).sum::<f64>() / want_rows.len() as f64;
+            assert!(
+                (got[n_cams * 4 + k] as f64 - want).abs() < 1e-5,
+                "column {k}: {} want {want}",
+                got[n_cams * 4 + k]
+            );
+        }
+    }
+}

@@ -84,6 +84,10 @@ pub struct Pipeline {
     pub step: u64,
     /// Cameras the pose regulariser averages over (the training split; defaults to every camera).
     pub n_train_cameras: usize,
+    /// Camera rows whose appearance embeddings trained (the training split): evaluation averages these only, as
+    /// nerfstudio does; eval frames' rows never receive a gradient and stay at their random initialisation.
+    /// None: every row.
+    pub appearance_rows: Option<Vec<usize>>,
 }
 
 fn need<T>(o: &Option<T>) -> &T {
@@ -115,6 +119,7 @@ impl Pipeline {
             schedule: ProposalSchedule::default(),
             step: 0,
             n_train_cameras,
+            appearance_rows: None,
         })
     }
 
@@ -688,8 +693,8 @@ impl Pipeline {
         res.map(|_| out)
     }
 
-    /// Evaluation uses the mean appearance embedding (nerfstudio's use_average_appearance_embedding): it is stored
-    /// in the spare last row of the embedding slot.
+    /// Evaluation uses the mean appearance embedding (nerfstudio's use_average_appearance_embedding) over the
+    /// training cameras' rows ([`Pipeline::appearance_rows`]): it is stored in the spare last row of the slot.
     fn update_mean_appearance(&self) -> GpuResult<()> {
         let dim = self.model.cfg.field.appearance_embed_dim;
         if dim == 0 {
@@ -699,8 +704,16 @@ impl Pipeline {
         let slot = store.slot("field.appearance").expect("appearance slot").clone();
         let mut emb = store.download_slot(store.params(), &slot)?;
         let rows = self.model.n_cameras;
+        let all: Vec<usize> = (0..rows).collect();
+        let used: &[usize] = match &self.appearance_rows {
+            Some(r) if !r.is_empty() => r,
+            _ => &all,
+        };
         let mean: Vec<f32> = (0..dim)
-            .map(|k| (0..rows).map(|r| emb[r * dim + k] as f64).sum::<f64>() as f32 / rows.max(1) as f32)
+            .map(|k| {
+                let sum: f64 = used.iter().filter(|&&r| r < rows).map(|&r| emb[r * dim + k] as f64).sum();
+                (sum / used.len().max(1) as f64) as f32
+            })
             .collect();
         emb[rows * dim..(rows + 1) * dim].copy_from_slice(&mean);
         store.upload_slot(store.params(), &slot, &emb)

@@ -61,7 +61,8 @@ impl LoadedRun {
         let checkpoint = dir.join("checkpoints/latest.msnp");
         let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len()).map_err(|e| e.to_string())?;
         model.store.load(&checkpoint).map_err(|e| e.to_string())?;
-        let pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
+        let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
+        pipe.appearance_rows = Some(ds.split_indices(crate::data::Split::Train));
         let transform = ds.pose_transform();
         Ok(Self { dir: dir.to_path_buf(), cfg, ds, transform, pipe, checkpoint, novel: Vec::new() })
     }

@@ -211,6 +211,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     let model = Model::new(ctx, cfg, bands, ds.frames.len()).map_err(|e| e.to_string())?;
     let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
     pipe.n_train_cameras = train_frames.len();
+    pipe.appearance_rows = Some(train_frames.clone());
     let mut state =
         TrainerState { step: 0, schedule: ProposalSchedule::default(), best_eval_psnr: None, elapsed_s: 0.0 };
     if opts.resume {
