@@ -117,7 +117,23 @@ fn geometry_sits_on_the_true_surface() {
     assert!(d["pixels"].as_u64().unwrap_or(0) > 1000, "{d}");
     assert!(d["median_abs_error"].as_f64().is_some_and(|x| x.is_finite()), "{d}");
 
-    // 4. `--depth` on a dataset without depth maps is an error naming the frame.
+    // 4. A depth map of the wrong size is an error naming the file and the frame.
+    for e in std::fs::read_dir(data.join("depth")).expect("depth dir") {
+        let p = e.expect("entry").path();
+        let f = std::fs::File::create(&p).expect("create");
+        tiff::encoder::TiffEncoder::new(f)
+            .expect("tiff")
+            .write_image::<tiff::encoder::colortype::Gray32Float>(4, 4, &[1.0f32; 16])
+            .expect("write");
+    }
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_msnerf"))
+        .args(["eval", run_s, "--depth"])
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("depth/") && err.contains("4x4"), "{err}");
+
+    // 5. `--depth` on a dataset without depth maps is an error naming the frame.
     let tf = data.join("transforms.json");
     let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&tf).expect("read")).expect("json");
     for f in t["frames"].as_array_mut().expect("frames") {
