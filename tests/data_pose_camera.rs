@@ -224,11 +224,11 @@ fn aerial_normalisation_puts_the_ground_at_minus_one_half() {
     assert!(matches!(e, NotAerial::AxesDoNotMeet(_) | NotAerial::NotLookingDown(_)), "{e}");
 }
 
-/// The export's projection (`nerf::export::project_point`) inverts ray generation for every camera model: the ray
+/// The export's projection (`data::camera::project_point`) inverts ray generation for every camera model: the ray
 /// through the centre of pixel (row, col), followed for t, projects back to (row, col) at distance t.
 #[test]
 fn projection_inverts_ray_generation() {
-    use msnerf::nerf::export::project_point;
+    use msnerf::data::camera::project_point;
     let dist = Distortion { k1: -0.12, k2: 0.03, k3: 0.0, k4: 0.0, p1: 0.001, p2: -0.0005 };
     let fisheye = Distortion { k1: 0.05, k2: -0.01, k3: 0.0, k4: 0.0, p1: 0.0, p2: 0.0 };
     let c2w = pose(rot(0.4, -0.7), [3.0, -2.0, 7.0]);

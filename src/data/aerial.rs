@@ -20,6 +20,7 @@
 
 use super::camera::{camera_direction, Camera};
 use super::pose::{rotation_between, Mat4, PoseTransform};
+use glam::{DMat3, DVec3};
 
 /// Why the aerial normalisation does not apply (the caller falls back to `poses` and says so).
 #[derive(Debug, Clone, PartialEq)]
@@ -44,12 +45,9 @@ impl std::fmt::Display for NotAerial {
     }
 }
 
-fn mat_vec(r: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+/// Column `c` of a 4x4 pose (rows) as a vector.
+fn column(p: &Mat4, c: usize) -> DVec3 {
+    DVec3::new(p[0][c], p[1][c], p[2][c])
 }
 
 fn percentile(v: &mut [f64], q: f64) -> f64 {
@@ -66,11 +64,12 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
             *u += p[i][1];
         }
     }
-    let r = rotation_between(up, [0.0, 0.0, 1.0]);
-    // Levelled camera centres and forward axes (OpenGL cameras look along -z).
-    let centres: Vec<[f64; 3]> = frames.iter().map(|(p, _)| mat_vec(&r, [p[0][3], p[1][3], p[2][3]])).collect();
-    let fwd: Vec<[f64; 3]> = frames.iter().map(|(p, _)| mat_vec(&r, [-p[0][2], -p[1][2], -p[2][2]])).collect();
-    let mean_fz = fwd.iter().map(|a| a[2]).sum::<f64>() / n.max(1) as f64;
+    let rows = rotation_between(up, [0.0, 0.0, 1.0]);
+    let r = DMat3::from_cols_array_2d(&rows).transpose(); // rotation_between returns rows
+                                                          // Levelled camera centres and forward axes (OpenGL cameras look along -z).
+    let centres: Vec<DVec3> = frames.iter().map(|(p, _)| r * column(p, 3)).collect();
+    let fwd: Vec<DVec3> = frames.iter().map(|(p, _)| r * -column(p, 2)).collect();
+    let mean_fz = fwd.iter().map(|a| a.z).sum::<f64>() / n.max(1) as f64;
     if mean_fz.is_nan() || mean_fz >= -0.25 {
         return Err(NotAerial::NotLookingDown(mean_fz));
     }
@@ -86,8 +85,8 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
                 continue;
             }
             let (c1, a1, c2, a2) = (centres[i], fwd[i], centres[j], fwd[j]);
-            let w = [0, 1, 2].map(|q| c1[q] - c2[q]);
-            let (b, d, e) = (dot(a1, a2), dot(a1, w), dot(a2, w));
+            let w = c1 - c2;
+            let (b, d, e) = (a1.dot(a2), a1.dot(w), a2.dot(w));
             let den = 1.0 - b * b;
             if den < 0.0076 {
                 continue; // axes within 5 degrees of parallel
@@ -96,11 +95,9 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
             if s <= 0.0 || t <= 0.0 {
                 continue;
             }
-            let p1 = [0, 1, 2].map(|q| c1[q] + s * a1[q]);
-            let p2 = [0, 1, 2].map(|q| c2[q] + t * a2[q]);
-            let gap = ((p1[0] - p2[0]).powi(2) + (p1[1] - p2[1]).powi(2) + (p1[2] - p2[2]).powi(2)).sqrt();
-            if gap < 0.05 * s.min(t) {
-                meet_z.push(0.5 * (p1[2] + p2[2]));
+            let (p1, p2) = (c1 + s * a1, c2 + t * a2);
+            if p1.distance(p2) < 0.05 * s.min(t) {
+                meet_z.push(0.5 * (p1.z + p2.z));
             }
         }
     }
@@ -109,28 +106,22 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
     }
     let z_g = percentile(&mut meet_z, 0.5);
     // 2. The footprint on z = z_g.
-    let height = centres.iter().map(|c| c[2] - z_g).sum::<f64>() / n as f64;
+    let height = centres.iter().map(|c| c.z - z_g).sum::<f64>() / n as f64;
     let max_reach = 10.0 * height.abs().max(1e-9);
     let (mut xs, mut ys) = (Vec::new(), Vec::new());
     for ((p, cam), c) in frames.iter().zip(&centres) {
         let k = cam.intrinsics::<f64>();
         let (w, h) = (cam.width as f64, cam.height as f64);
         for (v, u) in [(0.0, 0.0), (0.0, w), (h, 0.0), (h, w), (0.5 * h, 0.5 * w)] {
-            let dc = camera_direction(&k, v, u);
-            let dw = [0, 1, 2].map(|i| p[i][0] * dc[0] + p[i][1] * dc[1] + p[i][2] * dc[2]);
-            let d = mat_vec(&r, dw);
-            let len = dot(d, d).sqrt();
-            if d[2].is_nan() || d[2] >= -0.05 * len {
+            let dc = DVec3::from(camera_direction(&k, v, u));
+            let d = r * (column(p, 0) * dc.x + column(p, 1) * dc.y + column(p, 2) * dc.z);
+            if d.z.is_nan() || d.z >= -0.05 * d.length() {
                 continue;
             }
-            let t = (z_g - c[2]) / d[2];
-            let (mut hx, mut hy) = (t * d[0], t * d[1]);
-            let reach = (hx * hx + hy * hy).sqrt();
-            if reach > max_reach {
-                (hx, hy) = (hx * max_reach / reach, hy * max_reach / reach);
-            }
-            xs.push(c[0] + hx);
-            ys.push(c[1] + hy);
+            // Where the ray meets z = z_g, its horizontal reach clamped to max_reach.
+            let hit = (d * ((z_g - c.z) / d.z)).truncate().clamp_length_max(max_reach);
+            xs.push(c.x + hit.x);
+            ys.push(c.y + hit.y);
         }
     }
     if xs.is_empty() {
@@ -141,5 +132,5 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
     // 3. Scale and centre.
     let e = (0.5 * (x1 - x0)).max(0.5 * (y1 - y0)).max(0.25 * height.abs()).max(1e-9);
     let centre = [0.5 * (x0 + x1), 0.5 * (y0 + y1), z_g + 0.5 * e];
-    Ok(PoseTransform { transform: [0, 1, 2].map(|i| [r[i][0], r[i][1], r[i][2], -centre[i]]), scale: 1.0 / e })
+    Ok(PoseTransform { transform: [0, 1, 2].map(|i| [rows[i][0], rows[i][1], rows[i][2], -centre[i]]), scale: 1.0 / e })
 }

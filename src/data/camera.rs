@@ -216,6 +216,39 @@ pub fn camera_direction<T: Real>(k: &Intrinsics<T>, v: T, u: T) -> [T; 3] {
     }
 }
 
+/// Pixel (row, col) of camera `cam` (centre `origin`, camera-to-world rotation rows `rot`, OpenGL axes: x right,
+/// y up, looking along -z) that sees point `p`, and the distance to it; None behind the camera or outside the image.
+/// The inverse of [`camera_direction`]: pinhole and OPENCV (forward [`distort`] of the normalised point),
+/// OPENCV_FISHEYE (equidistant: theta = angle from the axis, then the distortion).
+pub fn project_point(cam: &Camera, origin: [f64; 3], rot: &[[f64; 3]; 3], p: [f64; 3]) -> Option<(u32, u32, f64)> {
+    use glam::{DMat3, DVec3};
+    let d = DVec3::from(p) - DVec3::from(origin);
+    // Camera-frame coordinates R^T d: read as columns, the rotation's rows give R^T.
+    let xc = DMat3::from_cols_array_2d(rot) * d;
+    let (mut x, mut y) = if cam.model == CameraModel::OpenCvFisheye {
+        let r = xc.truncate().length();
+        let theta = r.atan2(-xc.z);
+        if r < 1e-12 {
+            (0.0, 0.0)
+        } else {
+            (theta * xc.x / r, -theta * xc.y / r)
+        }
+    } else {
+        if xc.z >= -1e-9 {
+            return None;
+        }
+        (xc.x / -xc.z, -xc.y / -xc.z)
+    };
+    if cam.model != CameraModel::Pinhole && !cam.distortion.is_zero() {
+        (x, y) = distort(x, y, &cam.distortion.params());
+    }
+    let (u, v) = (cam.cx + cam.fx * x, cam.cy + cam.fy * y);
+    if !(u >= 0.0 && v >= 0.0 && u < cam.width as f64 && v < cam.height as f64) {
+        return None;
+    }
+    Some((v as u32, u as u32, d.length()))
+}
+
 /// The pure ray function: image point (v = row coordinate, u = column coordinate, both in pixels, centres at
 /// +0.5) to a world ray with camera-to-world `c2w` (3x4, rows).
 #[inline]

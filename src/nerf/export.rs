@@ -22,7 +22,7 @@
 
 use super::normals::{density_gradients, normal_from_gradient};
 use super::run::LoadedRun;
-use crate::data::{camera, CameraModel, Split};
+use crate::data::{camera, Split};
 use crate::output::pointcloud::PointCloud;
 use rand::{Rng, SeedableRng};
 
@@ -139,12 +139,12 @@ pub fn export_points_with_stats(
     let mut stats = ExportStats { rays: opts.rays, ..Default::default() };
     let max_res = run.cfg.field.grid.max_resolution;
     let contraction = run.cfg.sampling.scene_contraction;
+    // Below accumulation 0.5 the median is the last sample's midpoint, not a surface: the careful export never keeps
+    // such a ray, whatever `min_accumulation` says.
+    let careful = opts.max_spread_cells.is_some() || opts.consistency.is_some();
+    let floor = if careful { opts.min_accumulation.max(0.5) } else { opts.min_accumulation };
     let mut cands = Vec::new();
     for i in 0..opts.rays {
-        // Below accumulation 0.5 the median is the last sample's midpoint, not a surface: the careful export never
-        // keeps such a ray, whatever `min_accumulation` says.
-        let careful = opts.max_spread_cells.is_some() || opts.consistency.is_some();
-        let floor = if careful { opts.min_accumulation.max(0.5) } else { opts.min_accumulation };
         if out.accumulation[i] < floor || !out.median_depth[i].is_finite() {
             stats.below_accumulation += 1;
             continue;
@@ -232,46 +232,8 @@ struct View {
 
 impl View {
     fn project(&self, p: [f64; 3]) -> Option<(u32, u32, f64)> {
-        project_point(&self.cam, self.origin, &self.rot, p)
+        camera::project_point(&self.cam, self.origin, &self.rot, p)
     }
-}
-
-/// Pixel (row, col) of camera `cam` (centre `origin`, camera-to-world rotation rows `rot`, OpenGL axes: x right,
-/// y up, looking along -z) that sees point `p`, and the distance to it; None behind the camera or outside the image.
-/// The inverse of `data::camera::camera_direction`: pinhole and OPENCV (forward distortion of the normalised
-/// point), OPENCV_FISHEYE (equidistant: theta = angle from the axis, then the distortion).
-pub fn project_point(
-    cam: &crate::data::Camera,
-    origin: [f64; 3],
-    rot: &[[f64; 3]; 3],
-    p: [f64; 3],
-) -> Option<(u32, u32, f64)> {
-    let d = [0, 1, 2].map(|k| p[k] - origin[k]);
-    // Camera-frame coordinates: the rotation's columns are the camera axes.
-    let xc = [0, 1, 2].map(|a| (0..3).map(|k| rot[k][a] * d[k]).sum::<f64>());
-    let (mut x, mut y) = if cam.model == CameraModel::OpenCvFisheye {
-        let r = (xc[0] * xc[0] + xc[1] * xc[1]).sqrt();
-        let theta = r.atan2(-xc[2]);
-        if r < 1e-12 {
-            (0.0, 0.0)
-        } else {
-            (theta * xc[0] / r, -theta * xc[1] / r)
-        }
-    } else {
-        if xc[2] >= -1e-9 {
-            return None;
-        }
-        (xc[0] / -xc[2], -xc[1] / -xc[2])
-    };
-    if cam.model != CameraModel::Pinhole && !cam.distortion.is_zero() {
-        (x, y) = camera::distort(x, y, &cam.distortion.params());
-    }
-    let (u, v) = (cam.cx + cam.fx * x, cam.cy + cam.fy * y);
-    if !(u >= 0.0 && v >= 0.0 && u < cam.width as f64 && v < cam.height as f64) {
-        return None;
-    }
-    let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-    Some((v as u32, u as u32, dist))
 }
 
 /// Per candidate: agreeing views, checked views; and the number of rays rendered.

@@ -240,6 +240,11 @@ fn sorted(d: &[f64]) -> Vec<f64> {
     s
 }
 
+/// Median (mean of the two middle values for an even count); NaN when empty. Shared by the depth metrics.
+pub fn median(d: &[f64]) -> f64 {
+    median_of_sorted(&sorted(d))
+}
+
 /// Median of sorted values (mean of the two middle values for an even count); NaN when empty.
 fn median_of_sorted(s: &[f64]) -> f64 {
     if s.is_empty() {
@@ -432,12 +437,12 @@ pub fn compare_clouds_with(
         mean_euclidean: acc.iter().sum::<f64>() / n,
         mean_planar: planar / n,
         mean_elevation: elev / n,
-        median_planar: median_of_sorted(&sorted(&planar_d)),
-        median_elevation: median_of_sorted(&sorted(&abs_dz)),
+        median_planar: median(&planar_d),
+        median_elevation: median(&abs_dz),
         rmse_planar: (planar2 / n).sqrt(),
         rmse_elevation: (elev2 / n).sqrt(),
         mean_signed_dz: dz_sum / n,
-        median_signed_dz: median_of_sorted(&sorted(&signed_dz)),
+        median_signed_dz: median(&signed_dz),
     };
     let standard = accuracy.standard.judge(&position);
 

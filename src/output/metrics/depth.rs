@@ -14,6 +14,7 @@
 use serde::Serialize;
 
 use super::report::finite_or_null;
+use crate::output::compare::median;
 use crate::output::{OutputError, Result};
 
 /// Depth statistics of a set of pixels.
@@ -115,21 +116,6 @@ impl DepthErrors {
             within_one_footprint: within(1.0),
             median_footprint: median(&self.footprint),
         }
-    }
-}
-
-/// Median (mean of the two middle values for an even count); NaN for none. Infinite values sort to the ends.
-pub fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mut s = v.to_vec();
-    s.sort_unstable_by(|a, b| a.total_cmp(b));
-    let m = s.len() / 2;
-    if s.len() % 2 == 1 {
-        s[m]
-    } else {
-        0.5 * (s[m - 1] + s[m])
     }
 }
 

@@ -41,12 +41,13 @@ pub fn thin_to_grid(
     let mut best: HashMap<[i64; 3], usize> = HashMap::new();
     for (i, p) in cloud.positions.iter().enumerate() {
         let key = p.map(|v| (v / cell).floor() as i64);
-        best.entry(key).and_modify(|j| {
-            if better(i, *j) {
-                *j = i;
-            }
-        });
-        best.entry(key).or_insert(i);
+        best.entry(key)
+            .and_modify(|j| {
+                if better(i, *j) {
+                    *j = i;
+                }
+            })
+            .or_insert(i);
     }
     let mut keep: Vec<usize> = best.into_values().collect();
     keep.sort_unstable();
