@@ -12,48 +12,11 @@
 mod common;
 
 use common::{gpu, TempDir};
-use msnerf::data::Split;
 use msnerf::nerf::config::ModelConfig;
-use msnerf::nerf::run::LoadedRun;
 use msnerf::nerf::trainer::train;
 use msnerf::output::pointcloud::read_ply;
 use msnerf::output::{compare_clouds, CompareOptions};
 use msnerf::sim::{simulate, SceneDesc, SimOptions};
-use std::path::Path;
-
-/// World z of ci-small's ground (its `world_offset`).
-const GROUND_Z: f64 = 20.0;
-
-fn msnerf(args: &[&str]) -> String {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_msnerf")).args(args).output().expect("run msnerf");
-    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "msnerf {args:?}: {text}");
-    text
-}
-
-/// Median of (true - rendered depth) / footprint over the pixels of every training view whose true surface point
-/// lies on the ground plane (|z - ground| < 5 cm): positive = in front of (above) the ground.
-fn ground_bias_footprints(run_dir: &Path) -> (f64, usize) {
-    let g = gpu();
-    let mut run = LoadedRun::load(&g, run_dir).expect("load run");
-    let mut rel = Vec::new();
-    for f in run.ds.split_indices(Split::Train) {
-        let rv = run.render_view(f).expect("render");
-        let truth = run.ds.read_depth(f).expect("depth").expect("ci-textured writes depth maps");
-        let frame = &run.ds.frames[f];
-        let focal = 0.5 * (frame.camera.fx + frame.camera.fy);
-        let w = rv.width;
-        for (q, (&t, &p)) in truth.iter().zip(&rv.depth).enumerate() {
-            let ray = frame.camera.ray_f64(&frame.c2w, (q / w) as u32, (q % w) as u32);
-            let z = ray.origin[2] + ray.direction[2] * t as f64;
-            if (z - GROUND_Z).abs() < 0.05 {
-                rel.push((t as f64 - p as f64) / (t as f64 / focal));
-            }
-        }
-    }
-    rel.sort_by(f64::total_cmp);
-    (rel[rel.len() / 2], rel.len())
-}
 
 #[test]
 fn geometry_sits_on_the_true_surface() {
@@ -70,7 +33,7 @@ fn geometry_sits_on_the_true_surface() {
     }
 
     // 1. Depth bias on flat ground.
-    let (bias, pixels) = ground_bias_footprints(&run);
+    let (bias, pixels) = common::ground_bias_footprints(&run);
     eprintln!("flat ground: {pixels} pixels, median bias {bias:+.3} footprints (+ = above the ground)");
     assert!(pixels > 5000, "{pixels} ground pixels");
     assert!(bias.abs() < MAX_GROUND_BIAS_FOOTPRINTS, "median depth bias on flat ground {bias:+.3} footprints");
@@ -81,7 +44,8 @@ fn geometry_sits_on_the_true_surface() {
     let mut medians = Vec::new();
     for (name, extra) in [("careful", &["--normals"][..]), ("legacy", &["--legacy"][..])] {
         let ply = tmp.path().join(format!("{name}.ply"));
-        let text = msnerf(
+        let text = common::msnerf(
+            env!("CARGO_BIN_EXE_msnerf"),
             &[&["export", "pointcloud", run_s, "--out", ply.to_str().unwrap(), "--rays", "20000"], extra].concat(),
         );
         let cloud = read_ply(&ply).expect("exported PLY");
@@ -111,7 +75,7 @@ fn geometry_sits_on_the_true_surface() {
 
     // 3. eval --depth writes the depth section.
     let report = tmp.path().join("eval.json");
-    msnerf(&["eval", run_s, "--depth", "--output", report.to_str().unwrap()]);
+    common::msnerf(env!("CARGO_BIN_EXE_msnerf"), &["eval", run_s, "--depth", "--output", report.to_str().unwrap()]);
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
     let d = &v["depth"]["overall"];
     assert!(d["pixels"].as_u64().unwrap_or(0) > 1000, "{d}");

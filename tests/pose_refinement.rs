@@ -376,6 +376,7 @@ fn reference_step_pose_gradient_matches_finite_differences_of_its_loss() {
             camera: i % cams,
             target: (0..4).map(|_| r.random_range(0.0..1.0)).collect(),
             weight: 1.0,
+            depth: None,
         })
         .collect();
     let step = 7;

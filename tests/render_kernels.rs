@@ -8,6 +8,8 @@ mod common;
 use common::{gpu, rng};
 use msnerf::data::camera::{Camera, CameraModel, Distortion};
 use msnerf::gpu::{Context, GpuBuffer, MemoryCategory};
+use msnerf::nerf::buffers::RAY_OUT_FIXED;
+use msnerf::nerf::config::DepthLoss;
 use msnerf::nerf::kernels::{
     CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
 };
@@ -212,6 +214,8 @@ struct CompositeCase {
     colours: Vec<f32>,
     targets: Vec<f32>,
     band_w: Vec<f32>,
+    /// Per ray (target distance, sigma): every fifth ray has none (distance 0).
+    depth: Vec<f32>,
 }
 
 fn composite_case(r: &mut ChaCha8Rng, nr: usize, n: usize, bands: usize) -> CompositeCase {
@@ -230,7 +234,14 @@ fn composite_case(r: &mut ChaCha8Rng, nr: usize, n: usize, bands: usize) -> Comp
         targets.push(if i % 7 == 3 { 0.0 } else { 1.0 }); // some rays masked out
     }
     let band_w = (0..bands).map(|b| 0.5 + b as f32 * 0.25).collect();
-    CompositeCase { nr, n, bands, rays, edges, raw, colours, targets, band_w }
+    let mut depth = Vec::new();
+    for i in 0..nr {
+        // Targets spread over the sampled range (t of edges in [0, 1] covers near .. far), sigmas from a fraction of
+        // an interval to several, so both the URF window and its line-of-sight part are exercised.
+        let d = if i % 5 == 2 { 0.0 } else { r.random_range(0.1f32..3.0) };
+        depth.extend([d, r.random_range(0.05f32..0.8)]);
+    }
+    CompositeCase { nr, n, bands, rays, edges, raw, colours, targets, band_w, depth }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -258,8 +269,22 @@ fn composite_in<'a>(
         rgb_norm: 1.0 / (cc.nr * cc.bands) as f64,
         dist_norm: 0.002 / cc.nr as f64,
         grad_scaling: false,
+        depth: None,
     }
 }
+
+/// Ray `i`'s depth target of `cc` under `loss` (None: off), with the norm the GPU case uses.
+fn depth_in(cc: &CompositeCase, i: usize, loss: Option<DepthLoss>) -> Option<tw::DepthTarget<f64>> {
+    loss.map(|loss| tw::DepthTarget {
+        loss,
+        distance: cc.depth[2 * i] as f64,
+        sigma: cc.depth[2 * i + 1] as f64,
+        norm: DEPTH_NORM as f64,
+    })
+}
+
+/// The depth-loss weight of the composite tests (a large one, so the term is visible next to the colour loss).
+const DEPTH_NORM: f32 = 0.05;
 
 #[test]
 fn composite_matches_twin_for_every_background() {
@@ -271,12 +296,15 @@ fn composite_matches_twin_for_every_background() {
     use msnerf::nerf::kernels::BackgroundMode;
     let random = BackgroundMode::Random { seed: 7, step: 3 };
     let cases = [
-        (tw::Background::LastSample, BackgroundMode::LastSample, false),
-        (tw::Background::Constant(1.0), BackgroundMode::Constant(1.0), false),
-        (tw::Background::LastSample, BackgroundMode::LastSample, true),
-        (tw::Background::Random { seed: 7, step: 3, ray: 0 }, random, false),
+        (tw::Background::LastSample, BackgroundMode::LastSample, false, None),
+        (tw::Background::Constant(1.0), BackgroundMode::Constant(1.0), false, None),
+        (tw::Background::LastSample, BackgroundMode::LastSample, true, None),
+        (tw::Background::Random { seed: 7, step: 3, ray: 0 }, random, false, None),
+        (tw::Background::LastSample, BackgroundMode::LastSample, false, Some(DepthLoss::DsNerf)),
+        (tw::Background::Constant(0.5), BackgroundMode::Constant(0.5), false, Some(DepthLoss::Urf)),
     ];
-    for (bg, bgv, gs) in cases {
+    for (bg, bgv, gs, depth_loss) in cases {
+        let (mut with_loss, mut with_target) = (0usize, 0usize);
         let geo = Geometry { near: 0.05, far: 1000.0, contraction: true };
         let o = up(&g, "o", &cc.rays.o.concat());
         let d = up(&g, "d", &cc.rays.d.concat());
@@ -294,7 +322,7 @@ fn composite_matches_twin_for_every_background() {
         let dyd = zeros(&g, "dy density", nr * n * stride);
         let dyc = zeros(&g, "dy colour", nr * n * bb);
         let wts = zeros(&g, "weights", nr * n);
-        let out = zeros(&g, "ray out", nr * (8 + bb));
+        let out = zeros(&g, "ray out", nr * (RAY_OUT_FIXED + bb));
         let p = CompositeParams {
             bands: bb,
             density_stride: stride,
@@ -304,7 +332,9 @@ fn composite_matches_twin_for_every_background() {
             dist_norm: 0.002 / nr as f32,
             grad_scaling: gs,
             train: true,
+            depth: depth_loss.map(|l| (l, DEPTH_NORM)),
         };
+        let dt = up(&g, "depth targets", &cc.depth);
         let bufs = CompositeBuffers {
             edges: &bufs_edges,
             density: &dens,
@@ -315,6 +345,7 @@ fn composite_matches_twin_for_every_background() {
             dy_colour: &dyc,
             weights: &wts,
             ray_out: &out,
+            depth_targets: depth_loss.map(|_| &dt),
         };
         let mut rec = g.recorder("composite").expect("rec");
         k.composite(&mut rec, rb, geo, n, &p, &bufs).expect("composite");
@@ -339,6 +370,7 @@ fn composite_matches_twin_for_every_background() {
             };
             let mut ci = composite_in(&cc, i, &raw, &colours, &target, &bw64, &edges, geo, bg);
             ci.grad_scaling = gs;
+            ci.depth = depth_in(&cc, i, depth_loss);
             let t = tw::composite(&ci);
             if gs {
                 // Gradient scaling only damps: never larger than without it, and strictly smaller near the camera.
@@ -347,18 +379,31 @@ fn composite_matches_twin_for_every_background() {
                 assert!(t.d_raw.iter().zip(&plain.d_raw).all(|(a, b)| a.abs() <= b.abs() + 1e-15));
             }
             check_vals(&gw[i * n..(i + 1) * n], &t.weights, "weights");
-            let ro = &go[i * (8 + bb)..(i + 1) * (8 + bb)];
+            let ro = &go[i * (RAY_OUT_FIXED + bb)..(i + 1) * (RAY_OUT_FIXED + bb)];
             check_vals(
                 &ro[..5],
                 &[t.loss_rgb, t.loss_dist, t.accumulation, t.median_depth, t.expected_depth],
                 "ray outputs",
             );
             check_vals(&ro[6..8], &[t.depth_q25, t.depth_q75], "depth quantiles");
-            check_vals(&ro[8..], &t.colour, "colour");
+            check_vals(&ro[8..9], &[t.loss_depth], "depth loss");
+            // A ray without a target (or masked out) has no depth loss; most rays with one have some (a URF target
+            // behind every sample, or a Gaussian far from all of them, legitimately gives 0).
+            let has = depth_loss.is_some() && cc.depth[2 * i] > 0.0 && cc.targets[i * (bb + 1) + bb] > 0.0;
+            if !has {
+                assert_eq!(ro[8], 0.0, "ray {i}: no target, no depth loss");
+            }
+            with_loss += usize::from(has && t.loss_depth != 0.0);
+            with_target += usize::from(has);
+            check_vals(&ro[RAY_OUT_FIXED..], &t.colour, "colour");
             let draw: Vec<f32> = (0..n).map(|s| gd[(i * n + s) * stride]).collect();
             check_grad(&draw, &t.d_raw, "dL/draw");
             check_grad(&gc[i * n * bb..(i + 1) * n * bb], &t.d_colour, "dL/dc");
         }
+        assert!(
+            5 * with_loss >= 4 * with_target,
+            "{depth_loss:?}: {with_loss} of {with_target} rays with a target have a depth loss"
+        );
     }
 }
 
@@ -368,7 +413,13 @@ fn composite_backward_matches_finite_differences() {
     let cc = composite_case(&mut r, 6, 10, 4);
     let (n, bb) = (cc.n, cc.bands);
     let bw64: Vec<f64> = cc.band_w.iter().map(|&v| v as f64).collect();
-    for bg in [tw::Background::LastSample, tw::Background::Constant(0.3)] {
+    let modes = [
+        (tw::Background::LastSample, None),
+        (tw::Background::Constant(0.3), None),
+        (tw::Background::LastSample, Some(DepthLoss::DsNerf)),
+        (tw::Background::Constant(0.3), Some(DepthLoss::Urf)),
+    ];
+    for (bg, depth_loss) in modes {
         for contraction in [true, false] {
             let geo = Geometry { near: 0.05, far: 1000.0, contraction };
             for i in 0..cc.nr {
@@ -376,20 +427,27 @@ fn composite_backward_matches_finite_differences() {
                 let (raw, colours) = (f(&cc.raw[i * n..(i + 1) * n]), f(&cc.colours[i * n * bb..(i + 1) * n * bb]));
                 let (target, edges) =
                     (f(&cc.targets[i * (bb + 1)..i * (bb + 1) + bb]), f(&cc.edges[i * (n + 1)..(i + 1) * (n + 1)]));
-                let loss = |raw: &[f64], col: &[f64]| {
-                    let t = tw::composite(&composite_in(&cc, i, raw, col, &target, &bw64, &edges, geo, bg));
-                    t.loss_rgb + t.loss_dist
+                let with_depth = |mut ci: tw::CompositeIn<'_, f64>| {
+                    ci.depth = depth_in(&cc, i, depth_loss);
+                    tw::composite(&ci)
                 };
-                let t = tw::composite(&composite_in(&cc, i, &raw, &colours, &target, &bw64, &edges, geo, bg));
+                let loss = |raw: &[f64], col: &[f64]| {
+                    let t = with_depth(composite_in(&cc, i, raw, col, &target, &bw64, &edges, geo, bg));
+                    t.loss_rgb + t.loss_dist + t.loss_depth
+                };
+                let t = with_depth(composite_in(&cc, i, &raw, &colours, &target, &bw64, &edges, geo, bg));
                 let h = 1e-6;
+                // A central difference of a loss L carries rounding of ~1e-16 |L| / h: the absolute tolerance scales
+                // with the loss (the URF window term alone reaches tens here).
+                let abs_tol = 1e-9 * (1.0 + (t.loss_rgb + t.loss_dist + t.loss_depth).abs());
                 for k in 0..n {
                     let (mut a, mut b) = (raw.clone(), raw.clone());
                     a[k] += h;
                     b[k] -= h;
                     let fd = (loss(&a, &colours) - loss(&b, &colours)) / (2.0 * h);
                     assert!(
-                        common::close(t.d_raw[k], fd, 1e-9, 1e-5),
-                        "{bg:?} ray {i} raw {k}: {} vs {fd}",
+                        common::close(t.d_raw[k], fd, abs_tol, 1e-5),
+                        "{bg:?} {depth_loss:?} ray {i} raw {k}: {} vs {fd}",
                         t.d_raw[k]
                     );
                 }
@@ -399,14 +457,83 @@ fn composite_backward_matches_finite_differences() {
                     b[k] -= h;
                     let fd = (loss(&raw, &a) - loss(&raw, &b)) / (2.0 * h);
                     assert!(
-                        common::close(t.d_colour[k], fd, 1e-9, 1e-5),
-                        "{bg:?} ray {i} colour {k}: {} vs {fd}",
+                        common::close(t.d_colour[k], fd, abs_tol, 1e-5),
+                        "{bg:?} {depth_loss:?} ray {i} colour {k}: {} vs {fd}",
                         t.d_colour[k]
                     );
                 }
             }
         }
     }
+}
+
+/// The depth losses against nerfstudio's formulas (`model_components/losses.py`), written here in plain f64 from the
+/// weights, midpoints and interval lengths, with this project's scale-free normalisation (docs/geometry.md):
+/// `ds_nerf_depth_loss` (its `sigma` a variance, ours squared) divided by sigma sqrt(2 pi), and
+/// `urban_radiance_field_depth_loss` with the Gaussian window's density times the interval length and without its
+/// (d - predicted depth)^2 term (nerfstudio's predicted depth is the median, which passes no gradient).
+#[test]
+fn depth_losses_match_nerfstudio_formulas() {
+    let mut r = rng(14);
+    let cc = composite_case(&mut r, 40, 32, 3);
+    let (n, bb) = (cc.n, cc.bands);
+    let geo = Geometry { near: 0.05, far: 1000.0, contraction: true };
+    let bw64: Vec<f64> = cc.band_w.iter().map(|&v| v as f64).collect();
+    let mut checked = [0usize; 2];
+    for i in 0..cc.nr {
+        let f = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();
+        let (raw, colours) = (f(&cc.raw[i * n..(i + 1) * n]), f(&cc.colours[i * n * bb..(i + 1) * n * bb]));
+        let (target, edges) =
+            (f(&cc.targets[i * (bb + 1)..i * (bb + 1) + bb]), f(&cc.edges[i * (n + 1)..(i + 1) * (n + 1)]));
+        let ray_w = cc.targets[i * (bb + 1) + bb] as f64;
+        let (d, sd) = (cc.depth[2 * i] as f64, cc.depth[2 * i + 1] as f64);
+        if d <= 0.0 || ray_w == 0.0 {
+            continue;
+        }
+        let g = geom64(&cc.rays, i, geo);
+        let t: Vec<f64> = edges.iter().map(|&e| g.t(e)).collect();
+        for (li, loss) in [DepthLoss::DsNerf, DepthLoss::Urf].into_iter().enumerate() {
+            let mut ci = composite_in(&cc, i, &raw, &colours, &target, &bw64, &edges, geo, tw::Background::LastSample);
+            ci.depth = Some(tw::DepthTarget { loss, distance: d, sigma: sd, norm: 1.0 });
+            let out = tw::composite(&ci);
+            let w = &out.weights;
+            let steps: Vec<f64> = (0..n).map(|k| 0.5 * (t[k] + t[k + 1])).collect();
+            let lengths: Vec<f64> = (0..n).map(|k| t[k + 1] - t[k]).collect();
+            let want = match loss {
+                DepthLoss::DsNerf => {
+                    let sigma_ns = sd * sd;
+                    (0..n)
+                        .map(|k| {
+                            -(w[k] + 1e-7).ln() * (-(steps[k] - d).powi(2) / (2.0 * sigma_ns)).exp() * lengths[k]
+                                / (sd * (2.0 * std::f64::consts::PI).sqrt())
+                        })
+                        .sum::<f64>()
+                }
+                DepthLoss::Urf => {
+                    let std = sd / 3.0;
+                    let pdf =
+                        |x: f64| (-(x * x) / (2.0 * std * std)).exp() / (std * (2.0 * std::f64::consts::PI).sqrt());
+                    let mut l = 0.0;
+                    for k in 0..n {
+                        if steps[k] <= d + sd && steps[k] >= d - sd {
+                            l += (w[k] - pdf(steps[k] - d) * lengths[k]).powi(2);
+                        }
+                        if steps[k] < d - sd {
+                            l += w[k] * w[k];
+                        }
+                    }
+                    l
+                }
+            };
+            assert!(
+                common::close(out.loss_depth, want * ray_w, 1e-12, 1e-10),
+                "{loss:?} ray {i}: {} vs {want}",
+                out.loss_depth
+            );
+            checked[li] += 1;
+        }
+    }
+    assert!(checked.iter().all(|&c| c > 20), "enough rays with targets: {checked:?}");
 }
 
 #[test]

@@ -10,6 +10,7 @@ mod stability_support;
 
 use common::{gpu, rng};
 use msnerf::gpu::{Context, LargeArray, MemoryCategory};
+use msnerf::nerf::buffers::RAY_OUT_FIXED;
 use msnerf::nerf::kernels::Geometry;
 use msnerf::nn::adam::{self, AdamHyper};
 use msnerf::nn::mlp::{Activation, Mlp, MlpConfig, MlpTrainBuffers};
@@ -132,10 +133,11 @@ fn check_head(c: &MlpConfig, w: &[f32], x: &[f32], case: &CompositeCase, got: &H
             rgb_norm: case.rgb_norm() as f64,
             dist_norm: case.dist_norm() as f64,
             grad_scaling: false,
+            depth: None,
         });
-        let ro = &got.comp.ray_out[i * (8 + bb)..(i + 1) * (8 + bb)];
+        let ro = &got.comp.ray_out[i * (RAY_OUT_FIXED + bb)..(i + 1) * (RAY_OUT_FIXED + bb)];
         check_vals(&ro[..3], &[t.loss_rgb, t.loss_dist, t.accumulation], &format!("{what}: ray {i} losses"));
-        check_vals(&ro[8..], &t.colour, &format!("{what}: ray {i} composite colour"));
+        check_vals(&ro[RAY_OUT_FIXED..], &t.colour, &format!("{what}: ray {i} composite colour"));
         check_grad(&got.comp.d_raw[i * n..(i + 1) * n], &t.d_raw, &format!("{what}: ray {i} dL/draw"));
         check_grad(&got.comp.d_colour[i * n * bb..(i + 1) * n * bb], &t.d_colour, &format!("{what}: ray {i} dL/dc"));
         for k in 0..n {

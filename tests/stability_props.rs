@@ -10,6 +10,7 @@ mod common;
 mod stability_support;
 
 use common::gpu;
+use msnerf::nerf::buffers::RAY_OUT_FIXED;
 use msnerf::nerf::kernels::Geometry;
 use msnerf::reference::render as tw;
 use proptest::prelude::*;
@@ -134,6 +135,7 @@ proptest! {
             rgb_norm: 0.5,
             dist_norm: 0.002,
             grad_scaling: false,
+            depth: None,
         });
         prop_assert!(t.d_raw.iter().chain(&t.d_colour).all(|v| v.is_finite()), "{:?} {:?}", t.d_raw, t.d_colour);
         prop_assert!(t.loss_rgb.is_finite() && t.loss_dist.is_finite() && t.expected_depth.is_finite());
@@ -190,7 +192,7 @@ fn gpu_weights_resampling_and_composite_keep_the_invariants() {
             let out = r.composite(&c, true);
             prop_assert!(out.d_raw.iter().chain(&out.d_colour).chain(&out.ray_out).all(|v| v.is_finite()));
             for i in 0..rays.len() {
-                let a = out.ray_out[i * (8 + 2) + 2]; // 8 fixed columns, 2 bands
+                let a = out.ray_out[i * (RAY_OUT_FIXED + 2) + 2]; // RAY_OUT_FIXED fixed columns, 2 bands
                 prop_assert!((-1e-6..=1.0 + 1e-5).contains(&a), "accumulation {a}");
             }
             Ok(())

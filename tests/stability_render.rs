@@ -9,6 +9,7 @@ mod common;
 mod stability_support;
 
 use common::gpu;
+use msnerf::nerf::buffers::RAY_OUT_FIXED;
 use msnerf::nerf::kernels::Geometry;
 use msnerf::reference::render as tw;
 use stability_support::*;
@@ -168,7 +169,7 @@ fn dense_media_weights_resampling_composite_and_interlevel_stay_finite() {
         c.background = bg;
         let out = composite_matches_twin(&r, &c, "dense composite");
         for i in 0..nr {
-            let a = out.ray_out[i * (8 + bands) + 2];
+            let a = out.ray_out[i * (RAY_OUT_FIXED + bands) + 2];
             assert!((a - 1.0).abs() < 1e-5, "ray {i}: opaque ray accumulates 1, got {a}");
         }
     }
@@ -205,7 +206,7 @@ fn empty_space_gives_zero_weights_and_finite_everything() {
             if raw_v == -200.0 {
                 assert!(out.weights.iter().all(|&w| w == 0.0), "all weights zero");
                 for i in 0..nr {
-                    let ro = &out.ray_out[i * (8 + bands)..(i + 1) * (8 + bands)];
+                    let ro = &out.ray_out[i * (RAY_OUT_FIXED + bands)..(i + 1) * (RAY_OUT_FIXED + bands)];
                     assert_eq!(ro[2], 0.0, "accumulation");
                     assert_eq!(ro[4], 0.0, "expected depth of an empty ray");
                     assert_eq!(ro[1], 0.0, "distortion of an empty ray");
@@ -340,7 +341,7 @@ fn saturated_reflectance_and_targets_outside_the_unit_interval() {
         composite_matches_twin(&r, &c, "saturated composite");
         let eval = r.composite(&c, false);
         for i in 0..nr {
-            let col = &eval.ray_out[i * (8 + bands) + 8..(i + 1) * (8 + bands)];
+            let col = &eval.ray_out[i * (RAY_OUT_FIXED + bands) + RAY_OUT_FIXED..(i + 1) * (RAY_OUT_FIXED + bands)];
             assert!(col.iter().all(|v| (0.0..=1.0).contains(v)), "evaluation colours clamped: {col:?}");
         }
     }
@@ -369,7 +370,7 @@ fn median_and_quantiles_are_exact_crossings() {
         let raw = raw_for_tau(&edges_one, geo, &tau);
         let c = case(rays.clone(), n, bands, edges_one.repeat(3), raw.repeat(3), geo);
         let out = composite_matches_twin(&r, &c, "slab composite");
-        let ro = &out.ray_out[..8 + bands];
+        let ro = &out.ray_out[..RAY_OUT_FIXED + bands];
         let total = 1.0 - (-sigma * (t_b - t_a)).exp();
         let cross = |level: f64| t_a - (1.0 - level).ln() / sigma;
         let cell = (t_b - t_a) / (ib - ia) as f64;

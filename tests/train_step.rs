@@ -119,6 +119,7 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
             camera: cam,
             target: target.iter().map(|&v| v as f64).collect(),
             weight: weight as f64,
+            depth: None,
         });
     }
     // The warm-up compiles every kernel and changes nothing the step below depends on.

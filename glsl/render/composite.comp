@@ -4,11 +4,23 @@
 //   C = sum w_i c_i + bg (1 - A) with bg = c_{N-1} (last_sample), 0 (black), 1 (white) or a given constant.
 // Loss (training): ray_weight * sum_b band_w_b (C_b - y_b)^2 * rgb_norm  (rgb_norm = 1/(rays * B));
 //   distortion in s-space, O(N): dist_norm * [2 sum w_i (m_i W_i - M_i) + 1/3 sum w_i^2 ds_i].
-// Backward: g_i = <G, c_i - bg> + dLd/dw_i; dL/dsigma_k = delta_k (g_k T_{k+1} - sum_{i>k} g_i w_i);
+// Depth supervision (optional, depth_mode; spec in docs/geometry.md "Depth supervision"): per ray a target distance d
+//   along the unit ray (normalised frame; d <= 0 or non-finite: no target) and a standard deviation s. With t_i the
+//   interval midpoints and delta_i their lengths (URF's depth term (d - D)^2 is left out: nerfstudio's D is the
+//   median, which passes no gradient; the expected depth would hand the far contracted samples, t up to `far`, the
+//   largest gradients, and training collapsed when it did):
+//   1 DS-NeRF: L = -sum_i log(w_i + 1e-7) N(t_i - d; 0, s) delta_i  (cross-entropy of the weights against the
+//              target's Gaussian mass per interval);
+//   2 URF:     L = sum_{|t_i - d| <= s} (w_i - N(t_i - d; 0, s/3) delta_i)^2 + sum_{t_i < d - s} w_i^2;
+//   times depth_norm * ray_weight. N is the normal density, so N delta is a probability mass like w and both losses
+//   do not grow as the scene's scale shrinks (nerfstudio's forms use N unnormalised (DS-NeRF) or unmultiplied by
+//   delta (URF): with this project's aerial normalisation, 0.2 m is s ~ 0.002 and N peaks at ~600; docs/geometry.md). Functions of the weights only, so they enter
+//   the backward as dL/dw_i.
+// Backward: g_i = <G, c_i - bg> + dLd/dw_i + dLdepth/dw_i; dL/dsigma_k = delta_k (g_k T_{k+1} - sum_{i>k} g_i w_i);
 //   dL/draw_k = dL/dsigma_k * scale exp(clamp(raw_k, -15, 15)); dL/dc_i = w_i G (+ (1 - A) G for the last sample with
 //   last_sample background). The exclusive prefix of sigma delta is parked in dy_density during the forward pass.
-// Outputs per ray (ray_out, stride 8 + B): loss_rgb, loss_dist, accumulation, median depth, expected depth,
-//   squared error (unweighted, summed over bands), depth quantiles q25 and q75 of the normalised weights,
+// Outputs per ray (ray_out, stride 9 + B): loss_rgb, loss_dist, accumulation, median depth, expected depth,
+//   squared error (unweighted, summed over bands), depth quantiles q25 and q75 of the normalised weights, loss_depth,
 //   C_0..C_{B-1} (clamped to [0,1] in evaluation).
 // Depths are exact crossings inside an interval, not its midpoint: inside [t0, t1) the density is constant, so the
 //   accumulation there is A_prev + T_i (1 - exp(-sigma (t - t0))) and the level L is crossed at
@@ -18,12 +30,13 @@
 // Bindings: 0 edges (float[R][N+1]), 1 density rows (raw at column 0 of density_stride), 2 colours (float[R*N][B]),
 //           3 targets (float[R][B+1]: B values then the ray weight), 4 band weights (float[B]),
 //           5 dy_density (rows of density_stride: column 0 written), 6 dy_colour (float[R*N][B], written),
-//           7 weights (float[R][N], written), 8 ray_out (float[R][8+B], written), 9 origins, 10 directions.
+//           7 weights (float[R][N], written), 8 ray_out (float[R][9+B], written), 9 origins, 10 directions,
+//           11 depth targets (float[R][2]: d, s; read only with depth_mode != 0, else any buffer).
 // Push:     n_rays, n, bands, near, far, density_stride, density_scale, background (0 last_sample, 1 constant,
 //           2 random: a uniform colour per ray and band from (seed, step, ray_offset + ray), as nerfstudio's `random`),
 //           bg_value, rgb_norm, dist_norm, train, contraction, grad_scaling (1: nerfacto's optional gradient
 //           scaling, every field-output gradient times clamp(t_mid^2, 0, 1), damping near-camera samples), seed, step,
-//           ray_offset.
+//           ray_offset, depth_mode (0 off, 1 DS-NeRF, 2 URF), depth_norm.
 // Threads:  one invocation per ray, serial over its samples (forward, then a reverse pass), 64 per group.
 #version 460
 #define WG_SIZE 64
@@ -41,13 +54,35 @@ layout(std430, binding = 7) buffer Weights { float weights[]; };
 layout(std430, binding = 8) writeonly buffer RayOut { float ray_out[]; };
 layout(std430, binding = 9) readonly buffer Origins { float origins[]; };
 layout(std430, binding = 10) readonly buffer Dirs { float dirs[]; };
+layout(std430, binding = 11) readonly buffer DepthTargets { float depth_t[]; };
 layout(push_constant) uniform Push {
     uint n_rays; uint n; uint bands; float near; float far; uint density_stride; float density_scale;
     uint background; float bg_value; float rgb_norm; float dist_norm; uint train; uint contraction; uint grad_scaling;
-    uint seed; uint step; uint ray_offset;
+    uint seed; uint step; uint ray_offset; uint depth_mode; float depth_norm;
 } pc;
 
 const uint MAX_BANDS = 128u;
+const uint RAY_OUT_FIXED = 9u;
+const float DS_EPS = 1e-7;
+const float URF_SIGMA_SCALE = 3.0; // the Gaussian of the URF window has standard deviation s / 3
+const float INV_SQRT_2PI = 0.3989422804014327;
+
+// Depth loss of one sample (w, t, delta) against target (d, s), without the expected-depth term: its value and
+// dL/dw (see the header).
+vec2 depth_term(float w, float t, float delta, float d, float s) {
+    float x = t - d;
+    if (pc.depth_mode == 1u) {
+        float k = INV_SQRT_2PI / s * exp(-x * x / (2.0 * s * s)) * delta;
+        return vec2(-log(w + DS_EPS) * k, -k / (w + DS_EPS));
+    }
+    float sd = s / URF_SIGMA_SCALE;
+    if (abs(x) <= s) {
+        float nx = INV_SQRT_2PI / sd * exp(-0.5 * x * x / (sd * sd)) * delta;
+        return vec2((w - nx) * (w - nx), 2.0 * (w - nx));
+    }
+    if (x < -s) return vec2(w * w, 2.0 * w);
+    return vec2(0.0);
+}
 
 float sigma_of(uint r, uint i, vec3 o, vec3 d, float tmid) {
     float s = density_from_raw(density[(r * pc.n + i) * pc.density_stride], pc.density_scale);
@@ -120,24 +155,42 @@ void main() {
     if (q25 < 0.0) q25 = tmid_last;
     if (q75 < 0.0) q75 = tmid_last;
     float ray_w = targets[r * (B + 1u) + B];
+    float expected = depth_sum / (A + 1e-10);
+    // Depth target: present when depth supervision is on and the ray has a finite positive distance.
+    float dt = 0.0, ds = 1.0;
+    if (pc.depth_mode != 0u) {
+        dt = depth_t[2u * r];
+        ds = depth_t[2u * r + 1u];
+    }
+    bool has_depth = pc.depth_mode != 0u && dt > 0.0 && !isinf(dt) && ds > 0.0 && !isinf(ds);
+    float loss_depth = 0.0;
+    if (has_depth) {
+        t0 = t_first;
+        for (uint i = 0u; i < pc.n; ++i) {
+            float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
+            loss_depth += depth_term(weights[r * pc.n + i], 0.5 * (t0 + t1), t1 - t0, dt, ds).x;
+            t0 = t1;
+        }
+    }
     float loss = 0.0, sq = 0.0;
-    uint ro = r * (8u + B);
+    uint ro = r * (RAY_OUT_FIXED + B);
     for (uint b = 0u; b < B; ++b) {
         float c = C[b] + bg_of(r, b) * (1.0 - A);
         float e = c - targets[r * (B + 1u) + b];
         loss += band_w[b] * e * e;
         sq += e * e;
-        ray_out[ro + 8u + b] = pc.train != 0u ? c : clamp(isnan(c) ? 0.0 : c, 0.0, 1.0);
+        ray_out[ro + RAY_OUT_FIXED + b] = pc.train != 0u ? c : clamp(isnan(c) ? 0.0 : c, 0.0, 1.0);
         C[b] = 2.0 * band_w[b] * e * pc.rgb_norm * ray_w; // from here on C holds G = dL/dC
     }
     ray_out[ro] = loss * pc.rgb_norm * ray_w;
     ray_out[ro + 1u] = dist * pc.dist_norm * ray_w;
     ray_out[ro + 2u] = A;
     ray_out[ro + 3u] = median;
-    ray_out[ro + 4u] = depth_sum / (A + 1e-10);
+    ray_out[ro + 4u] = expected;
     ray_out[ro + 5u] = sq * ray_w;
     ray_out[ro + 6u] = q25;
     ray_out[ro + 7u] = q75;
+    ray_out[ro + 8u] = loss_depth * pc.depth_norm * ray_w;
     if (pc.train == 0u) return;
 
     // Backward: reverse pass with suffix sums S = sum_{i>k} g_i w_i, Sw = sum_{i>k} w_i, Swm = sum_{i>k} w_i m_i.
@@ -170,6 +223,10 @@ void main() {
         float Wk = W - w - Sw, Mk = M - w * m - Swm;
         float gd = 2.0 * (m * Wk - Mk + (M - Mk - w * m) - m * (W - Wk - w)) + (2.0 / 3.0) * w * (s1 - s0);
         g += gd * pc.dist_norm * ray_w;
+        if (has_depth) {
+            float gdep = depth_term(w, tmid, delta, dt, ds).y;
+            g += gdep * pc.depth_norm * ray_w;
+        }
         float dsigma = delta * (g * t_next - S);
         bool live = pc.contraction != 0u || sigma > 0.0;
         dy_density[di] = live ? dsigma * density_grad_scale(raw, pc.density_scale) * gs : 0.0;

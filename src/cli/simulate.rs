@@ -41,6 +41,15 @@ pub struct SimulateArgs {
     /// Replace an existing output folder
     #[arg(long)]
     pub overwrite: bool,
+    /// Also write about this many simulated SfM points with their tracks (sparse_points.json), for depth supervision
+    #[arg(long, default_value_t = 0)]
+    pub sparse_points: usize,
+    /// Position noise of the simulated SfM points (standard deviation, metres)
+    #[arg(long, default_value_t = 0.0)]
+    pub sparse_noise: f64,
+    /// Shortest track of a simulated SfM point (views that see it)
+    #[arg(long, default_value_t = 3)]
+    pub sparse_min_views: usize,
 }
 
 pub fn run(_cli: &Cli, a: &SimulateArgs) -> anyhow::Result<()> {
@@ -55,6 +64,11 @@ pub fn run(_cli: &Cli, a: &SimulateArgs) -> anyhow::Result<()> {
         threads: a.threads,
         points: a.points,
         overwrite: a.overwrite,
+        sparse_points: (a.sparse_points > 0).then_some(crate::sim::sparse::SparseOptions {
+            count: a.sparse_points,
+            noise_m: a.sparse_noise,
+            min_views: a.sparse_min_views,
+        }),
     };
     let report = simulate(&scene, &opts, &a.out)?;
     println!("{report}");

@@ -76,6 +76,8 @@ pub struct Dataset {
     pub depth_unit_scale_factor: f64,
     /// `depth_type`: true for `z`, false for `ray_distance`.
     pub depth_is_z: bool,
+    /// `sparse_points_path`: SfM-like sparse points with the frames that observed them ([`super::sparse_points`]).
+    pub sparse_points_path: Option<PathBuf>,
     pub options: LoadOptions,
     /// Set by [`Dataset::select_bands`]: the dataset then reads and reports only these bands of its files.
     pub band_selection: Option<BandSelection>,
@@ -211,6 +213,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         black_level: raw.black_level,
         depth_unit_scale_factor: raw.depth_unit_scale_factor,
         depth_is_z: raw.depth_is_z,
+        sparse_points_path: raw.sparse_points.clone(),
         options: options.clone(),
         band_selection: None,
         transform_cache: Default::default(),
@@ -614,11 +617,21 @@ impl Dataset {
         Ok((0..px).map(|q| u8::from(r.samples.raw(q * r.bands) != 0.0)).collect())
     }
 
-    /// Reads frame `i`'s depth file in metres (× `depth_unit_scale_factor`), row-major; `None` without one.
+    /// Reads frame `i`'s depth file in metres (× `depth_unit_scale_factor`), row-major; `None` without one. A depth
+    /// file with more than one band is an error naming it (an image given as a depth map).
     pub fn read_depth(&self, i: usize) -> Result<Option<Vec<f32>>, DataError> {
         let f = &self.frames[i];
         let Some(p) = &f.depth else { return Ok(None) };
         let r = self.read_sized(p, f, "depth_file_path")?;
+        if r.bands != 1 {
+            return Err(DataError::BandCount {
+                path: p.to_path_buf(),
+                key: "depth_file_path".into(),
+                frame: Some(frame_of(f)),
+                expected: 1,
+                found: r.bands,
+            });
+        }
         let s = self.depth_unit_scale_factor;
         let px = (self.width * self.height) as usize;
         Ok(Some((0..px).map(|q| (r.samples.raw(q * r.bands) * s) as f32).collect()))

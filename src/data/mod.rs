@@ -9,6 +9,7 @@
 //! - [`cache`]: host image cache with a byte budget and pixel sampling.
 //! - [`check`]: `dataset check` as a library function.
 //! - [`bench`]: cache/load benchmark.
+//! - [`sparse_points`]: `sparse_points_path`, SfM-like points with the frames that observed them.
 
 pub mod aerial;
 pub mod bench;
@@ -22,6 +23,7 @@ pub mod png_reader;
 pub mod pose;
 pub mod raster;
 pub mod reader;
+pub mod sparse_points;
 pub mod split;
 pub mod synth;
 pub mod tiff_reader;

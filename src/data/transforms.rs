@@ -51,6 +51,8 @@ pub struct RawTransforms {
     pub depth_unit_scale_factor: f64,
     pub depth_is_z: bool,
     pub lists: SplitLists,
+    /// `sparse_points_path`, resolved against the file's folder ([`super::sparse_points`]).
+    pub sparse_points: Option<PathBuf>,
 }
 
 struct Ctx<'a> {
@@ -153,6 +155,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
             true
         }
     };
+    let sparse_points = cx.string(top, "sparse_points_path", None).map(|p| dir.join(p));
     let bands = parse_bands(&mut cx, top);
     let lists = SplitLists {
         train: cx.string_list(top, "train_filenames", None),
@@ -186,7 +189,16 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
     if let Some(e) = DataError::from_list(cx.errors) {
         return Err(e);
     }
-    Ok(RawTransforms { frames, bands, pixel_scale, black_level, depth_unit_scale_factor, depth_is_z, lists })
+    Ok(RawTransforms {
+        frames,
+        bands,
+        pixel_scale,
+        black_level,
+        depth_unit_scale_factor,
+        depth_is_z,
+        lists,
+        sparse_points,
+    })
 }
 
 fn parse_bands(cx: &mut Ctx, top: &Map<String, Value>) -> Option<Vec<Band>> {

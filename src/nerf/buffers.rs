@@ -111,10 +111,12 @@ pub struct ChunkBuffers<A: Alloc> {
     pub mlp_scratch: Option<A::F>,
     /// Bound where a kernel's optional input is absent (e.g. no appearance embedding).
     pub dummy: A::F,
+    /// Training with `loss.depth`: per ray (target distance, sigma); absent otherwise (free when off).
+    pub depth_targets: Option<A::F>,
 }
 
 /// Per-ray output columns of the composite kernel besides the B colours.
-pub const RAY_OUT_FIXED: usize = 8;
+pub const RAY_OUT_FIXED: usize = 9;
 
 /// An MLP's training buffers (activations, deltas, weight-gradient scratch); all None for inference.
 struct MlpTrain<A: Alloc> {
@@ -236,6 +238,11 @@ impl<A: Alloc> ChunkBuffers<A> {
             pose,
             mlp_scratch,
             dummy: a.f32("dummy binding", MemoryCategory::Other, 4)?,
+            depth_targets: if train && cfg.loss.depth.is_some() {
+                Some(a.f32("ray depth targets", ray, rays * 2)?)
+            } else {
+                None
+            },
         })
     }
 }

@@ -127,6 +127,53 @@ pub struct LossConfig {
     /// weights on one surface once the field has found it (docs/geometry.md); from the first step it collapses it.
     #[serde(default)]
     pub distortion_ramp: Option<DistortionRamp>,
+    /// Optional depth supervision (off by default; free when off): docs/geometry.md "Depth supervision".
+    #[serde(default)]
+    pub depth: Option<DepthSupervision>,
+}
+
+/// The depth loss of [`DepthSupervision`], as in nerfstudio's depth-nerfacto.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthLoss {
+    /// Deng et al. 2022: -log of the weights under a Gaussian around the target.
+    DsNerf,
+    /// Rematas et al. 2022 (Urban Radiance Fields): expected-depth error, a Gaussian window of weights around the
+    /// target and empty space (line of sight) in front of it.
+    Urf,
+}
+
+/// Where depth targets come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthSource {
+    /// The dataset's sparse 3-D points (`sparse_points_path`: SfM tracks, or the simulator's), projected into the
+    /// training views that observed them.
+    SparsePoints,
+    /// The frames' depth maps (`depth_file_path`; nerfstudio's convention: 0 = no depth at that pixel).
+    DepthMaps,
+}
+
+/// `loss.depth`: depth supervision of the NeRF-level weights.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DepthSupervision {
+    pub loss: DepthLoss,
+    pub source: DepthSource,
+    /// Loss weight (nerfstudio's `depth_loss_mult`, 1e-3).
+    #[serde(default = "depth_mult")]
+    pub mult: f32,
+    /// Standard deviation of a target, in the dataset's world units (metres for a georeferenced flight). nerfstudio's
+    /// `depth_sigma` enters its DS-NeRF loss as a variance: its 0.01 (scene units) is a sigma of 0.1 here.
+    pub sigma: f64,
+    /// Fraction of each batch drawn from pixels that have a depth target (0: uniform pixels only, as nerfstudio;
+    /// sparse points cover a few pixels per view, so uniform batches rarely meet one).
+    #[serde(default)]
+    pub ray_fraction: f64,
+}
+
+fn depth_mult() -> f32 {
+    1e-3
 }
 
 /// See [`LossConfig::distortion_ramp`].
@@ -161,6 +208,7 @@ impl Default for LossConfig {
             band_weights: None,
             gradient_scaling: false,
             distortion_ramp: None,
+            depth: None,
         }
     }
 }
@@ -324,6 +372,17 @@ impl ModelConfig {
                     "loss.distortion_ramp: need from_step < to_step and mult >= 0, got {} .. {} and {}",
                     r.from_step, r.to_step, r.mult
                 ));
+            }
+        }
+        if let Some(d) = &self.loss.depth {
+            if !(d.mult.is_finite() && d.mult > 0.0) {
+                return Err(format!("loss.depth.mult must be > 0, got {}", d.mult));
+            }
+            if !(d.sigma.is_finite() && d.sigma > 0.0) {
+                return Err(format!("loss.depth.sigma must be > 0 (world units), got {}", d.sigma));
+            }
+            if !(0.0..=1.0).contains(&d.ray_fraction) {
+                return Err(format!("loss.depth.ray_fraction must be in [0, 1], got {}", d.ray_fraction));
             }
         }
         let co = &self.camera_optimizer;

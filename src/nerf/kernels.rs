@@ -1,7 +1,8 @@
 //! Rust side of the render kernels in `glsl/render/`: one push-constant struct and one recording function per kernel.
 //! Buffers follow the layouts documented in each kernel's header; per-ray data is row-major (ray, sample).
 
-use crate::gpu::{Binding, Context, GpuBuffer, GpuResult, Kernel, Recorder};
+pub use super::config::DepthLoss;
+use crate::gpu::{Binding, Context, GpuBuffer, GpuError, GpuResult, Kernel, Recorder};
 use crate::shaders;
 use bytemuck::{Pod, Zeroable};
 
@@ -106,6 +107,8 @@ struct CompositePush {
     seed: u32,
     step: u32,
     ray_offset: u32,
+    depth_mode: u32,
+    depth_norm: f32,
 }
 
 #[repr(C)]
@@ -179,6 +182,9 @@ pub struct CompositeParams {
     pub train: bool,
     /// nerfacto's optional gradient scaling (field-output gradients times clamp(t_mid^2, 0, 1)).
     pub grad_scaling: bool,
+    /// Depth supervision (with `CompositeBuffers::depth_targets`): the loss and its weight per ray
+    /// (`depth_loss_mult` over the batch's ray weight). `None`: off, nothing read.
+    pub depth: Option<(DepthLoss, f32)>,
 }
 
 /// Buffers of the composite kernel.
@@ -192,6 +198,9 @@ pub struct CompositeBuffers<'a> {
     pub dy_colour: &'a GpuBuffer<f32>,
     pub weights: &'a GpuBuffer<f32>,
     pub ray_out: &'a GpuBuffer<f32>,
+    /// Per ray (target distance, standard deviation) in the normalised frame; needed when `CompositeParams::depth`
+    /// is set.
+    pub depth_targets: Option<&'a GpuBuffer<f32>>,
 }
 
 /// Buffers of the interlevel kernel for one proposal level.
@@ -406,7 +415,21 @@ impl RenderKernels {
             seed: if let BackgroundMode::Random { seed, .. } = p.background { seed } else { 0 },
             step: if let BackgroundMode::Random { step, .. } = p.background { step } else { 0 },
             ray_offset: rays.ray_offset,
+            depth_mode: match p.depth {
+                None => 0,
+                Some((DepthLoss::DsNerf, _)) => 1,
+                Some((DepthLoss::Urf, _)) => 2,
+            },
+            depth_norm: p.depth.map_or(0.0, |(_, w)| w),
         };
+        if p.depth.is_some() && bufs.depth_targets.is_none() {
+            return Err(GpuError::Dispatch {
+                kernel: "composite".into(),
+                msg: "depth supervision without a depth-target buffer".into(),
+            });
+        }
+        // Off, the kernel never reads binding 11: any read-only buffer of the dispatch stands in.
+        let depth_targets = bufs.depth_targets.unwrap_or(bufs.band_weights);
         let bindings = [
             bufs.edges.binding(),
             bufs.density.binding(),
@@ -419,6 +442,7 @@ impl RenderKernels {
             bufs.ray_out.binding(),
             rays.origins.binding(),
             rays.dirs.binding(),
+            depth_targets.binding(),
         ];
         rec.dispatch(&self.composite, &bindings, &push, rays.n_rays as u64)
     }

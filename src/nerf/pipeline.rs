@@ -20,11 +20,14 @@ use crate::gpu::staging::Part;
 use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, MemoryCategory, Recorder, TimingReport};
 use crate::nn::{ParamSlice, RowSlice};
 
-/// A training batch: per ray (camera, row, col) and B target values plus a ray weight (0 masks the ray out).
+/// A training batch: per ray (camera, row, col) and B target values plus a ray weight (0 masks the ray out); with
+/// depth supervision on, per ray (target distance, sigma) in the normalised frame, (0, 1) for no target.
 #[derive(Clone, Debug, Default)]
 pub struct Batch {
     pub pixels: Vec<u32>,
     pub targets: Vec<f32>,
+    /// Empty unless `loss.depth` is set.
+    pub depth: Vec<f32>,
 }
 
 impl Batch {
@@ -40,6 +43,8 @@ pub struct StepStats {
     pub loss_rgb: f64,
     pub loss_distortion: f64,
     pub loss_interlevel: f64,
+    /// Depth supervision (0 without `loss.depth`).
+    pub loss_depth: f64,
     /// Camera pose regulariser (0 without pose refinement).
     pub loss_pose: f64,
     /// PSNR of the batch (data range 1) from the unweighted squared error.
@@ -308,7 +313,7 @@ impl Pipeline {
         rec: &mut Recorder,
         b: &ChunkBuffers<GpuAlloc>,
         (r, ray_offset): (usize, usize),
-        norms: (f32, f32, f32),
+        norms: (f32, f32, f32, f32),
         update_props: bool,
     ) -> GpuResult<()> {
         let m = &self.model;
@@ -321,7 +326,7 @@ impl Pipeline {
         let lv = &b.nerf;
         let f = &m.field;
         let fm = &f.mlp.config;
-        let (rgb_norm, dist_norm, inter_norm) = norms;
+        let (rgb_norm, dist_norm, inter_norm, depth_norm) = norms;
         let p = CompositeParams {
             bands: m.bands,
             density_stride: fm.n_output,
@@ -331,6 +336,7 @@ impl Pipeline {
             dist_norm,
             train: true,
             grad_scaling: m.cfg.loss.gradient_scaling,
+            depth: m.cfg.loss.depth.map(|d| (d.loss, depth_norm)),
         };
         let cb = CompositeBuffers {
             edges: &lv.edges,
@@ -342,6 +348,7 @@ impl Pipeline {
             dy_colour: need(&b.colour.dy),
             weights: &lv.weights,
             ray_out: &b.ray_out,
+            depth_targets: b.depth_targets.as_ref(),
         };
         k.composite(rec, rb, geo, lv.n, &p, &cb)?;
         let s = r * lv.n;
@@ -460,8 +467,15 @@ impl Pipeline {
         Ok((reg, flag[0] == 0))
     }
 
-    /// The chunk's pixels, cameras and targets (zeros when rendering), in one submission.
-    fn upload_rays(&self, b: &ChunkBuffers<GpuAlloc>, pixels: &[u32], targets: Option<&[f32]>) -> GpuResult<()> {
+    /// The chunk's pixels, cameras and targets (zeros when rendering) and, with depth supervision, its depth targets
+    /// (none given: no ray has one), in one submission.
+    fn upload_rays(
+        &self,
+        b: &ChunkBuffers<GpuAlloc>,
+        pixels: &[u32],
+        targets: Option<&[f32]>,
+        depth: Option<&[f32]>,
+    ) -> GpuResult<()> {
         let cams: Vec<u32> = pixels.chunks(3).map(|p| p[0]).collect();
         let zeros;
         let targets = match targets {
@@ -471,11 +485,23 @@ impl Pipeline {
                 &zeros
             }
         };
-        self.ctx.upload_parts(&[
+        let mut parts = vec![
             Part::upload(&b.pixels, 0, pixels)?,
             Part::upload(&b.cam_idx, 0, &cams)?,
             Part::upload(&b.targets, 0, targets)?,
-        ])
+        ];
+        let none;
+        if let Some(buf) = &b.depth_targets {
+            let d = match depth {
+                Some(d) if !d.is_empty() => d,
+                _ => {
+                    none = vec![0.0f32; 2 * cams.len()];
+                    &none
+                }
+            };
+            parts.push(Part::upload(buf, 0, d)?);
+        }
+        self.ctx.upload_parts(&parts)
     }
 
     /// Runs every kernel of a training step (with and without a proposal update, the gradient check and the pose
@@ -490,13 +516,13 @@ impl Pipeline {
         let b = self.train_bufs.take().expect("ensured above");
         let targets = vec![0.0f32; self.model.bands + 1];
         let res = (|| {
-            self.upload_rays(&b, &pixels, Some(&targets))?;
+            self.upload_rays(&b, &pixels, Some(&targets), None)?;
             let mut timing = TimingReport::default();
             for update_props in [true, false] {
                 let mut rec = self.ctx.recorder("warm-up")?;
                 self.model.store.zero_grads(&mut rec)?;
                 self.record_forward(&mut rec, &b, (1, 0), true, update_props)?;
-                self.record_backward(&mut rec, &b, (1, 0), (0.0, 0.0, 0.0), update_props)?;
+                self.record_backward(&mut rec, &b, (1, 0), (0.0, 0.0, 0.0, 0.0), update_props)?;
                 rec.submit_and_wait()?;
             }
             self.finish_gradients(&b, &mut timing)?;
@@ -518,7 +544,17 @@ impl Pipeline {
             (1.0 / (total_w.max(1.0) * bands as f64)) as f32,
             (cfg.loss.distortion_at(self.step) as f64 / total_w.max(1.0)) as f32,
             (cfg.loss.interlevel_mult as f64 / (n_rays * cfg.sampling.num_nerf_samples) as f64) as f32,
+            cfg.loss.depth.map_or(0.0, |d| (d.mult as f64 / total_w.max(1.0)) as f32),
         );
+        if cfg.loss.depth.is_some() && batch.depth.len() != 2 * n_rays {
+            return Err(GpuError::Dispatch {
+                kernel: "train step".into(),
+                msg: format!(
+                    "loss.depth is set but the batch has {} depth values for {n_rays} rays",
+                    batch.depth.len()
+                ),
+            });
+        }
         let update_props = self.schedule.decide(&cfg.sampling, self.step) && !self.model.proposals.is_empty();
         let mut stats = StepStats { step: self.step, proposals_updated: update_props, ..Default::default() };
         if n_rays == 0 {
@@ -537,6 +573,7 @@ impl Pipeline {
                     &b,
                     &batch.pixels[3 * c0..3 * (c0 + r)],
                     Some(&batch.targets[c0 * (bands + 1)..(c0 + r) * (bands + 1)]),
+                    batch.depth.get(2 * c0..2 * (c0 + r)),
                 )?;
                 let mut rec = self.ctx.recorder("train chunk")?;
                 if c0 == 0 {
@@ -566,6 +603,7 @@ impl Pipeline {
                 stats.loss_rgb += row[0] as f64;
                 stats.loss_distortion += row[1] as f64;
                 sq += row[5] as f64;
+                stats.loss_depth += row[8] as f64;
             }
             for l in &got[1..] {
                 stats.loss_interlevel +=
@@ -584,6 +622,7 @@ impl Pipeline {
             && stats.loss_rgb.is_finite()
             && stats.loss_distortion.is_finite()
             && stats.loss_interlevel.is_finite()
+            && stats.loss_depth.is_finite()
             && stats.loss_pose.is_finite();
         let grads_finite = finite && grads_ok;
         if result.is_ok() && !grads_finite {
@@ -592,7 +631,8 @@ impl Pipeline {
         }
         self.train_bufs = Some(b);
         result?;
-        stats.loss = stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel + stats.loss_pose;
+        stats.loss =
+            stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel + stats.loss_depth + stats.loss_pose;
         stats.psnr = -10.0 * (sq / (total_w.max(1.0) * bands as f64)).max(1e-20).log10();
         if !stats.skipped {
             let mut rec = self.ctx.recorder("adam")?;
@@ -643,7 +683,7 @@ impl Pipeline {
             self.update_mean_appearance()?;
             for c0 in (0..n).step_by(b.rays) {
                 let r = b.rays.min(n - c0);
-                self.upload_rays(&b, &pixels[3 * c0..3 * (c0 + r)], None)?;
+                self.upload_rays(&b, &pixels[3 * c0..3 * (c0 + r)], None, None)?;
                 let mut rec = self.ctx.recorder("render chunk")?;
                 self.record_forward(&mut rec, &b, (r, c0), false, false)?;
                 let geo = self.geometry(true);
@@ -658,6 +698,7 @@ impl Pipeline {
                     dist_norm: 0.0,
                     train: false,
                     grad_scaling: false,
+                    depth: None,
                 };
                 let cb = CompositeBuffers {
                     edges: &b.nerf.edges,
@@ -669,6 +710,7 @@ impl Pipeline {
                     dy_colour: &b.dummy,
                     weights: &b.nerf.weights,
                     ray_out: &b.ray_out,
+                    depth_targets: None,
                 };
                 self.kernels.composite(&mut rec, rb, geo, b.nerf.n, &p, &cb)?;
                 out.timing.accumulate(&rec.submit_and_wait()?);

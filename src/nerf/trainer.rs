@@ -233,6 +233,11 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     )
     .map_err(|e| e.to_string())?;
     let eval = eval_set(&ds, opts.eval_pixels, cfg.trainer.seed)?;
+    let near_far = (cfg.sampling.near as f64, cfg.sampling.far as f64);
+    let depth = match &cfg.loss.depth {
+        Some(d) => Some(super::depth_targets::DepthTargets::build(&ds, &train_frames, d, near_far)?),
+        None => None,
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.trainer.seed.wrapping_add(state.step.wrapping_mul(0x9e37_79b9)));
     let metrics_path = run.join("metrics.jsonl");
     let mut metrics = std::fs::OpenOptions::new()
@@ -277,12 +282,21 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
             break;
         }
         cache.step().map_err(|e| e.to_string())?;
-        let px = cache.sample_pixels(&mut rng, r);
-        let mut batch = Batch { pixels: Vec::with_capacity(3 * r), targets: Vec::with_capacity(r * (bands + 1)) };
-        for i in 0..px.image.len() {
-            batch.pixels.extend([px.image[i], px.row[i], px.col[i]]);
-            batch.targets.extend_from_slice(&px.values[i * bands..(i + 1) * bands]);
-            batch.targets.push(if px.mask[i] == 0 { 0.0 } else { 1.0 });
+        let n_depth = depth.as_ref().map_or(0, |d| d.rays_per_batch(r));
+        let mut batches = vec![cache.sample_pixels(&mut rng, r - n_depth)];
+        if let Some(d) = depth.as_ref().filter(|_| n_depth > 0) {
+            batches.push(d.sample_pixels(&cache, &mut rng, n_depth));
+        }
+        let mut batch = Batch::default();
+        for px in &batches {
+            for i in 0..px.image.len() {
+                batch.pixels.extend([px.image[i], px.row[i], px.col[i]]);
+                batch.targets.extend_from_slice(&px.values[i * bands..(i + 1) * bands]);
+                batch.targets.push(if px.mask[i] == 0 { 0.0 } else { 1.0 });
+                if let Some(d) = &depth {
+                    batch.depth.extend(d.column(px.image[i] as usize, px.row[i], px.col[i]));
+                }
+            }
         }
         let t0 = Instant::now();
         let stats = pipe.train_step(&batch).map_err(|e| format!("step {}: {e}", state.step))?;
@@ -291,7 +305,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         gpu_ms_total += stats.timing.gpu_ms;
         timed_steps += 1;
         add_kernel_times(&mut kernel_totals, &stats.timing);
-        rays_done += r as u64;
+        rays_done += batch.rays() as u64;
         state.step += 1;
         state.schedule = pipe.schedule;
         if stats.skipped {
@@ -312,7 +326,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         if stats.step % 10 == 0 || state.step == max_steps {
             log(serde_json::json!({
                 "step": stats.step, "loss": stats.loss, "loss_rgb": stats.loss_rgb, "loss_distortion": stats.loss_distortion,
-                "loss_interlevel": stats.loss_interlevel, "psnr": stats.psnr, "step_ms": ms, "rays_per_s": rays_per_s,
+                "loss_interlevel": stats.loss_interlevel, "loss_depth": stats.loss_depth, "psnr": stats.psnr, "step_ms": ms, "rays_per_s": rays_per_s,
                 "proposals_updated": stats.proposals_updated, "loss_pose": stats.loss_pose,
             }))?;
         }

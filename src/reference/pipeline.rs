@@ -15,6 +15,8 @@ pub struct RefRay {
     pub camera: usize,
     pub target: Vec<f64>,
     pub weight: f64,
+    /// With `loss.depth`: (target distance along the unit ray, standard deviation), normalised frame.
+    pub depth: Option<(f64, f64)>,
 }
 
 #[derive(Debug, Default)]
@@ -22,6 +24,7 @@ pub struct RefStep {
     pub loss_rgb: f64,
     pub loss_distortion: f64,
     pub loss_interlevel: f64,
+    pub loss_depth: f64,
     pub loss_pose: f64,
     /// dLoss/dparams over the whole store (same layout as the GPU arrays).
     pub grads: Vec<f64>,
@@ -148,9 +151,16 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
             rgb_norm,
             dist_norm,
             grad_scaling: cfg.loss.gradient_scaling,
+            depth: cfg.loss.depth.zip(ray.depth).map(|(d, (distance, sigma))| render::DepthTarget {
+                loss: d.loss,
+                distance,
+                sigma,
+                norm: d.mult as f64 / total_w,
+            }),
         });
         out.loss_rgb += comp.loss_rgb;
         out.loss_distortion += comp.loss_dist;
+        out.loss_depth += comp.loss_depth;
         // Backward through the colour MLP, then the density MLP and the hash grid.
         let (co, fo, go) = (model.offset("field.colour_mlp"), model.offset(&f.mlp_slot), model.offset(&f.grid_slot));
         let mut dpos = vec![0.0; 3 * n];

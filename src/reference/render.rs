@@ -253,6 +253,8 @@ pub struct Composite<T> {
     /// band-weighted squared error x rgb_norm x ray weight
     pub loss_rgb: T,
     pub loss_dist: T,
+    /// Depth loss x norm x ray weight (0 without a depth target).
+    pub loss_depth: T,
     pub d_raw: Vec<T>,
     /// dL/dc, sample-major (n x B)
     pub d_colour: Vec<T>,
@@ -274,6 +276,46 @@ pub struct CompositeIn<'a, T> {
     pub dist_norm: T,
     /// nerfacto's optional gradient scaling: field-output gradients times clamp(t_mid^2, 0, 1).
     pub grad_scaling: bool,
+    /// Depth supervision of this ray (None: off, or no target).
+    pub depth: Option<DepthTarget<T>>,
+}
+
+/// A ray's depth target and the loss that uses it (docs/geometry.md "Depth supervision").
+#[derive(Clone, Copy, Debug)]
+pub struct DepthTarget<T> {
+    pub loss: crate::nerf::config::DepthLoss,
+    /// Target distance along the unit ray and its standard deviation (normalised frame).
+    pub distance: T,
+    pub sigma: T,
+    /// `depth_loss_mult` over the batch's ray weight.
+    pub norm: T,
+}
+
+/// One sample's depth term (without URF's expected-depth term): (value, dL/dw). DS-NeRF: -log(w + 1e-7) *
+/// N(t - d; 0, s) * delta; URF: (w - N(t - d; 0, s/3) delta)^2 inside |t - d| <= s, w^2 in front of d - s
+/// (N the normal density: N delta is a probability mass, as w is).
+pub fn depth_term<T: Float>(dt: &DepthTarget<T>, w: T, t: T, delta: T) -> (T, T) {
+    use crate::nerf::config::DepthLoss;
+    let x = t - dt.distance;
+    let s = dt.sigma;
+    match dt.loss {
+        DepthLoss::DsNerf => {
+            let k = (-(x * x) / (c::<T>(2.0) * s * s)).exp() / (s * c(std::f64::consts::TAU.sqrt())) * delta;
+            let we = w + c(1e-7);
+            (-we.ln() * k, -k / we)
+        }
+        DepthLoss::Urf => {
+            let sd = s / c(3.0);
+            if x.abs() <= s {
+                let nx = (-(c::<T>(0.5)) * x * x / (sd * sd)).exp() / (sd * c(std::f64::consts::TAU.sqrt())) * delta;
+                ((w - nx) * (w - nx), c::<T>(2.0) * (w - nx))
+            } else if x < -s {
+                (w * w, c::<T>(2.0) * w)
+            } else {
+                (T::zero(), T::zero())
+            }
+        }
+    }
 }
 
 pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
@@ -340,6 +382,13 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         g_c[b] = c::<T>(2.0) * a.band_weights[b] * e * a.rgb_norm * a.ray_weight;
     }
     let g_bg = (0..b_n).fold(T::zero(), |acc, b| acc + g_c[b] * bg[b]);
+    let expected = depth_sum / (big_a + c(1e-10));
+    let depth = a
+        .depth
+        .filter(|d| d.distance > T::zero() && d.distance.is_finite() && d.sigma > T::zero() && d.sigma.is_finite());
+    let loss_depth = depth.map_or(T::zero(), |d| {
+        (0..n).fold(T::zero(), |l, i| l + depth_term(&d, w[i], s[i].2, s[i].1).0) * d.norm * a.ray_weight
+    });
     let mut d_raw = vec![T::zero(); n];
     let mut d_colour = vec![T::zero(); n * b_n];
     let (mut sfx, mut sw, mut swm) = (T::zero(), T::zero(), T::zero());
@@ -364,6 +413,9 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         let gd = c::<T>(2.0) * (m * wk_ - mk_ + (big_m - mk_ - wk * m) - m * (big_w - wk_ - wk))
             + c::<T>(2.0 / 3.0) * wk * (s1 - s0);
         g = g + gd * a.dist_norm * a.ray_weight;
+        if let Some(d) = &depth {
+            g = g + depth_term(d, wk, tmid, delta).1 * d.norm * a.ray_weight;
+        }
         let dsigma = delta * (g * t_next - sfx);
         let live = a.geom.contraction || sigma > T::zero();
         let grad_scale = a.density_scale * a.raw[k].max(c(-15.0)).min(c(15.0)).exp();
@@ -379,7 +431,8 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
         median_depth,
         depth_q25,
         depth_q75,
-        expected_depth: depth_sum / (big_a + c(1e-10)),
+        expected_depth: expected,
+        loss_depth,
         loss_rgb: loss * a.rgb_norm * a.ray_weight,
         loss_dist: dist * a.dist_norm * a.ray_weight,
         d_raw,

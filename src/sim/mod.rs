@@ -8,6 +8,7 @@
 //! - [`effects`]: the light model and the opt-in effects (sun + sky with shadows, vegetation BRDF,
 //!   misregistration, vignetting, exposure drift, noise with quantisation). Absent effects run no code.
 //! - [`render`]: one ray per pixel, f64, deterministic for a seed at any thread count.
+//! - [`sparse`]: simulated SfM points with their tracks (`--sparse-points`), for depth supervision.
 //! - [`writer`]: TIFF/PLY/JSON files and the staging folder that makes writing atomic.
 //!
 //! Frames: the scene is described and rendered in a local frame (metres, x east, y north, z up, ground z = 0);
@@ -27,6 +28,7 @@ pub mod geometry;
 pub mod output;
 pub mod render;
 pub mod scene;
+pub mod sparse;
 pub mod spectra;
 pub mod texture;
 pub mod writer;
@@ -66,6 +68,8 @@ pub struct SimOptions {
     pub points: usize,
     /// Replace an existing output folder.
     pub overwrite: bool,
+    /// Simulated SfM points (`sparse_points.json`, [`sparse`]); None: not written.
+    pub sparse_points: Option<sparse::SparseOptions>,
 }
 
 impl Default for SimOptions {
@@ -80,6 +84,7 @@ impl Default for SimOptions {
             threads: 0,
             points: 200_000,
             overwrite: false,
+            sparse_points: None,
         }
     }
 }

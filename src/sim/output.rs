@@ -6,6 +6,7 @@
 //! DIR/images/view_00000_<band>.tif  one single-band TIFF per band
 //! DIR/depth/view_00000.tif     f32 distance along the unit ray, metres
 //! DIR/ground_truth.ply         visible surface samples with per-band reflectance
+//! DIR/sparse_points.json       with --sparse-points: simulated SfM points and their tracks (`sparse_points_path`)
 //! DIR/simulation.json          scene, options, effects and per-view gains
 //! DIR/README.md                conventions
 //! ```
@@ -88,6 +89,9 @@ pub fn simulate(desc: &SceneDesc, opts: &SimOptions, out: &Path) -> Result<SimRe
     let failed = AtomicBool::new(false);
     let first_err: Mutex<Option<SimError>> = Mutex::new(None);
     let points: Mutex<Vec<Vec<SurfacePoint>>> = Mutex::new(vec![Vec::new(); nv]);
+    // Depth maps stay in memory only when sparse points are asked for (their tracks need every view's depth).
+    let depths: Mutex<Vec<Vec<f32>>> = Mutex::new(vec![Vec::new(); nv]);
+    let keep_depth = opts.sparse_points.is_some();
     std::thread::scope(|s| {
         for _ in 0..threads.min(nv).max(1) {
             s.spawn(|| loop {
@@ -95,9 +99,14 @@ pub fn simulate(desc: &SceneDesc, opts: &SimOptions, out: &Path) -> Result<SimRe
                 if i >= nv || failed.load(Ordering::Relaxed) {
                     break;
                 }
-                let img = prep.render_view(i);
+                let mut img = prep.render_view(i);
                 match write_view(&prep, opts, &root, i, &img) {
-                    Ok(()) => points.lock().expect("no panics while held")[i] = img.points,
+                    Ok(()) => {
+                        if keep_depth {
+                            depths.lock().expect("no panics while held")[i] = std::mem::take(&mut img.depth);
+                        }
+                        points.lock().expect("no panics while held")[i] = img.points;
+                    }
                     Err(e) => {
                         failed.store(true, Ordering::Relaxed);
                         first_err.lock().expect("no panics while held").get_or_insert(e);
@@ -110,7 +119,16 @@ pub fn simulate(desc: &SceneDesc, opts: &SimOptions, out: &Path) -> Result<SimRe
         return Err(e);
     }
     let points: Vec<([f64; 3], usize)> = points.into_inner().expect("threads joined").into_iter().flatten().collect();
-    write_transforms(&prep, opts, &root)?;
+    let mut sparse = None;
+    if let Some(o) = &opts.sparse_points {
+        let tracks = super::sparse::make_tracks(&prep, &depths.into_inner().expect("threads joined"), o);
+        let names: Vec<String> = (0..nv).map(|i| frame_name(&prep, opts, i)).collect();
+        let p = root.join("sparse_points.json");
+        super::sparse::write(&prep, &root, &tracks, &names)
+            .map_err(|e| SimError::Io { path: p, source: std::io::Error::other(e.to_string()) })?;
+        sparse = Some("sparse_points.json");
+    }
+    write_transforms(&prep, opts, &root, sparse)?;
     write_points(&prep, &root, &points)?;
     write_meta(&prep, desc, opts, &root)?;
     stage.commit()?;
@@ -181,7 +199,17 @@ fn world_pose(prep: &Prepared, m: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
     m
 }
 
-fn write_transforms(prep: &Prepared, opts: &SimOptions, root: &Path) -> Result<(), SimError> {
+/// The name `transforms.json` gives view `i` (its `file_path`, or its first band file).
+fn frame_name(prep: &Prepared, opts: &SimOptions, i: usize) -> String {
+    let name = view_name(i);
+    if opts.band_files {
+        format!("images/{name}_{}.tif", safe(&prep.bands[0].name))
+    } else {
+        format!("images/{name}.tif")
+    }
+}
+
+fn write_transforms(prep: &Prepared, opts: &SimOptions, root: &Path, sparse: Option<&str>) -> Result<(), SimError> {
     let c = &prep.camera;
     let bands: Vec<serde_json::Value> =
         prep.bands.iter().map(|b| json!({"name": b.name, "center_nm": b.center_nm, "fwhm_nm": b.fwhm_nm})).collect();
@@ -215,6 +243,9 @@ fn write_transforms(prep: &Prepared, opts: &SimOptions, root: &Path) -> Result<(
     });
     if opts.format == PixelFormat::U16 {
         t["pixel_scale"] = json!(pixel_scale(prep));
+    }
+    if let Some(p) = sparse {
+        t["sparse_points_path"] = json!(p);
     }
     writer::write_json(&root.join("transforms.json"), &t)
 }

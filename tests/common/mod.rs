@@ -146,3 +146,38 @@ pub fn train_options(
         bands: None,
     }
 }
+
+/// World z of ci-small's ground (its `world_offset`).
+pub const GROUND_Z: f64 = 20.0;
+
+/// Median of (true - rendered depth) / footprint over the pixels of every training view whose true surface point
+/// lies on the ground plane (|z - ground| < 5 cm): positive = in front of (above) the ground.
+pub fn ground_bias_footprints(run_dir: &std::path::Path) -> (f64, usize) {
+    let g = gpu();
+    let mut run = msnerf::nerf::run::LoadedRun::load(&g, run_dir).expect("load run");
+    let mut rel = Vec::new();
+    for f in run.ds.split_indices(msnerf::data::Split::Train) {
+        let rv = run.render_view(f).expect("render");
+        let truth = run.ds.read_depth(f).expect("depth").expect("ci-textured writes depth maps");
+        let frame = &run.ds.frames[f];
+        let focal = 0.5 * (frame.camera.fx + frame.camera.fy);
+        let w = rv.width;
+        for (q, (&t, &p)) in truth.iter().zip(&rv.depth).enumerate() {
+            let ray = frame.camera.ray_f64(&frame.c2w, (q / w) as u32, (q % w) as u32);
+            let z = ray.origin[2] + ray.direction[2] * t as f64;
+            if (z - GROUND_Z).abs() < 0.05 {
+                rel.push((t as f64 - p as f64) / (t as f64 / focal));
+            }
+        }
+    }
+    rel.sort_by(f64::total_cmp);
+    (rel[rel.len() / 2], rel.len())
+}
+
+/// Runs the `msnerf` binary of this build; asserts success and returns stdout + stderr.
+pub fn msnerf(bin: &str, args: &[&str]) -> String {
+    let out = std::process::Command::new(bin).args(args).output().expect("run msnerf");
+    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "msnerf {args:?}: {text}");
+    text
+}

@@ -8,6 +8,7 @@
 
 use crate::common;
 use msnerf::gpu::{Context, GpuBuffer, MemoryCategory};
+use msnerf::nerf::buffers::RAY_OUT_FIXED;
 use msnerf::nerf::kernels::{
     CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
 };
@@ -129,7 +130,7 @@ pub struct CompositeOut {
     /// dL/draw per sample
     pub d_raw: Vec<f32>,
     pub d_colour: Vec<f32>,
-    /// R x (8 + B)
+    /// R x (RAY_OUT_FIXED + B)
     pub ray_out: Vec<f32>,
 }
 
@@ -162,7 +163,7 @@ impl<'a> Render<'a> {
         let dyd = zeros(g, "dy density", nr * n * stride);
         let dyc = zeros(g, "dy colour", nr * n * bb);
         let wts = zeros(g, "weights", nr * n);
-        let out = zeros(g, "ray out", nr * (8 + bb));
+        let out = zeros(g, "ray out", nr * (RAY_OUT_FIXED + bb));
         let p = CompositeParams {
             bands: bb,
             density_stride: stride,
@@ -175,6 +176,7 @@ impl<'a> Render<'a> {
             dist_norm: c.dist_norm(),
             grad_scaling: false,
             train,
+            depth: None,
         };
         let bufs = CompositeBuffers {
             edges: &edges,
@@ -186,6 +188,7 @@ impl<'a> Render<'a> {
             dy_colour: &dyc,
             weights: &wts,
             ray_out: &out,
+            depth_targets: None,
         };
         let mut rec = g.recorder("composite").expect("rec");
         self.k.composite(&mut rec, rb, c.geo, n, &p, &bufs).expect("composite");
@@ -313,6 +316,7 @@ pub fn twin_composite(c: &CompositeCase, i: usize) -> tw::Composite<f64> {
         rgb_norm: c.rgb_norm() as f64,
         dist_norm: c.dist_norm() as f64,
         grad_scaling: false,
+        depth: None,
     })
 }
 
@@ -329,14 +333,14 @@ pub fn composite_matches_twin(r: &Render, c: &CompositeCase, what: &str) -> Comp
         let t = twin_composite(c, i);
         assert_finite64(&t.d_raw, &format!("{what}: twin dL/draw"));
         check_vals(&out.weights[i * n..(i + 1) * n], &t.weights, &format!("{what}: ray {i} weights"));
-        let ro = &out.ray_out[i * (8 + bb)..(i + 1) * (8 + bb)];
+        let ro = &out.ray_out[i * (RAY_OUT_FIXED + bb)..(i + 1) * (RAY_OUT_FIXED + bb)];
         check_vals(
             &ro[..5],
             &[t.loss_rgb, t.loss_dist, t.accumulation, t.median_depth, t.expected_depth],
             &format!("{what}: ray {i} (loss_rgb, loss_dist, accumulation, median, expected depth)"),
         );
         check_vals(&ro[6..8], &[t.depth_q25, t.depth_q75], &format!("{what}: ray {i} depth quantiles q25, q75"));
-        check_vals(&ro[8..], &t.colour, &format!("{what}: ray {i} colour"));
+        check_vals(&ro[RAY_OUT_FIXED..], &t.colour, &format!("{what}: ray {i} colour"));
         check_grad(&out.d_raw[i * n..(i + 1) * n], &t.d_raw, &format!("{what}: ray {i} dL/draw"));
         check_grad(&out.d_colour[i * n * bb..(i + 1) * n * bb], &t.d_colour, &format!("{what}: ray {i} dL/dc"));
     }
