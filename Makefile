@@ -45,7 +45,7 @@ geometry-sweep: build
 	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/geometry.yaml \
 		--out geometry-sweep-output --report docs/geometry-vs-time.md
 
-# docs/geometry/: the raw numbers behind docs/geometry.md's ten-minute table (campus, demo profile, 600 s; ~13 min).
+# docs/geometry/: the raw numbers behind docs/geometry.md's ten-minute table (campus, demo profile, 600 s, images only and with SfM points; ~26 min).
 geometry-report: build
 	bash tools/geometry-report.sh geometry-report-output 600
 

@@ -114,9 +114,10 @@ fn geometry_sits_on_the_true_surface() {
 
 /// Training steps of the test.
 const STEPS: u64 = 600;
-/// MEASURED on lavapipe (2026-11-25, docs/geometry.md "CI test"): +0.22 footprints on the textured scene; the same
+/// MEASURED (2026-11-25, docs/geometry.md "CI test"): +0.22 and +0.40 footprints in two lavapipe runs; on an
+/// NVIDIA H100 +0.11 to +0.91 over 10 runs (median +0.34): float atomics make every run differ. The same
 /// scene with uniform materials (what the simulator made before issue 18) gives +10.5 footprints over all pixels.
-const MAX_GROUND_BIAS_FOOTPRINTS: f64 = 0.75;
-/// MEASURED: careful export 0.80 m (legacy 1.03 m) from the ground-truth surface; the pixel footprint is ~0.45 m.
-/// Before issue 18 this test allowed 7 m.
+const MAX_GROUND_BIAS_FOOTPRINTS: f64 = 1.25;
+/// MEASURED: careful export 0.80 m (legacy 1.03 m) from the ground-truth samples; to their local plane (compare's
+/// default since 2026-11-25) 0.80 m (legacy 1.09 m). The pixel footprint is ~0.45 m. Before issue 18: 7 m allowed.
 const MAX_MEDIAN_M: f64 = 1.2;

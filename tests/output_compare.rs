@@ -4,7 +4,7 @@ mod output_support;
 
 use msnerf::output::compare::{
     compare_clouds, compare_clouds_with, parse_within, AccuracyOptions, AccuracyStandard, CompareOptions,
-    DistanceStats, DEFAULT_WITHIN,
+    CompareReport, DistanceModel, DistanceStats, DEFAULT_WITHIN,
 };
 use msnerf::output::image::{band, ms600pro_bands};
 use msnerf::output::pointcloud::{subsample, write_las, write_ply, LasOptions, PlyOptions, PointCloud};
@@ -16,6 +16,12 @@ fn grid() -> PointCloud {
         (0..400).map(|i| [500000.0 + (i % 20) as f64, 4000000.0 + (i / 20) as f64, 10.0]).collect();
     let values: Vec<f32> = (0..400 * 6).map(|k| 0.1 + 0.01 * (k % 37) as f32).collect();
     PointCloud::new(pos, ms600pro_bands(), values).unwrap()
+}
+
+/// The plain nearest-point comparison (`--local-model none`), which the analytic cases below are written for.
+fn nn(pred: &PointCloud, reference: &PointCloud, opts: &CompareOptions) -> msnerf::output::Result<CompareReport> {
+    let acc = AccuracyOptions { model: DistanceModel::Nearest, ..AccuracyOptions::default() };
+    compare_clouds_with(pred, reference, opts, &acc)
 }
 
 #[test]
@@ -31,7 +37,7 @@ fn shifted_copy_gives_the_shift() {
     for v in &mut pred.values {
         *v += 0.02;
     }
-    let r = compare_clouds(&pred, &reference, &CompareOptions { threshold: 0.5, band_tolerance_nm: 25.0 }).unwrap();
+    let r = nn(&pred, &reference, &CompareOptions { threshold: 0.5, band_tolerance_nm: 25.0 }).unwrap();
     let d = (0.25f64 * 0.25 + 0.125 * 0.125).sqrt();
     for s in [&r.accuracy, &r.completeness] {
         assert!((s.mean - d).abs() < 1e-9 && (s.median - d).abs() < 1e-9 && (s.rmse - d).abs() < 1e-9, "{s:?}");
@@ -48,7 +54,7 @@ fn shifted_copy_gives_the_shift() {
         assert_eq!(b.pred_center_nm, b.ref_center_nm);
     }
     // A threshold below the shift: nothing matches.
-    let r = compare_clouds(&pred, &reference, &CompareOptions { threshold: 0.2, band_tolerance_nm: 25.0 }).unwrap();
+    let r = nn(&pred, &reference, &CompareOptions { threshold: 0.2, band_tolerance_nm: 25.0 }).unwrap();
     assert_eq!((r.precision, r.recall, r.f_score), (0.0, 0.0, 0.0));
     assert!(r.bands.iter().all(|b| b.pairs == 0));
     let j: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
@@ -61,7 +67,7 @@ fn subsampled_prediction_has_the_expected_completeness() {
     // Every other column of the grid: half the reference points are 1 m from the prediction.
     let keep: Vec<usize> = (0..400).filter(|i| i % 2 == 0).collect();
     let pred = reference.select(&keep);
-    let r = compare_clouds(&pred, &reference, &CompareOptions { threshold: 0.1, band_tolerance_nm: 25.0 }).unwrap();
+    let r = nn(&pred, &reference, &CompareOptions { threshold: 0.1, band_tolerance_nm: 25.0 }).unwrap();
     assert_eq!(r.accuracy.mean, 0.0);
     assert_eq!(r.precision, 1.0);
     assert_eq!(r.recall, 0.5);
@@ -72,7 +78,7 @@ fn subsampled_prediction_has_the_expected_completeness() {
     assert_eq!(r.completeness.max, 1.0);
     // A random quarter (deterministic).
     let (q, _) = subsample(&reference, 100, 7).unwrap();
-    let r = compare_clouds(&q, &reference, &CompareOptions::default()).unwrap();
+    let r = nn(&q, &reference, &CompareOptions::default()).unwrap();
     assert_eq!(r.recall, 0.25);
     assert_eq!(r.accuracy.max, 0.0);
 }
@@ -123,12 +129,13 @@ fn compare_cloud_command_reads_ply_and_las() {
         .arg(&a)
         .arg("--ref")
         .arg(&b)
-        .args(["--threshold", "0.1", "--json"])
+        .args(["--threshold", "0.1", "--json", "--local-model", "none"])
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(j["pred_points"], 400);
+    assert_eq!(j["distance_model"]["kind"], "nearest");
     assert!((j["accuracy"]["mean"].as_f64().unwrap() - 0.0625).abs() < 1e-9);
     assert!((j["position"]["mean_planar"].as_f64().unwrap() - 0.0625).abs() < 1e-9);
     assert_eq!(j["f_score"], 1.0);
@@ -144,6 +151,37 @@ fn compare_cloud_command_reads_ply_and_las() {
         .unwrap();
     let table = String::from_utf8_lossy(&out.stdout);
     assert!(table.contains("accuracy (pred->ref)") && table.contains("F-score"), "{table}");
+    assert!(table.contains("local least-squares plane of 6 points"), "{table}");
+
+    // By default the distance goes to the reference's local plane: a shift within the surface is no error.
+    let out = std::process::Command::new(exe)
+        .args(["compare-cloud", "--pred"])
+        .arg(&a)
+        .arg("--ref")
+        .arg(&b)
+        .args(["--json", "--local-k", "8"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(j["distance_model"]["kind"], "plane");
+    assert_eq!(j["distance_model"]["k"], 8);
+    assert!(j["accuracy"]["max"].as_f64().unwrap() < 1e-9, "{}", j["accuracy"]);
+    assert_eq!(j["plane_fraction"], 1.0);
+    for (flag, value, msg) in
+        [("--local-model", "quadric", "--local-model: `quadric`"), ("--local-k", "2", "--local-k: 2")]
+    {
+        let out = std::process::Command::new(exe)
+            .args(["compare-cloud", "--pred"])
+            .arg(&a)
+            .arg("--ref")
+            .arg(&b)
+            .args([flag, value])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(msg), "{flag} {value}: {err}");
+    }
 
     let missing = dir.join("nope.ply");
     let out = std::process::Command::new(exe)
@@ -207,7 +245,7 @@ fn fractions_bias_and_rmse_match_a_brute_force_reference() {
         &pred,
         &reference,
         &CompareOptions::default(),
-        &AccuracyOptions { within: within.clone(), standard },
+        &AccuracyOptions { within: within.clone(), standard, model: DistanceModel::Nearest },
     )
     .unwrap();
 
@@ -287,11 +325,15 @@ fn verdict_passes_and_fails_per_axis() {
     }
     let opts = CompareOptions { threshold: 0.5, band_tolerance_nm: 25.0 };
     let judge = |planar: f64, vertical: f64| {
-        let acc = AccuracyOptions { within: DEFAULT_WITHIN.to_vec(), standard: AccuracyStandard { planar, vertical } };
+        let acc = AccuracyOptions {
+            within: DEFAULT_WITHIN.to_vec(),
+            standard: AccuracyStandard { planar, vertical },
+            model: DistanceModel::Nearest,
+        };
         compare_clouds_with(&pred, &reference, &opts, &acc).unwrap().standard
     };
     // The paper's default passes both axes.
-    let v = compare_clouds(&pred, &reference, &opts).unwrap().standard;
+    let v = nn(&pred, &reference, &opts).unwrap().standard;
     assert_eq!((v.planar.rmse, v.vertical.rmse), (0.25, 0.125));
     assert_eq!((v.planar.limit, v.vertical.limit), (0.3, 0.5));
     assert!(v.planar.pass && v.vertical.pass && v.pass, "{v:?}");
@@ -311,7 +353,11 @@ fn verdict_passes_and_fails_per_axis() {
         &pred,
         &reference,
         &opts,
-        &AccuracyOptions { within: vec![0.2, 0.3], standard: AccuracyStandard { planar: 0.2, vertical: 0.5 } },
+        &AccuracyOptions {
+            within: vec![0.2, 0.3],
+            standard: AccuracyStandard { planar: 0.2, vertical: 0.5 },
+            model: DistanceModel::Nearest,
+        },
     )
     .unwrap();
     assert!(r.table().contains("FAIL"), "{}", r.table());
@@ -322,7 +368,8 @@ fn verdict_passes_and_fails_per_axis() {
     assert_eq!(r.position.median_planar, 0.25);
     // Bad options given directly to the library are refused too.
     let bad = |within: Vec<f64>, planar: f64| {
-        let acc = AccuracyOptions { within, standard: AccuracyStandard { planar, vertical: 0.5 } };
+        let acc =
+            AccuracyOptions { within, standard: AccuracyStandard { planar, vertical: 0.5 }, ..Default::default() };
         compare_clouds_with(&pred, &reference, &opts, &acc).unwrap_err().to_string()
     };
     assert!(bad(vec![], 0.3).contains("--within"));
@@ -423,4 +470,69 @@ fn compare_cloud_command_reports_within_bias_and_verdict() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(msg), "{flag} {value}: {err}");
     }
+}
+
+/// Points of the plane z = A x + B y + C over [x0, x0 + n·step)², jittered in x and y by up to ±j·step.
+fn plane_points(n: usize, step: f64, j: f64, lift: f64, rng: &mut Rng) -> Vec<[f64; 3]> {
+    const A: f64 = 0.3;
+    const B: f64 = 0.1;
+    (0..n * n)
+        .map(|i| {
+            let x = (i % n) as f64 * step + j * step * (2.0 * rng.f64() - 1.0);
+            let y = (i / n) as f64 * step + j * step * (2.0 * rng.f64() - 1.0);
+            [500000.0 + x, 4000000.0 + y, 100.0 + A * x + B * y + lift]
+        })
+        .collect()
+}
+
+#[test]
+fn local_plane_measures_the_surface_not_its_sampling() {
+    let mut rng = Rng(11);
+    // Reference: a tilted plane sampled every metre (jittered); prediction: the same plane every 0.25 m over the
+    // reference's interior (1 m margin), lifted 0.2 m vertically.
+    let reference = PointCloud::new(plane_points(30, 1.0, 0.3, 0.0, &mut rng), vec![], vec![]).unwrap();
+    let interior: Vec<[f64; 3]> = plane_points(104, 0.25, 0.0, 0.2, &mut rng)
+        .into_iter()
+        .map(|p| [p[0] + 1.5, p[1] + 1.5, p[2] + 0.3 * 1.5 + 0.1 * 1.5])
+        .collect();
+    let pred = PointCloud::new(interior.clone(), vec![], vec![]).unwrap();
+    let opts = CompareOptions { threshold: 0.5, band_tolerance_nm: 25.0 };
+    let r = compare_clouds(&pred, &reference, &opts).unwrap();
+    assert_eq!(r.distance_model, DistanceModel::Plane { k: 6 });
+    assert_eq!(r.plane_fraction, 1.0);
+    // Independently, in f64: a vertical lift h of the plane z = a x + b y + c is h / |(-a, -b, 1)| from it along
+    // the unit normal n; the offset is that distance times n, so dz = h / (1 + a² + b²) and the planar part is
+    // h·√(a² + b²) / (1 + a² + b²).
+    let (a, b, h) = (0.3f64, 0.1f64, 0.2f64);
+    let q = 1.0 + a * a + b * b;
+    let (d, dz, planar) = (h / q.sqrt(), h / q, h * (a * a + b * b).sqrt() / q);
+    let p = &r.position;
+    for (got, want, what) in [
+        (r.accuracy.median, d, "median distance"),
+        (r.accuracy.max, d, "max distance"),
+        (p.median_signed_dz, dz, "median signed dz"),
+        (p.rmse_elevation, dz, "vertical RMSE"),
+        (p.rmse_planar, planar, "planar RMSE"),
+    ] {
+        assert!((got - want).abs() < 1e-9, "{what}: {got} vs {want}");
+    }
+    // The same prediction without the lift: zero to rounding, where the nearest-point distance is the sampling.
+    let flat: Vec<[f64; 3]> = interior.iter().map(|p| [p[0], p[1], p[2] - h]).collect();
+    let pred0 = PointCloud::new(flat, vec![], vec![]).unwrap();
+    let r0 = compare_clouds(&pred0, &reference, &opts).unwrap();
+    let n0 = nn(&pred0, &reference, &opts).unwrap();
+    assert!(r0.accuracy.max < 1e-9, "on the surface: {:?}", r0.accuracy);
+    assert!(n0.accuracy.median > 0.2, "nearest point: {:?}", n0.accuracy);
+    // Beyond the reference's edge the plane does not apply: the nearest-point distance stands (brute force).
+    let outside = [500000.0 + 35.0, 4000000.0 + 10.0, 100.0 + a * 35.0 + b * 10.0];
+    let one = PointCloud::new(vec![outside], vec![], vec![]).unwrap();
+    let r1 = compare_clouds(&one, &reference, &opts).unwrap();
+    let (_, brute) = brute_nearest(outside, &reference.positions);
+    assert_eq!(r1.plane_fraction, 0.0);
+    assert!((r1.accuracy.max - brute).abs() < 1e-12, "{} vs {brute}", r1.accuracy.max);
+    // The flags.
+    assert_eq!(DistanceModel::parse("none", 6).unwrap(), DistanceModel::Nearest);
+    assert_eq!(DistanceModel::parse("plane", 8).unwrap(), DistanceModel::Plane { k: 8 });
+    assert!(DistanceModel::parse("plane", 2).unwrap_err().to_string().starts_with("--local-k"));
+    assert!(DistanceModel::parse("quadric", 6).unwrap_err().to_string().starts_with("--local-model: `quadric`"));
 }

@@ -1,6 +1,6 @@
 //! One whole training step on the GPU against the CPU reference pipeline (`msnerf::reference::pipeline`): the loss
 //! terms and every parameter gradient (hash grids, MLPs, appearance embeddings, camera pose corrections; proposals on
-//! update steps only).
+//! update steps only), with and without depth supervision (`loss.depth`, both losses).
 //! Gradients are judged per slot on the 99th percentile of |gpu - ref| / (|ref| + 1e-3 max|ref|) (2e-3 for the NeRF
 //! field, 1e-2 for proposals): fp32 against f64, atomics in any order, and sample positions that move by float rounding
 //! across hash cells make a few outliers.
@@ -113,13 +113,21 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
         batch.targets.extend(&target);
         batch.targets.push(weight);
         let ray = cams[cam].ray_f32(&poses[cam], row, col);
+        // With depth supervision: a target near the scene centre's distance on most rays, none on every fifth.
+        let depth = cfg.loss.depth.and_then(|_| {
+            let centre = ray.origin.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
+            let target = (i % 5 != 2).then(|| (centre * r.random_range(0.8..1.8), r.random_range(0.1..0.5)));
+            let (d, s) = target.unwrap_or((0.0, 1.0));
+            batch.depth.extend([d as f32, s as f32]);
+            target.map(|(d, s)| ((d as f32) as f64, (s as f32) as f64))
+        });
         refs.push(RefRay {
             origin: ray.origin.map(|v| v as f64),
             dir: ray.direction.map(|v| v as f64),
             camera: cam,
             target: target.iter().map(|&v| v as f64).collect(),
             weight: weight as f64,
-            depth: None,
+            depth,
         });
     }
     // The warm-up compiles every kernel and changes nothing the step below depends on.
@@ -140,6 +148,8 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
     close(stats.loss_distortion, want.loss_distortion, "distortion loss");
     close(stats.loss_interlevel, want.loss_interlevel, "interlevel loss");
     close(stats.loss_pose, want.loss_pose, "pose regulariser");
+    close(stats.loss_depth, want.loss_depth, "depth loss");
+    assert_eq!(want.loss_depth != 0.0, cfg.loss.depth.is_some(), "depth loss {}", want.loss_depth);
     assert_eq!(want.loss_pose > 0.0, cfg.camera_optimizer.enabled());
     assert_eq!(want.loss_interlevel > 0.0, update);
     let grads = pipe.model.store.grads().download(&g).expect("grads");
@@ -217,6 +227,22 @@ fn whole_step_matches_reference_with_pose_refinement() {
 fn whole_step_matches_reference_with_fp16_activations() {
     // The twin rounds the hidden activations to fp16 where the kernels store them, so the step still matches.
     check_step_with(true, 13, |c| c.mlp_activations = ActivationStorage::F16);
+}
+
+#[test]
+fn whole_step_matches_reference_with_depth_supervision() {
+    use msnerf::nerf::config::{DepthLoss, DepthSource, DepthSupervision};
+    for (loss, update, seed) in [(DepthLoss::DsNerf, true, 11), (DepthLoss::Urf, false, 12)] {
+        check_step_with(update, seed, |c| {
+            c.loss.depth = Some(DepthSupervision {
+                loss,
+                source: DepthSource::SparsePoints,
+                mult: 0.1,
+                sigma: 0.1,
+                ray_fraction: 0.0,
+            })
+        });
+    }
 }
 
 /// `loss.distortion_ramp`: off by default (the constant weight at every step), linear between its steps when set,

@@ -1,11 +1,13 @@
 //! `msnerf compare-cloud --pred A --ref B [--threshold M] [--within LIST] [--standard SPEC] [--json]`:
 //! cloud-to-cloud accuracy, completeness, F-score, fractions within thresholds, planar/elevation errors and
-//! signed elevation bias, a pass/fail verdict against an RMSE accuracy standard, and per-band reflectance error
+//! signed elevation bias (distances to the other cloud's local least-squares plane, `--local-model`), a pass/fail verdict against an RMSE accuracy standard, and per-band reflectance error
 //! (see `msnerf::output::compare`). Reads `.ply` and `.las`; needs no GPU.
 
 use std::path::PathBuf;
 
-use crate::output::compare::{compare_clouds_with, parse_within, AccuracyOptions, AccuracyStandard, CompareOptions};
+use crate::output::compare::{
+    compare_clouds_with, parse_within, AccuracyOptions, AccuracyStandard, CompareOptions, DistanceModel,
+};
 use crate::output::pointcloud::read_cloud;
 
 #[derive(clap::Args, Debug)]
@@ -28,6 +30,13 @@ pub struct CompareCloudArgs {
     /// its RMSE is at most its limit. A key left out keeps its default (the Multispectral-NeRF paper's)
     #[arg(long, default_value = "planar=0.3,vertical=0.5")]
     pub standard: String,
+    /// Distance to the other cloud: `plane` (to the least-squares plane of the --local-k nearest points where it
+    /// applies, else to the nearest point; CloudCompare's C2C with a local model) or `none` (nearest point only)
+    #[arg(long, default_value = "plane")]
+    pub local_model: String,
+    /// Neighbours of the local plane
+    #[arg(long, default_value_t = 6)]
+    pub local_k: usize,
     /// Largest centre-wavelength difference (nm) for pairing bands
     #[arg(long, default_value_t = 25.0)]
     pub band_tolerance: f64,
@@ -41,8 +50,11 @@ pub struct CompareCloudArgs {
 
 pub fn run(args: &CompareCloudArgs) -> anyhow::Result<()> {
     // Flags first: a typo should not wait for two clouds to load.
-    let accuracy =
-        AccuracyOptions { within: parse_within(&args.within)?, standard: AccuracyStandard::parse(&args.standard)? };
+    let accuracy = AccuracyOptions {
+        within: parse_within(&args.within)?,
+        standard: AccuracyStandard::parse(&args.standard)?,
+        model: DistanceModel::parse(&args.local_model, args.local_k)?,
+    };
     let pred = read_cloud(&args.pred)?;
     let reference = read_cloud(&args.reference)?;
     let opts = CompareOptions { threshold: args.threshold, band_tolerance_nm: args.band_tolerance };

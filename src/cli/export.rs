@@ -71,9 +71,14 @@ pub struct PointcloudArgs {
     /// spread point of each cell
     #[arg(long)]
     pub gsd: Option<f64>,
-    /// The export before issue 18 (accumulation threshold only): no spread filter, no consistency check
+    /// The export before issue 18 (accumulation threshold only): no spread filter, no consistency check, no
+    /// scene-box crop
     #[arg(long)]
     pub legacy: bool,
+    /// Keep points outside the scene box (the aerial normalisation's unit cube: the ground footprint, half its
+    /// half-size below the ground and 1.5 times above), which the export otherwise drops as nerfstudio's does
+    #[arg(long)]
+    pub keep_outside_box: bool,
 }
 
 impl PointcloudArgs {
@@ -116,6 +121,7 @@ impl PointcloudArgs {
                 min_agree: self.min_agree,
                 tolerance: self.agree_tolerance,
             }),
+            scene_box: !self.keep_outside_box,
         })
     }
 }
@@ -165,8 +171,15 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
 /// One line per filter: what it removed.
 pub fn summary(s: &ExportStats, min_accumulation: f32, written: usize) -> String {
     format!(
-        "{} rays rendered: {} below accumulation {min_accumulation}, {} with spread weights, {} inconsistent across \
-         views ({} check rays); {} points kept, {} written after outlier removal and thinning",
-        s.rays, s.below_accumulation, s.spread, s.inconsistent, s.check_rays, s.kept, written
+        "{} rays rendered: {} below accumulation {min_accumulation}, {} outside the scene box, {} with spread weights, \
+         {} inconsistent across views ({} check rays); {} points kept, {} written after outlier removal and thinning",
+        s.rays,
+        s.below_accumulation,
+        s.outside_box,
+        s.spread,
+        s.inconsistent,
+        s.check_rays,
+        s.kept,
+        written
     )
 }

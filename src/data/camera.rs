@@ -221,6 +221,18 @@ pub fn camera_direction<T: Real>(k: &Intrinsics<T>, v: T, u: T) -> [T; 3] {
 /// The inverse of [`camera_direction`]: pinhole and OPENCV (forward [`distort`] of the normalised point),
 /// OPENCV_FISHEYE (equidistant: theta = angle from the axis, then the distortion).
 pub fn project_point(cam: &Camera, origin: [f64; 3], rot: &[[f64; 3]; 3], p: [f64; 3]) -> Option<(u32, u32, f64)> {
+    let (u, v, dist) = project_point_subpixel(cam, origin, rot, p)?;
+    Some((v as u32, u as u32, dist))
+}
+
+/// [`project_point`] before the pixel is chosen: the sub-pixel image position (u = column, v = row coordinate, pixel
+/// centres at +0.5) and the distance; None behind the camera or outside the image.
+pub fn project_point_subpixel(
+    cam: &Camera,
+    origin: [f64; 3],
+    rot: &[[f64; 3]; 3],
+    p: [f64; 3],
+) -> Option<(f64, f64, f64)> {
     use glam::{DMat3, DVec3};
     let d = DVec3::from(p) - DVec3::from(origin);
     // Camera-frame coordinates R^T d: read as columns, the rotation's rows give R^T.
@@ -246,7 +258,7 @@ pub fn project_point(cam: &Camera, origin: [f64; 3], rot: &[[f64; 3]; 3], p: [f6
     if !(u >= 0.0 && v >= 0.0 && u < cam.width as f64 && v < cam.height as f64) {
         return None;
     }
-    Some((v as u32, u as u32, d.length()))
+    Some((u, v, d.length()))
 }
 
 /// The pure ray function: image point (v = row coordinate, u = column coordinate, both in pixels, centres at

@@ -355,6 +355,17 @@ impl Dataset {
         *self.transform_cache.get_or_init(|| self.compute_pose_transform())
     }
 
+    /// Whether [`Dataset::pose_transform`] is the aerial fit: then the unit cube is the region of interest (the
+    /// ground the cameras see, 0.5 of its half-size below it and 1.5 above), which the point-cloud export crops to.
+    pub fn aerial_normalization(&self) -> bool {
+        use super::pose::PoseNormalization;
+        if self.options.normalization == PoseNormalization::Poses {
+            return false;
+        }
+        let frames: Vec<(Mat4, super::camera::Camera)> = self.frames.iter().map(|f| (f.c2w, f.camera)).collect();
+        super::aerial::normalize_poses_aerial(&frames).is_ok()
+    }
+
     fn compute_pose_transform(&self) -> PoseTransform {
         use super::pose::PoseNormalization;
         let poses: Vec<Mat4> = self.frames.iter().map(|f| f.c2w).collect();

@@ -13,7 +13,10 @@
 //!    pixel, and a view *agrees* when its median depth matches the distance to the point within `tolerance`
 //!    pixel footprints (footprint = distance / focal length). A point needs `min_agree` agreeing views (COLMAP's
 //!    stereo fusion keeps a pixel seen consistently by >= `min_num_pixels` views in the same way).
-//! 5. Per-point confidence as scalar fields: `accumulation`, `depth_spread` (q75 - q25 in world units),
+//! 5. **Scene box** (`scene_box`): with the aerial normalisation, points outside its unit cube (more than half
+//!    the cube's half-size below the ground, or beyond the footprint) are dropped, as nerfstudio's export crops to
+//!    its scene box; with `poses` the cube is centred on the cameras and nothing is cropped.
+//! 6. Per-point confidence as scalar fields: `accumulation`, `depth_spread` (q75 - q25 in world units),
 //!    `agreeing_views`, `checked_views`.
 //!
 //! Positions go back to the dataset's own world frame and units. With `normals`, each point also gets the density
@@ -56,6 +59,9 @@ pub struct ExportOptions {
     pub max_spread_cells: Option<f64>,
     /// Multi-view consistency (None: off).
     pub consistency: Option<Consistency>,
+    /// Drop points outside the unit cube when the run used the aerial normalisation (its cube is the region of
+    /// interest; nerfstudio's `ns-export pointcloud` crops to the same box by default). No effect with `poses`.
+    pub scene_box: bool,
 }
 
 impl Default for ExportOptions {
@@ -67,6 +73,7 @@ impl Default for ExportOptions {
             normals: false,
             max_spread_cells: Some(8.0),
             consistency: Some(Consistency::default()),
+            scene_box: true,
         }
     }
 }
@@ -74,7 +81,15 @@ impl Default for ExportOptions {
 impl ExportOptions {
     /// The export before issue 18: accumulation threshold only, no spread or consistency filter.
     pub fn legacy(rays: usize, min_accumulation: f32, seed: u64) -> Self {
-        Self { rays, min_accumulation, seed, normals: false, max_spread_cells: None, consistency: None }
+        Self {
+            rays,
+            min_accumulation,
+            seed,
+            normals: false,
+            max_spread_cells: None,
+            consistency: None,
+            scene_box: false,
+        }
     }
 }
 
@@ -85,6 +100,8 @@ pub struct ExportStats {
     pub below_accumulation: usize,
     pub spread: usize,
     pub inconsistent: usize,
+    /// Points outside the aerial normalisation's unit cube ([`ExportOptions::scene_box`]).
+    pub outside_box: usize,
     pub kept: usize,
     /// Rays rendered for the consistency check.
     pub check_rays: usize,
@@ -142,6 +159,7 @@ pub fn export_points_with_stats(
     // Below accumulation 0.5 the median is the last sample's midpoint, not a surface: the careful export never keeps
     // such a ray, whatever `min_accumulation` says.
     let careful = opts.max_spread_cells.is_some() || opts.consistency.is_some();
+    let crop_to_box = opts.scene_box && run.ds.aerial_normalization();
     let floor = if careful { opts.min_accumulation.max(0.5) } else { opts.min_accumulation };
     let mut cands = Vec::new();
     for i in 0..opts.rays {
@@ -154,6 +172,10 @@ pub fn export_points_with_stats(
         let ray = run.ds.frames[f].camera.ray_f64(&c2w, row, col);
         let t = out.median_depth[i] as f64;
         let p = [0, 1, 2].map(|k| ray.origin[k] + ray.direction[k] * t);
+        if crop_to_box && p.iter().any(|v| v.abs() > 1.0) {
+            stats.outside_box += 1;
+            continue;
+        }
         let spread = (out.depth_q75[i] - out.depth_q25[i]) as f64;
         if let Some(max_cells) = opts.max_spread_cells {
             let limit = max_cells * field_cell_size(p, max_res, contraction);

@@ -1,7 +1,12 @@
 //! Cloud-to-cloud comparison (`msnerf compare-cloud --pred A --ref B`).
 //!
-//! - **Accuracy**: distance from each predicted point to its nearest reference point (mean, median, RMSE, max).
-//! - **Completeness**: the same from each reference point to the nearest predicted point.
+//! - **Distances** go from a point to the other cloud's surface: by default to the least-squares plane of its 6
+//!   nearest points where that plane applies, else to the nearest point (CloudCompare's C2C with a local model,
+//!   [`DistanceModel`], `--local-model plane|none`; see [`local_plane`](super::pointcloud::local_plane) for why
+//!   and for the guards). A point's offset vector (point minus its foot on the surface) gives the planar and
+//!   elevation parts below.
+//! - **Accuracy**: distance from each predicted point to the reference (mean, median, RMSE, max).
+//! - **Completeness**: the same from each reference point to the prediction.
 //! - **Precision / recall / F-score** at a distance threshold τ (default 0.1 m): the fraction of predicted
 //!   (reference) points whose nearest neighbour in the other cloud is closer than τ, and `2PR/(P+R)` (Tanks and
 //!   Temples' definition, strict `<`).
@@ -9,8 +14,8 @@
 //!   fraction of predicted points closer than t to the reference (accuracy side) and of reference points closer
 //!   than t to the prediction (completeness side); strict `<`, as for precision and recall, so the fractions at
 //!   t = τ are the precision and the recall ([`WithinFraction`]).
-//! - **Planar and elevation errors** of the matched pairs (every predicted point and its nearest reference
-//!   point, nearest in 3-D), as the paper's Tables 6–7 report them: the Euclidean distance `ED`, the planar
+//! - **Planar and elevation errors** of the matched pairs (every predicted point and its foot on the reference,
+//!   or its nearest reference point), as the paper's Tables 6–7 report them: the Euclidean distance `ED`, the planar
 //!   distance `√(dx² + dy²)` and the elevation distance `|dz|` (z up), averaged; their medians and RMSEs; and the
 //!   signed elevation bias dz = pred z − ref z, as a mean and a median ([`PositionErrors`]).
 //! - **Verdict against an accuracy standard** (`--standard planar=0.3,vertical=0.5`, [`AccuracyStandard`];
@@ -35,6 +40,7 @@ use super::image::fmt_nm;
 use super::metrics::report::finite_or_null;
 use super::pointcloud::filter::par_map;
 use super::pointcloud::kdtree::KdTree;
+use super::pointcloud::local_plane::{surface_offset, SurfaceOffset};
 use super::pointcloud::PointCloud;
 use super::{OutputError, Result};
 
@@ -154,18 +160,65 @@ pub fn parse_within(s: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
-/// The within-threshold fractions and the accuracy standard of a comparison.
+/// How the distance from a point to the other cloud is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum DistanceModel {
+    /// To the nearest point (plain cloud-to-cloud): never zero between the other cloud's samples.
+    Nearest,
+    /// To the least-squares plane of the `k` nearest points, where it applies ([`local_plane`](
+    /// super::pointcloud::local_plane)); CloudCompare's C2C with a local model. The default, with k = 6.
+    Plane { k: usize },
+}
+
+impl DistanceModel {
+    /// CloudCompare's default neighbourhood for the local model.
+    pub const DEFAULT_PLANE: DistanceModel = DistanceModel::Plane { k: 6 };
+
+    /// Parses `--local-model`: `plane` (with `k` neighbours) or `none`.
+    pub fn parse(s: &str, k: usize) -> Result<DistanceModel> {
+        match s.trim() {
+            "plane" if k >= 3 => Ok(DistanceModel::Plane { k }),
+            "plane" => Err(OutputError::invalid("--local-k", format!("{k}: a plane needs at least 3 neighbours"))),
+            "none" => Ok(DistanceModel::Nearest),
+            other => Err(OutputError::invalid("--local-model", format!("`{other}`: expected `plane` or `none`"))),
+        }
+    }
+
+    fn k(&self) -> usize {
+        match *self {
+            DistanceModel::Nearest => 1,
+            DistanceModel::Plane { k } => k,
+        }
+    }
+
+    /// In words, for tables.
+    pub fn describe(&self) -> String {
+        match self {
+            DistanceModel::Nearest => "nearest point".into(),
+            DistanceModel::Plane { k } => format!("local least-squares plane of {k} points"),
+        }
+    }
+}
+
+/// The within-threshold fractions, the accuracy standard and the distance model of a comparison.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AccuracyOptions {
     /// Thresholds of the within-threshold fractions, in the clouds' unit.
     pub within: Vec<f64>,
     /// The standard the verdict is judged against.
     pub standard: AccuracyStandard,
+    /// How a point's distance to the other cloud is measured (both directions).
+    pub model: DistanceModel,
 }
 
 impl Default for AccuracyOptions {
     fn default() -> Self {
-        AccuracyOptions { within: DEFAULT_WITHIN.to_vec(), standard: AccuracyStandard::default() }
+        AccuracyOptions {
+            within: DEFAULT_WITHIN.to_vec(),
+            standard: AccuracyStandard::default(),
+            model: DistanceModel::DEFAULT_PLANE,
+        }
     }
 }
 
@@ -309,6 +362,11 @@ pub struct CompareReport {
     pub pred_points: usize,
     pub ref_points: usize,
     pub threshold: f64,
+    /// How distances are measured ([`DistanceModel`]).
+    pub distance_model: DistanceModel,
+    /// Fraction of predicted points whose distance came from the local plane (the rest: the nearest point).
+    #[serde(serialize_with = "finite_or_null")]
+    pub plane_fraction: f64,
     /// pred → ref distances.
     pub accuracy: DistanceStats,
     /// ref → pred distances.
@@ -328,6 +386,23 @@ pub struct CompareReport {
     /// Why `bands` is empty, when it is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub band_note: Option<String>,
+}
+
+/// Every query's offset from the surface `tree` samples (`points`), under `model`, on all cores. `order` (a
+/// permutation of the queries, e.g. their own tree's leaf order) only sets the query order, for cache locality.
+pub fn surface_offsets_all(
+    tree: &KdTree,
+    points: &[[f64; 3]],
+    queries: &[[f64; 3]],
+    order: &[u32],
+    model: DistanceModel,
+) -> Vec<SurfaceOffset> {
+    let found = par_map(order, |&q| surface_offset(tree, points, &queries[q as usize], model.k()).unwrap_or_default());
+    let mut out = vec![SurfaceOffset::default(); queries.len()];
+    for (&q, r) in order.iter().zip(found) {
+        out[q as usize] = r;
+    }
+    out
 }
 
 /// Nearest neighbour in `tree` of every query point, on all cores: (index, distance). `order` (a permutation
@@ -397,10 +472,12 @@ pub fn compare_clouds_with(
     }
     let ref_tree = KdTree::new(&reference.positions);
     let pred_tree = KdTree::new(&pred.positions);
-    let p2r = nearest_all(&ref_tree, &pred.positions, pred_tree.leaf_order());
-    let r2p = nearest_all(&pred_tree, &reference.positions, ref_tree.leaf_order());
+    let m = accuracy.model;
+    let p2r_off = surface_offsets_all(&ref_tree, &reference.positions, &pred.positions, pred_tree.leaf_order(), m);
+    let r2p_off = surface_offsets_all(&pred_tree, &pred.positions, &reference.positions, ref_tree.leaf_order(), m);
+    let p2r: Vec<(usize, f64)> = p2r_off.iter().map(|o| (o.nearest, o.distance())).collect();
     let acc: Vec<f64> = p2r.iter().map(|x| x.1).collect();
-    let comp: Vec<f64> = r2p.iter().map(|x| x.1).collect();
+    let comp: Vec<f64> = r2p_off.iter().map(|o| o.distance()).collect();
     let t = opts.threshold;
     let precision = acc.iter().filter(|&&d| d < t).count() as f64 / acc.len() as f64;
     let recall = comp.iter().filter(|&&d| d < t).count() as f64 / comp.len() as f64;
@@ -420,9 +497,8 @@ pub fn compare_clouds_with(
     let (mut planar, mut planar2, mut elev, mut elev2, mut dz_sum) = (0.0, 0.0, 0.0, 0.0, 0.0);
     let mut planar_d = Vec::with_capacity(pred.len());
     let mut signed_dz = Vec::with_capacity(pred.len());
-    for (i, &(j, _)) in p2r.iter().enumerate() {
-        let (p, r) = (pred.positions[i], reference.positions[j]);
-        let (dx, dy, dz) = (p[0] - r[0], p[1] - r[1], p[2] - r[2]);
+    for o in &p2r_off {
+        let [dx, dy, dz] = o.offset;
         let pl2 = dx * dx + dy * dy;
         planar += pl2.sqrt();
         planar2 += pl2;
@@ -492,6 +568,8 @@ pub fn compare_clouds_with(
         pred_points: pred.len(),
         ref_points: reference.len(),
         threshold: t,
+        distance_model: m,
+        plane_fraction: p2r_off.iter().filter(|o| o.plane).count() as f64 / n,
         accuracy: DistanceStats::of(&acc),
         completeness: DistanceStats::of(&comp),
         precision,
@@ -515,6 +593,11 @@ impl CompareReport {
         let f = |x: f64| if x.is_finite() { format!("{x:.4}") } else { "-".into() };
         let mut s =
             format!("pred {} points, ref {} points, threshold {}\n", self.pred_points, self.ref_points, self.threshold);
+        s += &format!(
+            "distance to the other cloud: {} ({:.0} % of pred points by the plane)\n",
+            self.distance_model.describe(),
+            100.0 * self.plane_fraction
+        );
         s += &format!("{:<26} {:>10} {:>10} {:>10} {:>10}\n", "", "mean", "median", "rmse", "max");
         for (name, d) in [("accuracy (pred->ref)", &self.accuracy), ("completeness (ref->pred)", &self.completeness)] {
             s += &format!("{:<26} {:>10} {:>10} {:>10} {:>10}\n", name, f(d.mean), f(d.median), f(d.rmse), f(d.max));

@@ -6,7 +6,7 @@
 //! and its `error` is the mean reprojection error over its track in pixels, as COLMAP reports it.
 
 use super::render::Prepared;
-use crate::data::camera::project_point;
+use crate::data::camera::{project_point, project_point_subpixel};
 use crate::data::sparse_points::{write_sparse_points, NamedPoint};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -75,7 +75,8 @@ pub fn make_tracks(prep: &Prepared, depths: &[Vec<f32>], o: &SparseOptions) -> V
             let mut track = Vec::with_capacity(views.len());
             for &j in &views {
                 let (rot, origin) = &cams[j];
-                let (Some(a), Some(b)) = (subpixel(cam, origin, rot, p), subpixel(cam, origin, rot, noisy)) else {
+                let sub = |q| project_point_subpixel(cam, *origin, rot, q);
+                let (Some(a), Some(b)) = (sub(p), sub(noisy)) else {
                     continue; // the noise pushed it out of this view: not in its track
                 };
                 err += ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt();
@@ -88,15 +89,6 @@ pub fn make_tracks(prep: &Prepared, depths: &[Vec<f32>], o: &SparseOptions) -> V
         }
     }
     out
-}
-
-/// Sub-pixel image position (u, v) of `p` (pinhole simulator cameras), None outside the image or behind.
-fn subpixel(cam: &crate::data::Camera, origin: &[f64; 3], rot: &[[f64; 3]; 3], p: [f64; 3]) -> Option<(f64, f64)> {
-    project_point(cam, *origin, rot, p)?;
-    let d = [p[0] - origin[0], p[1] - origin[1], p[2] - origin[2]];
-    // Camera frame: R^T d (OpenGL axes, looking along -z).
-    let xc: Vec<f64> = (0..3).map(|k| rot[0][k] * d[0] + rot[1][k] * d[1] + rot[2][k] * d[2]).collect();
-    Some((cam.cx + cam.fx * xc[0] / -xc[2], cam.cy - cam.fy * xc[1] / -xc[2]))
 }
 
 /// Writes `sparse_points.json` in `root`: world coordinates (local + `world_offset`), frames named as

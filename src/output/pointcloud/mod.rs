@@ -7,6 +7,7 @@
 pub mod filter;
 pub mod kdtree;
 pub mod las;
+pub mod local_plane;
 pub mod ply;
 pub mod thin;
 
