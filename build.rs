@@ -4,9 +4,8 @@
 //! errors; every source and include is a `rerun-if-changed` input; a `.comp` file missing from the table
 //! is an error, so no kernel is forgotten.
 //!
-//! Debian: the shaderc crate links the system's `libshaderc.so` (`libshaderc-dev`), which it finds by itself;
-//! `SHADERC_LIB_DIR` points it elsewhere. `--features shaderc-from-source` builds glslang and SPIRV-Tools (needs
-//! cmake and ninja).
+//! Debian: shaderc links the merged static archive made by `tools/setup-debian.sh` (see `.cargo/config.toml`).
+//! Elsewhere: `--features shaderc-from-source` builds glslang and SPIRV-Tools (needs cmake and ninja).
 //! Cooperative-matrix kernels need a newer glslang than Debian 12 ships: `glsl/feature_tests/` probes the
 //! compiler and sets `cfg(has_coopmat)` when they compile.
 

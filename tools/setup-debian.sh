@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
-# Installs what msnerf needs on Debian 12 (and Ubuntu 22.04+).
+# Installs what msnerf needs on Debian 12 (and Ubuntu 22.04+), then prepares the shaderc library that build.rs links.
 #   - Vulkan loader, Mesa lavapipe (the CPU Vulkan driver CI uses), Khronos validation layers, vulkaninfo
-#   - libshaderc-dev: the shaderc crate's build script finds Debian's libshaderc.so by itself and build.rs links it
-#     (shaderc is a build dependency only; the msnerf binary does not link it)
+#   - Debian's shaderc / glslang / SPIRV-Tools static libraries, merged into .shaderc/libshaderc_combined.a
 #   - gdal-bin: `gdalinfo`, which tests/output_raster.rs runs to check that GDAL reads msnerf's GeoTIFFs
 # Runs apt-get as root or through sudo; otherwise prints the command to run. Idempotent: a second run does nothing.
 set -euo pipefail
@@ -25,7 +24,7 @@ for comp in rustfmt clippy; do
 done
 
 # --- System packages -------------------------------------------------------------------------------
-PKGS=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers vulkan-tools libshaderc-dev binutils g++ gdal-bin)
+PKGS=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers vulkan-tools libshaderc-dev glslang-dev spirv-tools binutils g++ gdal-bin)
 if command -v dpkg-query >/dev/null 2>&1; then
   missing=()
   for p in "${PKGS[@]}"; do
@@ -44,22 +43,34 @@ if command -v dpkg-query >/dev/null 2>&1; then
   fi
 else
   say "not a Debian-family system: install the Vulkan loader, a Vulkan driver (Mesa lavapipe works), the Khronos"
-  say "validation layers and shaderc (a directory with libshaderc.so or libshaderc_shared.so: set SHADERC_LIB_DIR"
-  say "to it if it is not a system library directory), or build with '--features shaderc-from-source'."
+  say "validation layers and shaderc yourself, then set SHADERC_LIB_DIR (see .cargo/config.toml) or build with"
+  say "'--features shaderc-from-source'."
 fi
 
-# --- shaderc ---------------------------------------------------------------------------------------
-# An earlier layout merged Debian's static archives into .shaderc/ and pointed SHADERC_LIB_DIR there; the shaderc crate
-# now links Debian's libshaderc.so directly. A shaderc-sys built under the old layout remembers the old archive:
-# rebuild it once when that archive is still there.
-if [ -d .shaderc ]; then
-  rm -rf .shaderc
+# --- One static shaderc archive ---------------------------------------------------------------------
+# Debian's libshaderc_combined.a holds only shaderc's own objects; glslang and SPIRV-Tools live in their own archives.
+multiarch=$(gcc -print-multiarch 2>/dev/null || dpkg-architecture -qDEB_HOST_MULTIARCH 2>/dev/null || echo x86_64-linux-gnu)
+libdir=/usr/lib/$multiarch
+out=.shaderc/libshaderc_combined.a
+parts=(libshaderc_combined libglslang libMachineIndependent libGenericCodeGen libOSDependent libOGLCompiler libHLSL libSPIRV
+       libSPIRV-Tools-opt libSPIRV-Tools libglslang-default-resource-limits)
+need_merge=0
+[ -f "$out" ] || need_merge=1
+for part in "${parts[@]}"; do
+  [ -f "$libdir/$part.a" ] || die "$libdir/$part.a not found: install libshaderc-dev glslang-dev spirv-tools"
+  [ "$need_merge" = 1 ] || [ "$libdir/$part.a" -nt "$out" ] && need_merge=1
+done
+if [ "$need_merge" = 1 ]; then
+  mkdir -p .shaderc
+  { echo "CREATE $out.tmp"; for part in "${parts[@]}"; do echo "ADDLIB $libdir/$part.a"; done; echo SAVE; echo END; } | ar -M
+  mv "$out.tmp" "$out"
+  say "merged shaderc, glslang and SPIRV-Tools into $out"
+  # shaderc-sys caches its link decision and never re-reads SHADERC_LIB_DIR: make it look again.
   cargo clean -q -p shaderc-sys --release 2>/dev/null || true
   cargo clean -q -p shaderc-sys 2>/dev/null || true
-  say "removed the old merged shaderc archive (.shaderc/); Debian's libshaderc.so is linked now"
 fi
 
 # --- A Vulkan device --------------------------------------------------------------------------------
 icd=$(ls /usr/share/vulkan/icd.d/lvp_icd.*.json /etc/vulkan/icd.d/*.json /usr/share/vulkan/icd.d/nvidia_icd.json 2>/dev/null | head -n1 || true)
 [ -n "$icd" ] || die "no Vulkan driver manifest found: install mesa-vulkan-drivers (lavapipe) or a GPU driver"
-say "ready (Vulkan driver manifests present, libshaderc-dev installed)"
+say "ready (Vulkan driver manifests present, shaderc at $out)"
