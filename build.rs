@@ -50,7 +50,7 @@ const VARIANTS: &[Variant] = &[
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
     v("hashgrid_bwd_runs", "encoding/hashgrid_bwd_runs.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
-    // network: fully fused MLP (src/nn/mlp.rs)
+    // network: MLP layer, tile and weight-gradient kernels (src/nn/mlp.rs); not fused across layers
     v("mlp_layer_fwd", "network/mlp_layer_fwd.comp"),
     v("mlp_layer_bwd", "network/mlp_layer_bwd.comp"),
     v("mlp_out_delta", "network/mlp_out_delta.comp"),

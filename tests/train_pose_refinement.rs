@@ -159,3 +159,31 @@ fn refinement_brings_knocked_cameras_back_to_their_true_poses() {
     assert!(mean(&right) < 0.3, "cameras that were right stay right: {right:?} px");
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// `msnerf train` warns when pose refinement is on for an aerial flight (measured to cost 8.8 dB and the geometry on
+/// exact poses, docs/geometry.md), and is silent when it is off.
+#[test]
+fn pose_refinement_on_an_aerial_flight_is_warned_about() {
+    let dir = temp("warn");
+    let data = dir.join("data");
+    msnerf::sim::simulate(
+        &msnerf::sim::SceneDesc::load("ci-small").expect("scene"),
+        &msnerf::sim::SimOptions::default(),
+        &data,
+    )
+    .expect("simulate");
+    let exe = env!("CARGO_BIN_EXE_msnerf");
+    let data_s = data.to_str().expect("utf-8");
+    let tiny = ModelConfig::resolve("tiny").expect("tiny");
+    let mut refined = tiny.clone();
+    refined.camera_optimizer.mode = CameraOptMode::SO3xR3;
+    for (name, cfg, warned) in [("refined", refined, true), ("plain", tiny, false)] {
+        let yaml = dir.join(format!("{name}.yaml"));
+        std::fs::write(&yaml, serde_yaml::to_string(&cfg).expect("yaml")).expect("write");
+        let out = dir.join(name);
+        let args = ["train", "--data", data_s, "--model", yaml.to_str().unwrap(), "--max-steps", "2", "--quiet"];
+        let text = common::msnerf(exe, &[&args[..], &["--out", out.to_str().unwrap()]].concat());
+        assert_eq!(text.contains("pose refinement"), warned, "{name}: {text}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -358,10 +358,12 @@ impl Dataset {
     /// Whether [`Dataset::pose_transform`] is the aerial fit: then the unit cube is the region of interest (the
     /// ground the cameras see, 0.5 of its half-size below it and 1.5 above), which the point-cloud export crops to.
     pub fn aerial_normalization(&self) -> bool {
-        use super::pose::PoseNormalization;
-        if self.options.normalization == PoseNormalization::Poses {
-            return false;
-        }
+        self.options.normalization != super::pose::PoseNormalization::Poses && self.aerial_layout()
+    }
+
+    /// Whether the cameras fly over a scene: they look down and their axes meet (what `auto` needs for `aerial`),
+    /// whichever normalisation the options ask for.
+    pub fn aerial_layout(&self) -> bool {
         let frames: Vec<(Mat4, super::camera::Camera)> = self.frames.iter().map(|f| (f.c2w, f.camera)).collect();
         super::aerial::normalize_poses_aerial(&frames).is_ok()
     }
