@@ -6,8 +6,6 @@
 //!
 //! Debian: shaderc links the merged static archive made by `tools/setup-debian.sh` (see `.cargo/config.toml`).
 //! Elsewhere: `--features shaderc-from-source` builds glslang and SPIRV-Tools (needs cmake and ninja).
-//! Cooperative-matrix kernels need a newer glslang than Debian 12 ships: `glsl/feature_tests/` probes the
-//! compiler and sets `cfg(has_coopmat)` when they compile.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -17,16 +15,14 @@ struct Variant {
     name: &'static str,
     source: &'static str,
     defines: &'static [(&'static str, &'static str)],
-    /// Default specialisation constants (id, value) used unless the caller overrides them.
-    spec: &'static [(u32, u32)],
 }
 
 const fn v(name: &'static str, source: &'static str) -> Variant {
-    Variant { name, source, defines: &[], spec: &[] }
+    Variant { name, source, defines: &[] }
 }
 
 const fn vd(name: &'static str, source: &'static str, defines: &'static [(&'static str, &'static str)]) -> Variant {
-    Variant { name, source, defines, spec: &[] }
+    Variant { name, source, defines }
 }
 
 /// The variant table: every kernel the crate ships.
@@ -82,7 +78,6 @@ fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
     let glsl = root.join("glsl");
     let out = PathBuf::from(std::env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
-    println!("cargo::rustc-check-cfg=cfg(has_coopmat)");
 
     let mut all_files = Vec::new();
     collect_files(&glsl, &mut all_files);
@@ -91,10 +86,10 @@ fn main() {
     }
     println!("cargo::rerun-if-changed={}", glsl.display());
 
-    // Every kernel source must be in the table (feature tests are compiled separately).
+    // Every kernel source must be in the table.
     for f in all_files.iter().filter(|f| f.extension().is_some_and(|e| e == "comp")) {
         let rel = f.strip_prefix(&glsl).expect("collected under glsl/").to_string_lossy().replace('\\', "/");
-        if !rel.starts_with("feature_tests/") && !VARIANTS.iter().any(|v| v.source == rel) {
+        if !VARIANTS.iter().any(|v| v.source == rel) {
             panic!("glsl/{rel} is not in build.rs's VARIANTS table: add a row for it");
         }
     }
@@ -115,15 +110,13 @@ fn main() {
             Ok(words) => {
                 let spv = out.join(format!("{}.spv", var.name));
                 std::fs::write(&spv, words).expect("write .spv into OUT_DIR");
-                let spec: Vec<String> = var.spec.iter().map(|(i, v)| format!("({i}, {v})")).collect();
                 writeln!(
                     generated,
-                    "pub const {}: crate::gpu::ShaderBlob = crate::gpu::ShaderBlob {{ name: {:?}, source: {:?}, spirv: include_bytes!({:?}), spec_defaults: &[{}] }};",
+                    "pub const {}: crate::gpu::ShaderBlob = crate::gpu::ShaderBlob {{ name: {:?}, source: {:?}, spirv: include_bytes!({:?}) }};",
                     var.name.to_uppercase(),
                     var.name,
                     var.source,
                     spv.display().to_string(),
-                    spec.join(", ")
                 )
                 .expect("write to String");
             }
@@ -141,12 +134,6 @@ fn main() {
     )
     .expect("write to String");
     std::fs::write(out.join("shaders.rs"), generated).expect("write shaders.rs");
-
-    // Cooperative-matrix support of this glslang (Debian 12's is too old).
-    let probe = glsl.join("feature_tests/coopmat_khr.comp");
-    if probe.exists() && compile(&compiler, &glsl, "feature_tests/coopmat_khr.comp", &[], "coopmat_probe").is_ok() {
-        println!("cargo::rustc-cfg=has_coopmat");
-    }
 }
 
 fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) {

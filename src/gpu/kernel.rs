@@ -18,7 +18,6 @@ pub struct ShaderBlob {
     pub name: &'static str,
     pub source: &'static str,
     pub spirv: &'static [u8],
-    pub spec_defaults: &'static [(u32, u32)],
 }
 
 #[derive(Clone)]
@@ -65,9 +64,9 @@ impl<P: Pod> Kernel<P> {
         Self::with_spec(ctx, blob, &[])
     }
 
-    /// With specialisation constants (id, value) on top of the variant's defaults.
+    /// With specialisation constants (id, value); a repeated id keeps its last value.
     pub fn with_spec(ctx: &Context, blob: &'static ShaderBlob, spec: &[(u32, u32)]) -> GpuResult<Self> {
-        let mut merged: Vec<(u32, u32)> = blob.spec_defaults.to_vec();
+        let mut merged: Vec<(u32, u32)> = Vec::with_capacity(spec.len());
         for &(id, v) in spec {
             match merged.iter_mut().find(|(i, _)| *i == id) {
                 Some(e) => e.1 = v,
