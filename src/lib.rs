@@ -9,6 +9,7 @@ pub mod bench;
 pub mod cli;
 pub mod data;
 pub mod gpu;
+pub mod maths;
 pub mod nerf;
 pub mod nn;
 pub mod ops;

@@ -6,7 +6,7 @@
 
 use crate::data::pose::{Mat4, PoseTransform};
 use crate::data::Dataset;
-use crate::reference::pose::rotate;
+use crate::maths::so3::rotate;
 
 /// A normalised camera-to-world pose with correction p = [t, w] applied as the training rays see it: every ray
 /// direction (a combination of the rotation columns) turned by exp(w), the centre moved by t.

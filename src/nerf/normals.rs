@@ -6,16 +6,16 @@
 //! render kernels' contraction) -> `hashgrid_fwd` -> density MLP `mlp_fwd` (training variant, activations kept)
 //! -> `mlp_bwd` with dL/draw = 1 on the density output and 0 on the geometric features -> dL/dencoding ->
 //! `hashgrid_bwd_input` -> dL/dh; then, on the CPU, the contraction's Jacobian
-//! ([`crate::reference::pose::hash_input_grad`], the twin of `hash_input_grad` in glsl/pose/pose_common.glsl) gives
+//! ([`crate::maths::field::hash_input_grad`], the maths of `hash_input_grad` in glsl/pose/pose_common.glsl) gives
 //! dL/dx. The MLP backward also adds weight gradients to the store's gradient array; they are zeroed afterwards, so
 //! the store is left as it was found.
 
 use super::model::Model;
 use crate::gpu::{BufferDesc, Context, GpuBuffer, GpuResult, MemoryCategory};
+use crate::maths::field::hash_input;
+use crate::maths::field::hash_input_grad;
 use crate::nn::mlp::MlpTrainBuffers;
 use crate::nn::{ParamSlice, RowSlice};
-use crate::reference::pose::hash_input_grad;
-use crate::reference::render::hash_input;
 
 /// Points per submission.
 pub const NORMAL_CHUNK: usize = 16384;

@@ -4,8 +4,10 @@
 //! (compared with the kernels) and f64 (finite differences).
 
 use super::real::Real;
-use super::render::{edge_to_t, hash_input};
+use super::render::edge_to_t;
 use super::sh;
+pub use crate::maths::field::hash_input_grad;
+pub use crate::maths::so3::{rotate, so3_coeffs};
 use num_traits::Float;
 
 fn c<T: Float>(v: f64) -> T {
@@ -24,39 +26,6 @@ fn axpy<T: Float>(a: T, x: [T; 3], y: [T; 3]) -> [T; 3] {
     [0, 1, 2].map(|k| a * x[k] + y[k])
 }
 
-/// (a, b, da, db) of the exp map at w: R d = d + a (w x d) + b (w x (w x d)), with theta = sqrt(max(|w|^2, 1e-4));
-/// da, db = (da/dtheta)/theta, (db/dtheta)/theta (0 on the floor; series below theta = 0.1, as pose_common.glsl).
-pub fn so3_coeffs<T: Float>(w: [T; 3]) -> (T, T, T, T) {
-    let w2 = dot(w, w);
-    let on_floor = w2 < c(1e-4);
-    let th2 = if on_floor { c(1e-4) } else { w2 };
-    let th = th2.sqrt();
-    // sin and 2 sin^2(theta/2) do not cancel; the derivatives do, so they use their series below theta = 0.1.
-    let (s, co, h) = (th.sin(), th.cos(), (c::<T>(0.5) * th).sin());
-    let (a, b) = (s / th, c::<T>(2.0) * h * h / th2);
-    let (da, db) = if th < c(0.1) {
-        (
-            c::<T>(-1.0 / 3.0) + th2 * (c::<T>(1.0 / 30.0) - th2 * c(1.0 / 840.0)),
-            c::<T>(-1.0 / 12.0) + th2 * (c::<T>(1.0 / 180.0) - th2 * c(1.0 / 6720.0)),
-        )
-    } else {
-        ((th * co - s) / (th2 * th), (th * s - c::<T>(4.0) * h * h) / (th2 * th2))
-    };
-    if on_floor {
-        (a, b, T::zero(), T::zero())
-    } else {
-        (a, b, da, db)
-    }
-}
-
-/// R(w) d.
-pub fn rotate<T: Float>(w: [T; 3], d: [T; 3]) -> [T; 3] {
-    let (a, b, _, _) = so3_coeffs(w);
-    let u = cross(w, d);
-    let v = cross(w, u);
-    [0, 1, 2].map(|k| d[k] + a * u[k] + b * v[k])
-}
-
 /// dL/dw of R(w) d given g = dL/d(R d).
 pub fn rotate_grad_w<T: Float>(w: [T; 3], d: [T; 3], g: [T; 3]) -> [T; 3] {
     let (a, b, da, db) = so3_coeffs(w);
@@ -72,32 +41,6 @@ pub fn rotate_grad_w<T: Float>(w: [T; 3], d: [T; 3], g: [T; 3]) -> [T; 3] {
 pub fn apply<T: Float>(p: &[T], origin: [T; 3], dir: [T; 3]) -> ([T; 3], [T; 3]) {
     let w = [p[3], p[4], p[5]];
     ([0, 1, 2].map(|k| origin[k] + p[k]), rotate(w, dir))
-}
-
-/// dL/dx of a world point given dL/dh of its hash input (`render::hash_input`), as `hash_input_grad` in the kernels.
-pub fn hash_input_grad<T: Float>(x: [T; 3], gh: [T; 3], contraction: bool) -> [T; 3] {
-    if !contraction {
-        let inside = hash_input(x, false).1;
-        return if inside { gh.map(|v| c::<T>(0.5) * v) } else { [T::zero(); 3] };
-    }
-    let g = gh.map(|v| c::<T>(0.25) * v);
-    let ax = x.map(|v| v.abs());
-    let m = ax[0].max(ax[1]).max(ax[2]);
-    if m < T::one() {
-        return g;
-    }
-    let k = (c::<T>(2.0) - T::one() / m) / m;
-    let dk = c::<T>(2.0) * (T::one() - m) / (m * m * m);
-    let j = if ax[0] == m {
-        0
-    } else if ax[1] == m {
-        1
-    } else {
-        2
-    };
-    let mut out = g.map(|v| k * v);
-    out[j] = out[j] + x[j].signum() * dk * dot(x, g);
-    out
 }
 
 /// One ray's (dL/dorigin, dL/ddirection) from one level: samples at the midpoints of `edges` (s-space), `dpos`

@@ -4,6 +4,8 @@
 
 use num_traits::Float;
 
+pub use crate::maths::field::{contract, hash_input};
+
 fn c<T: Float>(v: f64) -> T {
     T::from(v).expect("constant fits")
 }
@@ -41,26 +43,6 @@ pub fn edge_to_t<T: Float>(s: T, near: T, far: T) -> T {
         return c::<T>(2.0) * a;
     }
     c::<T>(0.5) / (s * spacing_one_minus_g(far) + (T::one() - s) * spacing_one_minus_g(near))
-}
-
-pub fn contract<T: Float>(x: [T; 3]) -> [T; 3] {
-    let m = x[0].abs().max(x[1].abs()).max(x[2].abs());
-    if m < T::one() {
-        return x;
-    }
-    let k = (c::<T>(2.0) - T::one() / m) / m;
-    [x[0] * k, x[1] * k, x[2] * k]
-}
-
-/// Hash-grid input and whether the point carries density.
-pub fn hash_input<T: Float>(x: [T; 3], contraction: bool) -> ([T; 3], bool) {
-    if contraction {
-        let q = contract(x);
-        return (q.map(|v| (v + c(2.0)) * c(0.25)), true);
-    }
-    let p = x.map(|v| (v + T::one()) * c(0.5));
-    let inside = p.iter().all(|&v| v > T::zero() && v < T::one());
-    (if inside { p } else { [T::zero(); 3] }, inside)
 }
 
 pub fn pcg_hash(v: u32) -> u32 {
