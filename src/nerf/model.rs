@@ -162,9 +162,10 @@ impl ModelShapes {
 }
 
 impl Model {
-    /// Colour MLP input width before padding: SH 16 + geometric features + appearance.
+    /// Colour MLP input width before padding: SH (degree 4, [`SH_DIM`](crate::nn::sh::SH_DIM) = 16) + geometric
+    /// features + appearance.
     pub fn colour_inputs(cfg: &ModelConfig) -> usize {
-        16 + cfg.field.geo_feat_dim + cfg.field.appearance_embed_dim
+        crate::nn::sh::SH_DIM + cfg.field.geo_feat_dim + cfg.field.appearance_embed_dim
     }
 
     pub fn new(ctx: &Context, cfg: &ModelConfig, bands: usize, n_cameras: usize) -> Result<Self, ParamError> {

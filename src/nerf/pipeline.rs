@@ -366,7 +366,8 @@ impl Pipeline {
         };
         m.colour.backward(rec, cp, cg, (cin, cout, cdy), s, &cbufs, Some(cdx))?;
         let geo_dim = m.cfg.field.geo_feat_dim;
-        k.copy_cols(rec, s, geo_dim, (need(&b.colour.dx), cm.in_pad(), 16), (need(&lv.dy), fm.n_output, 1))?;
+        let sh_dim = crate::nn::sh::SH_DIM;
+        k.copy_cols(rec, s, geo_dim, (need(&b.colour.dx), cm.in_pad(), sh_dim), (need(&lv.dy), fm.n_output, 1))?;
         let app_dim = m.cfg.field.appearance_embed_dim;
         if app_dim > 0 {
             let off = m.offset("field.appearance");
@@ -376,7 +377,7 @@ impl Pipeline {
                 off,
                 (r, lv.n),
                 app_dim,
-                (need(&b.colour.dx), cm.in_pad(), 16 + geo_dim),
+                (need(&b.colour.dx), cm.in_pad(), sh_dim + geo_dim),
                 &b.cam_idx,
             )?;
         }

@@ -171,11 +171,11 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
             if app_dim > 0 {
                 let o = model.offset("field.appearance") + ray.camera * app_dim;
                 for a in 0..app_dim {
-                    out.grads[o + a] += dx[16 + geo_dim + a];
+                    out.grads[o + a] += dx[sh::SH_DIM + geo_dim + a];
                 }
             }
             let mut dy_d = vec![comp.d_raw[k]];
-            dy_d.extend_from_slice(&dx[16..16 + geo_dim]);
+            dy_d.extend_from_slice(&dx[sh::SH_DIM..sh::SH_DIM + geo_dim]);
             let dx_enc = mlp::backward(fm, w_density, &encs[k], &dy_d, &mut out.grads[fo..fo + fm.n_params()]);
             if pose_off.is_some() {
                 let fpl = fg.features_per_level as usize;
