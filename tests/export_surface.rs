@@ -90,12 +90,17 @@ fn geometry_sits_on_the_true_surface() {
             .write_image::<tiff::encoder::colortype::Gray32Float>(4, 4, &[1.0f32; 16])
             .expect("write");
     }
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_msnerf"))
-        .args(["eval", run_s, "--depth"])
-        .output()
-        .expect("run");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("depth/") && err.contains("4x4"), "{err}");
+    // `eval --depth` must fail: its error message.
+    let eval_depth_error = || {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_msnerf"))
+            .args(["eval", run_s, "--depth"])
+            .output()
+            .expect("run");
+        assert!(!out.status.success(), "eval --depth succeeded");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = eval_depth_error();
+    assert!(err.contains("depth/") && err.contains("4x4"), "{err}");
 
     // 5. `--depth` on a dataset without depth maps is an error naming the frame.
     let tf = data.join("transforms.json");
@@ -104,12 +109,8 @@ fn geometry_sits_on_the_true_surface() {
         f.as_object_mut().expect("frame").remove("depth_file_path");
     }
     std::fs::write(&tf, serde_json::to_string(&t).expect("json")).expect("write");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_msnerf"))
-        .args(["eval", run_s, "--depth"])
-        .output()
-        .expect("run");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("depth_file_path") && err.contains("frame `"), "{err}");
+    let err = eval_depth_error();
+    assert!(err.contains("depth_file_path") && err.contains("frame `"), "{err}");
 }
 
 /// Training steps of the test.

@@ -188,19 +188,24 @@ fn plots_are_written_as_decodable_png_and_svg() {
     check_svg(&dir.path().join("empty/psnr_vs_time.svg"), "Held-out PSNR");
 }
 
+/// The report context of these tests: the built-in scene, a unit grid, figures in `figs/`.
+fn report_context<'a>(g: &'a Grid, m: &'a Machine, date: &str) -> ReportContext<'a> {
+    ReportContext {
+        grid: g,
+        machine: m,
+        data: "the built-in scene".into(),
+        command: "msnerf sweep --grid unit.yaml".into(),
+        plots_rel: "figs".into(),
+        date: date.into(),
+    }
+}
+
 #[test]
 fn the_report_says_what_to_pick_for_1_5_and_15_minutes() {
     let g = grid();
     let r = results();
     let m = machine();
-    let ctx = ReportContext {
-        grid: &g,
-        machine: &m,
-        data: "the built-in scene".into(),
-        command: "msnerf sweep --grid unit.yaml".into(),
-        plots_rel: "figs".into(),
-        date: "2026-11-22".into(),
-    };
+    let ctx = report_context(&g, &m, "2026-11-22");
     let md = report_markdown(&ctx, &r);
     assert!(
         md.contains("llvmpipe (test)") && md.contains("host CPU Test CPU, 2 threads"),
@@ -231,14 +236,7 @@ fn geometry_appears_in_the_report_and_the_csv_when_measured() {
     use msnerf::sweep::table::cells_csv;
     let g = grid();
     let m = machine();
-    let ctx = ReportContext {
-        grid: &g,
-        machine: &m,
-        data: "the built-in scene".into(),
-        command: "msnerf sweep --grid unit.yaml".into(),
-        plots_rel: "figs".into(),
-        date: "2026-11-25".into(),
-    };
+    let ctx = report_context(&g, &m, "2026-11-25");
     let mut r = results();
     let plain = report_markdown(&ctx, &r);
     assert!(!plain.contains("## Geometry"), "no geometry section without measurements");

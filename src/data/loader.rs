@@ -81,8 +81,9 @@ pub struct Dataset {
     pub options: LoadOptions,
     /// Set by [`Dataset::select_bands`]: the dataset then reads and reports only these bands of its files.
     pub band_selection: Option<BandSelection>,
-    /// [`Dataset::pose_transform`], computed once (the aerial fit looks at pairs of cameras).
-    pub transform_cache: std::sync::OnceLock<PoseTransform>,
+    /// [`Dataset::pose_transform`] and whether it is the aerial fit, computed once (the fit looks at pairs of
+    /// cameras).
+    pub transform_cache: std::sync::OnceLock<(PoseTransform, bool)>,
 }
 
 /// A subset of a dataset's bands (`msnerf train --bands`, sweep axis `bands`): the indices kept, in order, into
@@ -352,36 +353,39 @@ impl Dataset {
     /// The pose normalisation over all frames (nerfstudio normalises before splitting), as
     /// `options.normalization` asks; `aerial` on a layout that is not aerial falls back to `poses`, with a warning.
     pub fn pose_transform(&self) -> PoseTransform {
-        *self.transform_cache.get_or_init(|| self.compute_pose_transform())
+        self.transform_cache.get_or_init(|| self.compute_pose_transform()).0
     }
 
     /// Whether [`Dataset::pose_transform`] is the aerial fit: then the unit cube is the region of interest (the
     /// ground the cameras see, 0.5 of its half-size below it and 1.5 above), which the point-cloud export crops to.
     pub fn aerial_normalization(&self) -> bool {
-        self.options.normalization != super::pose::PoseNormalization::Poses && self.aerial_layout()
+        self.transform_cache.get_or_init(|| self.compute_pose_transform()).1
     }
 
     /// Whether the cameras fly over a scene: they look down and their axes meet (what `auto` needs for `aerial`),
     /// whichever normalisation the options ask for.
     pub fn aerial_layout(&self) -> bool {
-        let frames: Vec<(Mat4, super::camera::Camera)> = self.frames.iter().map(|f| (f.c2w, f.camera)).collect();
-        super::aerial::normalize_poses_aerial(&frames).is_ok()
+        self.aerial_normalization() || self.aerial_fit().is_ok()
     }
 
-    fn compute_pose_transform(&self) -> PoseTransform {
+    fn aerial_fit(&self) -> Result<PoseTransform, super::aerial::NotAerial> {
+        let frames: Vec<(Mat4, super::camera::Camera)> = self.frames.iter().map(|f| (f.c2w, f.camera)).collect();
+        super::aerial::normalize_poses_aerial(&frames)
+    }
+
+    fn compute_pose_transform(&self) -> (PoseTransform, bool) {
         use super::pose::PoseNormalization;
         let poses: Vec<Mat4> = self.frames.iter().map(|f| f.c2w).collect();
         if self.options.normalization == PoseNormalization::Poses {
-            return normalize_poses(&poses);
+            return (normalize_poses(&poses), false);
         }
-        let frames: Vec<(Mat4, super::camera::Camera)> = self.frames.iter().map(|f| (f.c2w, f.camera)).collect();
-        match super::aerial::normalize_poses_aerial(&frames) {
-            Ok(t) => t,
+        match self.aerial_fit() {
+            Ok(t) => (t, true),
             Err(why) => {
                 if self.options.normalization == PoseNormalization::Aerial {
                     log::warn!("{}: aerial pose normalisation: {why}; using `poses`", self.transforms_path.display());
                 }
-                normalize_poses(&poses)
+                (normalize_poses(&poses), false)
             }
         }
     }

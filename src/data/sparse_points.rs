@@ -43,14 +43,7 @@ fn invalid(path: &Path, key: String, reason: impl Into<String>) -> DataError {
 
 /// Reads `path`, resolving frame names against `ds`. Errors name the file and the point (`points[i]`) and key.
 pub fn read_sparse_points(ds: &Dataset, path: &Path) -> Result<Vec<SparsePoint>, DataError> {
-    let text = std::fs::read(path).map_err(|e| DataError::MissingFile {
-        path: path.to_path_buf(),
-        key: "sparse_points_path".into(),
-        frame: None,
-        reason: e.to_string(),
-    })?;
-    let file: File = serde_json::from_slice(&text)
-        .map_err(|e| DataError::Json { path: path.to_path_buf(), reason: e.to_string() })?;
+    let file: File = super::transforms::read_json(path, "sparse_points_path")?;
     let by_name: HashMap<&str, usize> = ds.frames.iter().enumerate().map(|(i, f)| (f.name.as_str(), i)).collect();
     let mut out = Vec::with_capacity(file.points.len());
     let mut errors = Vec::new();

@@ -121,15 +121,20 @@ const INTRINSIC_KEYS: [&str; 6] = ["fl_x", "fl_y", "cx", "cy", "w", "h"];
 
 /// Parses the file at `path` (paths in it are resolved against its folder).
 pub fn parse_transforms(path: &Path) -> Result<RawTransforms, DataError> {
+    let root: Value = read_json(path, "transforms.json")?;
+    parse_value(path, &root)
+}
+
+/// Reads and parses the JSON file at `path`; a missing or unreadable file names `key` (the key or file that
+/// pointed to it), malformed JSON names the file.
+pub(crate) fn read_json<T: serde::de::DeserializeOwned>(path: &Path, key: &str) -> Result<T, DataError> {
     let text = std::fs::read(path).map_err(|e| DataError::MissingFile {
         path: path.to_path_buf(),
-        key: "transforms.json".into(),
+        key: key.into(),
         frame: None,
         reason: e.to_string(),
     })?;
-    let root: Value = serde_json::from_slice(&text)
-        .map_err(|e| DataError::Json { path: path.to_path_buf(), reason: e.to_string() })?;
-    parse_value(path, &root)
+    serde_json::from_slice(&text).map_err(|e| DataError::Json { path: path.to_path_buf(), reason: e.to_string() })
 }
 
 /// Parses an already-read JSON value.

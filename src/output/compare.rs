@@ -405,19 +405,6 @@ pub fn surface_offsets_all(
     out
 }
 
-/// Nearest neighbour in `tree` of every query point, on all cores: (index, distance). `order` (a permutation
-/// of the queries, e.g. their own tree's leaf order) only sets the query order, for cache locality.
-pub fn nearest_all(tree: &KdTree, queries: &[[f64; 3]], order: &[u32]) -> Vec<(usize, f64)> {
-    let found = par_map(order, |&q| {
-        tree.nearest(&queries[q as usize]).map(|(i, d2)| (i, d2.sqrt())).unwrap_or((usize::MAX, f64::INFINITY))
-    });
-    let mut out = vec![(usize::MAX, f64::INFINITY); queries.len()];
-    for (&q, r) in order.iter().zip(found) {
-        out[q as usize] = r;
-    }
-    out
-}
-
 fn pair_bands(pred: &PointCloud, reference: &PointCloud, tol: f64) -> Vec<(usize, usize)> {
     let mut pairs = Vec::new();
     for (i, pb) in pred.bands.iter().enumerate() {

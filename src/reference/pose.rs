@@ -8,19 +8,8 @@ use super::render::edge_to_t;
 use super::sh;
 pub use crate::maths::field::hash_input_grad;
 pub use crate::maths::so3::{rotate, so3_coeffs};
+use crate::maths::{c, cross, dot};
 use num_traits::Float;
-
-fn c<T: Float>(v: f64) -> T {
-    T::from(v).expect("constant fits")
-}
-
-fn dot<T: Float>(a: [T; 3], b: [T; 3]) -> T {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross<T: Float>(a: [T; 3], b: [T; 3]) -> [T; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
 
 fn axpy<T: Float>(a: T, x: [T; 3], y: [T; 3]) -> [T; 3] {
     [0, 1, 2].map(|k| a * x[k] + y[k])

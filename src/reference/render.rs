@@ -4,11 +4,8 @@
 
 use num_traits::Float;
 
+use crate::maths::c;
 pub use crate::maths::field::{contract, hash_input};
-
-fn c<T: Float>(v: f64) -> T {
-    T::from(v).expect("constant fits")
-}
 
 pub fn spacing_g<T: Float>(t: T) -> T {
     if t < T::one() {
