@@ -16,6 +16,7 @@ pub mod ops;
 pub mod output;
 pub mod plan;
 pub mod reference;
+pub mod rig;
 pub mod shaders;
 pub mod sim;
 pub mod sweep;

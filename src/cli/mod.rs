@@ -7,6 +7,7 @@ pub mod demo;
 pub mod devices;
 pub mod eval;
 pub mod export;
+pub mod import;
 pub mod plan;
 pub mod render;
 pub mod simulate;
@@ -43,6 +44,8 @@ pub enum Command {
     Render(render::RenderArgs),
     /// Export a multispectral point cloud from a trained run
     Export(export::ExportArgs),
+    /// Import raw captures: `import rig DIR --out DATASET` (raw multispectral rig TIFFs to reflectance)
+    Import(import::ImportArgs),
     /// Dataset tools (check)
     Dataset(dataset::DatasetArgs),
     /// The whole job on a built-in simulated scene: simulate, train, evaluate, render, export, compare
@@ -82,6 +85,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(&cli, a),
         Command::Export(a) => export::run(&cli, a),
         Command::Dataset(a) => dataset::run(&cli, a),
+        Command::Import(a) => import::run(a),
         Command::Demo(a) => demo::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),

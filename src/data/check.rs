@@ -25,6 +25,52 @@ pub struct BandReport {
     pub max: Option<f32>,
 }
 
+/// Radiometry and registration facts that `msnerf import rig` writes into `transforms.json` (docs/dataset.md).
+#[derive(Debug, Clone, Serialize)]
+pub struct ImportInfo {
+    /// `reflectance` or `radiance`.
+    pub units: String,
+    /// Per band: name, radiance units, irradiance source (`panel`, `dls`, `none`) and the panel irradiance.
+    pub calibration: Vec<(String, String, String, Option<f64>)>,
+    pub reference_band: Option<String>,
+    /// Per band, the largest registration residual over the frames (pixels; `None` for the reference band or
+    /// when the import did not measure it).
+    pub max_residual_px: Vec<Option<f64>>,
+    /// `pose_prior.source` when the poses are priors (GPS) rather than SfM poses.
+    pub pose_prior: Option<String>,
+}
+
+fn import_info(root: &serde_json::Value) -> Option<ImportInfo> {
+    let units = root.get("units")?.as_str()?.to_string();
+    let calibration: Vec<_> = root
+        .get("calibration")
+        .and_then(|c| c.as_array())
+        .map(|a| {
+            a.iter()
+                .map(|c| {
+                    let s = |k: &str| c.get(k).and_then(|v| v.as_str()).unwrap_or("-").to_string();
+                    (s("band"), s("radiance"), s("source"), c.get("irradiance").and_then(|v| v.as_f64()))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut max_residual_px: Vec<Option<f64>> = vec![None; calibration.len()];
+    for f in root.get("frames").and_then(|f| f.as_array()).into_iter().flatten() {
+        for (b, r) in f.get("registration_residual_px").and_then(|r| r.as_array()).into_iter().flatten().enumerate() {
+            if let (Some(v), Some(slot)) = (r.as_f64(), max_residual_px.get_mut(b)) {
+                *slot = Some(slot.map_or(v, |m: f64| m.max(v)));
+            }
+        }
+    }
+    Some(ImportInfo {
+        units,
+        calibration,
+        reference_band: root.get("reference_band").and_then(|v| v.as_str()).map(str::to_string),
+        max_residual_px,
+        pose_prior: root.get("pose_prior").and_then(|p| p.get("source")).and_then(|v| v.as_str()).map(str::to_string),
+    })
+}
+
 /// What `msnerf dataset check DIR` prints (Display) or writes (`to_json`).
 #[derive(Debug, Serialize)]
 pub struct CheckReport {
@@ -47,6 +93,8 @@ pub struct CheckReport {
     pub cache_budget_bytes: u64,
     /// The cache plan for the train split under the budget.
     pub cache: Option<CachePlan>,
+    /// What an import from raw rig files recorded (units, calibration, registration), when it did.
+    pub import: Option<ImportInfo>,
     /// Every problem found, one line each.
     pub errors: Vec<String>,
     #[serde(skip)]
@@ -87,6 +135,7 @@ pub fn check_dataset(dir: &Path, budget_bytes: u64) -> CheckReport {
         full_load_bytes: 0,
         cache_budget_bytes: budget_bytes,
         cache: None,
+        import: None,
         errors: vec![],
         problems: vec![],
     };
@@ -97,6 +146,9 @@ pub fn check_dataset(dir: &Path, budget_bytes: u64) -> CheckReport {
             return rep;
         }
     };
+    if let Ok(root) = super::transforms::read_json::<serde_json::Value>(&ds.transforms_path, "transforms.json") {
+        rep.import = import_info(&root);
+    }
     rep.frames = ds.frames.len();
     let count = |s: Split| ds.frames.iter().filter(|f| f.split == s).count();
     rep.train = count(Split::Train);
@@ -190,6 +242,21 @@ impl fmt::Display for CheckReport {
                 _ => "-".into(),
             };
             writeln!(f, "  band {:<10} centre {} nm  fwhm {} nm  values {r}", b.name, nm(b.center_nm), nm(b.fwhm_nm))?;
+        }
+        if let Some(im) = &self.import {
+            writeln!(f, "  units {} (imported from raw rig files)", im.units)?;
+            for (i, (band, rad, source, e)) in im.calibration.iter().enumerate() {
+                let e = e.map_or(String::new(), |e| format!(", panel irradiance {e:.5}"));
+                let r = match im.max_residual_px.get(i).copied().flatten() {
+                    Some(v) => format!(", registration residual up to {v:.3} px"),
+                    None if im.reference_band.as_deref() == Some(band.as_str()) => ", registration reference".into(),
+                    None => String::new(),
+                };
+                writeln!(f, "    {band}: radiance in {rad}, irradiance from {source}{e}{r}")?;
+            }
+            if let Some(p) = &im.pose_prior {
+                writeln!(f, "  poses are {p} priors: import SfM poses before training a real flight")?;
+            }
         }
         if let Some((lo, hi)) = self.scene_bounds {
             writeln!(f, "  camera centres (world units) min {lo:?} max {hi:?}")?;

@@ -1,0 +1,114 @@
+//! `msnerf import rig DIR --out DATASET`: raw single-band rig TIFFs -> calibrated, registered dataset
+//! (library: `crate::rig`). Prints a summary: captures, bands, calibration, skipped files, warnings, speed.
+
+use std::path::PathBuf;
+
+use crate::rig::{import_rig, ImportOptions, IrradianceSource, Registration, Units};
+
+#[derive(clap::Args, Debug)]
+pub struct ImportArgs {
+    #[command(subcommand)]
+    pub what: ImportWhat,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum ImportWhat {
+    /// A flight folder of raw single-band rig TIFFs (MicaSense, DJI P4M/M3M, Pix4D-XMP rigs)
+    Rig(RigArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct RigArgs {
+    /// Flight folder (searched recursively for .tif/.tiff; only read, never written)
+    pub dir: PathBuf,
+    /// Dataset folder to write (written atomically)
+    #[arg(long)]
+    pub out: PathBuf,
+    /// A band file of each calibration-panel capture (its other bands are found by capture id)
+    #[arg(long, num_args = 1..)]
+    pub panel: Vec<PathBuf>,
+    /// Panel reflectance from its calibration sheet: one value, or one per band in wavelength order
+    #[arg(long, value_delimiter = ',')]
+    pub panel_reflectance: Vec<f64>,
+    /// Panel corners in pixels (x1,y1,x2,y2,x3,y3,x4,y4) instead of detecting the panel
+    #[arg(long, value_delimiter = ',')]
+    pub panel_corners: Vec<f64>,
+    /// Irradiance source for reflectance
+    #[arg(long, value_enum, default_value_t = IrradianceSource::Auto)]
+    pub irradiance: IrradianceSource,
+    /// Output units (radiance stops before the irradiance)
+    #[arg(long, value_enum, default_value_t = Units::Reflectance)]
+    pub units: Units,
+    /// Keep the raw lens geometry (the distortion goes into transforms.json)
+    #[arg(long)]
+    pub no_undistort: bool,
+    /// Band-to-band registration: per capture, one shared rig warp, or the rig data only
+    #[arg(long, value_enum, default_value_t = Registration::Auto)]
+    pub register: Registration,
+    /// Captures the shared rig warps are estimated on (`--register rig`)
+    #[arg(long, default_value_t = 8)]
+    pub register_sample: usize,
+    /// Skip band-to-band registration (same as `--register none`)
+    #[arg(long)]
+    pub no_register: bool,
+    /// Band the others are registered to (default: the one nearest 560 nm)
+    #[arg(long)]
+    pub reference_band: Option<String>,
+    /// Replace an existing output folder
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Worker threads (default: all cores)
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+pub fn run(a: &ImportArgs) -> anyhow::Result<()> {
+    let ImportWhat::Rig(r) = &a.what;
+    let panel_corners = match r.panel_corners.len() {
+        0 => None,
+        8 => {
+            let c = &r.panel_corners;
+            Some([[c[0], c[1]], [c[2], c[3]], [c[4], c[5]], [c[6], c[7]]])
+        }
+        n => anyhow::bail!("--panel-corners: {n} numbers given, 8 expected (x1,y1,...,x4,y4)"),
+    };
+    let threads = r.threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    let opts = ImportOptions {
+        input: r.dir.clone(),
+        out: r.out.clone(),
+        panel_files: r.panel.clone(),
+        panel_reflectance: r.panel_reflectance.clone(),
+        panel_corners,
+        irradiance: r.irradiance,
+        units: r.units,
+        undistort: !r.no_undistort,
+        registration: if r.no_register { Registration::None } else { r.register },
+        register_sample: r.register_sample,
+        reference_band: r.reference_band.clone(),
+        overwrite: r.overwrite,
+        threads,
+        progress: true,
+    };
+    let s = import_rig(&opts)?;
+    println!("wrote {} ({} captures, bands {})", r.out.display(), s.captures, s.bands.join(", "));
+    println!("units: {:?}, irradiance from: {}", s.units, s.calibration);
+    if let Some(p) = &s.panel {
+        for (bi, e) in p.irradiance.iter().enumerate() {
+            let back: Vec<String> = p.captures.iter().map(|c| format!("{:.4}", c[bi].reflectance_back)).collect();
+            println!("  {}: irradiance {e:.5}, panel reflectance back {}", s.bands[bi], back.join(", "));
+        }
+    }
+    println!("registration ({:?}): largest residual {:.3} px", s.registration, s.max_residual_px);
+    if let Some(sp) = &s.rig_spread_px {
+        let v: Vec<String> = s.bands.iter().zip(sp).map(|(b, v)| format!("{b} {v:.2}")).collect();
+        println!("  shared rig warps; spread over the sampled captures (px): {}", v.join(", "));
+    }
+    println!("{:.1} s, {:.2} captures/s", s.seconds, s.captures_per_second);
+    for k in &s.skipped {
+        println!("skipped {}: {}", k.what, k.reason);
+    }
+    for w in &s.warnings {
+        println!("warning: {w}");
+    }
+    Ok(())
+}

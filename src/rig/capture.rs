@@ -1,0 +1,151 @@
+//! Finds the captures in a flight folder: every TIFF's tags are read (headers only), interpreted by vendor
+//! ([`super::calib`]) and grouped by the capture identifier the XMP carries (MicaSense `CaptureId`, DJI
+//! `CaptureUUID`, Pix4D `CaptureUUID`, else the EXIF time), never by file-name suffix. Bands are ordered by
+//! centre wavelength. Files that cannot be used and captures missing a band are listed with the reason.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use super::calib::{interpret, BandFile};
+use super::error::RigError;
+use super::meta::read_meta;
+
+/// One trigger of the rig: a file per band, in wavelength order.
+#[derive(Debug, Clone)]
+pub struct Capture {
+    pub key: String,
+    pub bands: Vec<BandFile>,
+}
+
+impl Capture {
+    /// A file-name-safe name for the capture (the first band's file stem without its band suffix when it has one).
+    pub fn name(&self) -> String {
+        let stem = self.bands[0].meta.path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        match stem.rsplit_once('_') {
+            Some((head, tail))
+                if !head.is_empty() && tail.chars().all(|c| c.is_ascii_alphanumeric()) && tail.len() <= 3 =>
+            {
+                head.to_string()
+            }
+            _ => stem,
+        }
+    }
+}
+
+/// Something left out, with why.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Skipped {
+    /// The capture concerned, when the problem is a capture's.
+    pub capture: Option<String>,
+    pub what: String,
+    pub reason: String,
+}
+
+/// The result of a scan.
+#[derive(Debug, Clone)]
+pub struct Scan {
+    pub captures: Vec<Capture>,
+    /// Band names in wavelength order (the complete set).
+    pub band_names: Vec<String>,
+    pub skipped: Vec<Skipped>,
+}
+
+/// TIFF files under `dir` (recursive, sorted).
+pub fn list_tiffs(dir: &Path) -> Result<Vec<PathBuf>, RigError> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).map_err(RigError::io(&d))? {
+            let p = entry.map_err(RigError::io(&d))?.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff")) {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Reads and interprets `files`, groups them into captures. Files that are not rig images are skipped (listed);
+/// an error only when nothing usable is left, or cameras are mixed.
+pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
+    let mut skipped = Vec::new();
+    let mut band_files: Vec<BandFile> = Vec::new();
+    let mut first_error: Option<RigError> = None;
+    for f in files {
+        match read_meta(f).and_then(interpret) {
+            Ok(b) => band_files.push(b),
+            Err(e) => {
+                skipped.push(Skipped { capture: None, what: f.display().to_string(), reason: e.to_string() });
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    if band_files.is_empty() {
+        return Err(first_error.unwrap_or_else(|| RigError::option("DIR", "no TIFF files found")));
+    }
+    if let Some(other) = band_files.iter().find(|b| b.camera != band_files[0].camera) {
+        return Err(RigError::Mixed {
+            a: band_files[0].camera.clone(),
+            a_path: band_files[0].meta.path.clone(),
+            b: other.camera.clone(),
+            b_path: other.meta.path.clone(),
+        });
+    }
+    let mut groups: BTreeMap<String, Vec<BandFile>> = BTreeMap::new();
+    for b in band_files {
+        groups.entry(b.capture_key.clone()).or_default().push(b);
+    }
+    // The complete band set: every band name seen, by wavelength.
+    let mut all: BTreeMap<String, f64> = BTreeMap::new();
+    for g in groups.values() {
+        for b in g {
+            all.entry(b.band_name.clone()).or_insert(b.center_nm);
+        }
+    }
+    let mut band_names: Vec<(String, f64)> = all.into_iter().collect();
+    band_names.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let band_names: Vec<String> = band_names.into_iter().map(|b| b.0).collect();
+    let mut captures = Vec::new();
+    for (key, mut files) in groups {
+        files.sort_by(|a, b| a.center_nm.total_cmp(&b.center_nm));
+        let names: Vec<&str> = files.iter().map(|b| b.band_name.as_str()).collect();
+        let what = format!("capture {key} ({})", files[0].meta.path.display());
+        let dup = names.iter().enumerate().find(|(i, n)| names[..*i].contains(n));
+        if let Some((_, n)) = dup {
+            skipped.push(Skipped { capture: Some(key.clone()), what, reason: format!("band {n} appears twice") });
+            continue;
+        }
+        let missing: Vec<&String> = band_names.iter().filter(|n| !names.contains(&n.as_str())).collect();
+        if !missing.is_empty() {
+            let m: Vec<&str> = missing.iter().map(|s| s.as_str()).collect();
+            skipped.push(Skipped {
+                capture: Some(key.clone()),
+                what,
+                reason: format!("missing band(s) {}", m.join(", ")),
+            });
+            continue;
+        }
+        let size = (files[0].meta.width, files[0].meta.height);
+        if let Some(b) = files.iter().find(|b| (b.meta.width, b.meta.height) != size) {
+            skipped.push(Skipped {
+                capture: Some(key.clone()),
+                what,
+                reason: format!(
+                    "{} is {}x{}, the others {}x{}",
+                    b.meta.path.display(),
+                    b.meta.width,
+                    b.meta.height,
+                    size.0,
+                    size.1
+                ),
+            });
+            continue;
+        }
+        captures.push(Capture { key, bands: files });
+    }
+    captures.sort_by(|a, b| a.bands[0].meta.path.cmp(&b.bands[0].meta.path));
+    Ok(Scan { captures, band_names, skipped })
+}

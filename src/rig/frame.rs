@@ -1,0 +1,254 @@
+//! One capture through the chain: raw -> radiance (-> reflectance) per band, the band warps (estimated here,
+//! or shared across the flight), one resampling per band into the target camera, the crop to the area every
+//! band covers, and the float32 multi-band TIFF.
+
+use std::path::Path;
+
+use super::calib::BandFile;
+use super::capture::Capture;
+use super::error::RigError;
+use super::lens::{resample, Target};
+use super::meta::read_pixels;
+use super::plane::Plane;
+use super::radiometry::to_radiance;
+use super::register::{align, rig_homography, AlignStats, Homography};
+use super::warp::{ShiftField, Warp};
+use crate::sim::writer::{write_tiff, TiffData};
+
+/// Registration of one band of one capture.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct BandRegistration {
+    pub band: String,
+    pub warp: Warp,
+    pub stats: Option<AlignStats>,
+}
+
+/// One written frame.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FrameOut {
+    pub capture: String,
+    pub file: String,
+    pub width: usize,
+    pub height: usize,
+    pub fx: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub saturated: Vec<usize>,
+    pub registration: Vec<BandRegistration>,
+}
+
+/// A capture's bands in output units, with each band's count of saturated pixels.
+pub struct Loaded {
+    pub values: Vec<Plane>,
+    pub saturated: Vec<usize>,
+}
+
+/// Reads and converts every band; `irradiance` (per band) turns radiance into reflectance `pi L / E`.
+pub fn load(cap: &Capture, irradiance: Option<&[f64]>) -> Result<Loaded, RigError> {
+    let mut values = Vec::with_capacity(cap.bands.len());
+    let mut saturated = Vec::with_capacity(cap.bands.len());
+    for (bi, b) in cap.bands.iter().enumerate() {
+        let raw = read_pixels(&b.meta)?;
+        let (mut plane, stats) = to_radiance(b, &raw);
+        saturated.push(stats.saturated);
+        if let Some(e) = irradiance {
+            let k = (std::f64::consts::PI / e[bi]) as f32;
+            plane.data.iter_mut().for_each(|v| *v *= k);
+        }
+        values.push(plane);
+    }
+    Ok(Loaded { values, saturated })
+}
+
+/// The undistorted camera of the reference band (its raw geometry when `undistort` is off or it has no lens
+/// model).
+pub fn target_for(cap: &Capture, ref_idx: usize, undistort: bool) -> Target {
+    let r = &cap.bands[ref_idx];
+    let (w, h) = (r.meta.width as usize, r.meta.height as usize);
+    match r.lens.filter(|_| undistort) {
+        Some(l) => Target { width: w, height: h, f: 0.5 * (l.fx + l.fy), cx: l.cx, cy: l.cy },
+        None => Target { width: w, height: h, f: 1.0, cx: 0.0, cy: 0.0 },
+    }
+}
+
+fn lens_of(b: &BandFile, undistort: bool) -> Option<super::calib::Lens> {
+    b.lens.filter(|_| undistort)
+}
+
+/// Initial band homography from the rig data (target pixels of the reference -> target pixels of the band).
+pub fn rig_guess(r: &BandFile, b: &BandFile, t: &Target) -> Homography {
+    let mut h = Homography::IDENTITY;
+    if let (Some(rr), Some(rb)) = (r.rig_relatives, b.rig_relatives) {
+        let to_band = rig_homography(rb, t.f, t.cx, t.cy);
+        let to_ref = rig_homography(rr, t.f, t.cx, t.cy);
+        if let Some(inv) = to_ref.inverse() {
+            h = to_band.mul(&inv);
+        }
+    }
+    if let (Some(cr), Some(cb)) = (r.relative_center, b.relative_center) {
+        h = Homography::translation(cb[0] - cr[0], cb[1] - cr[1]).mul(&h);
+    }
+    h
+}
+
+/// Estimates every band's warp on this capture (`register` off: the rig's guess alone).
+pub fn estimate_warps(
+    cap: &Capture,
+    l: &Loaded,
+    ref_idx: usize,
+    undistort: bool,
+    register: bool,
+) -> Vec<BandRegistration> {
+    let target = target_for(cap, ref_idx, undistort);
+    let r = &cap.bands[ref_idx];
+    let ref_plane =
+        register.then(|| resample(&l.values[ref_idx], &target, lens_of(r, undistort).as_ref(), &Warp::identity()));
+    cap.bands
+        .iter()
+        .enumerate()
+        .map(|(bi, b)| {
+            if bi == ref_idx {
+                return BandRegistration { band: b.band_name.clone(), warp: Warp::identity(), stats: None };
+            }
+            let guess = rig_guess(r, b, &target);
+            match &ref_plane {
+                Some(rp) => {
+                    let img = resample(&l.values[bi], &target, lens_of(b, undistort).as_ref(), &Warp::identity());
+                    let (warp, st) = align(rp, &img, guess);
+                    BandRegistration { band: b.band_name.clone(), warp, stats: Some(st) }
+                }
+                None => BandRegistration { band: b.band_name.clone(), warp: Warp::from_homography(guess), stats: None },
+            }
+        })
+        .collect()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// The rig's warps from several captures: per band the element-wise median of the homographies and fields
+/// (robust to a capture over water or a blurred one), and the spread: the largest distance, over the sampled
+/// captures and the image corners, between a capture's own warp and the median (pixels).
+pub fn median_warps(sets: &[Vec<BandRegistration>], width: usize, height: usize) -> (Vec<BandRegistration>, Vec<f64>) {
+    let nb = sets[0].len();
+    let mut out = Vec::with_capacity(nb);
+    let mut spread = Vec::with_capacity(nb);
+    for bi in 0..nb {
+        let hs: Vec<[f64; 9]> = sets.iter().map(|s| s[bi].warp.homography.normalized().0).collect();
+        let h = Homography(std::array::from_fn(|k| median(hs.iter().map(|v| v[k]).collect())));
+        let field = sets[0][bi].warp.field.as_ref().map(|f0| {
+            let fields: Vec<&ShiftField> = sets.iter().filter_map(|s| s[bi].warp.field.as_ref()).collect();
+            let d =
+                (0..f0.d.len()).map(|n| [0, 1].map(|c| median(fields.iter().map(|f| f.d[n][c]).collect()))).collect();
+            ShiftField { d, ..f0.clone() }
+        });
+        let warp = Warp { homography: h, field };
+        let corners = [
+            (0.0, 0.0),
+            (width as f64 - 1.0, 0.0),
+            (0.0, height as f64 - 1.0),
+            (width as f64 - 1.0, height as f64 - 1.0),
+        ];
+        let s = sets
+            .iter()
+            .flat_map(|set| {
+                let w = &set[bi].warp;
+                let m = &warp;
+                corners.iter().map(move |&(x, y)| {
+                    let (a, b) = w.apply(x, y);
+                    let (c, d) = m.apply(x, y);
+                    (a - c).hypot(b - d)
+                })
+            })
+            .fold(0.0, f64::max);
+        spread.push(s);
+        out.push(BandRegistration { band: sets[0][bi].band.clone(), warp, stats: None });
+    }
+    (out, spread)
+}
+
+/// The largest axis-aligned rectangle (by peeling the border line with most invalid pixels) where `valid`.
+fn common_rect(valid: &[bool], w: usize, h: usize) -> Option<(usize, usize, usize, usize)> {
+    let (mut x0, mut y0, mut x1, mut y1) = (0usize, 0usize, w, h);
+    loop {
+        if x1 <= x0 + 1 || y1 <= y0 + 1 {
+            return None;
+        }
+        let col = |x: usize| (y0..y1).filter(|&y| !valid[y * w + x]).count();
+        let row = |y: usize| (x0..x1).filter(|&x| !valid[y * w + x]).count();
+        let c = [col(x0), col(x1 - 1), row(y0), row(y1 - 1)];
+        let frac = [
+            c[0] as f64 / (y1 - y0) as f64,
+            c[1] as f64 / (y1 - y0) as f64,
+            c[2] as f64 / (x1 - x0) as f64,
+            c[3] as f64 / (x1 - x0) as f64,
+        ];
+        let (i, worst) = frac.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).expect("four sides");
+        if *worst == 0.0 {
+            return Some((x0, y0, x1, y1));
+        }
+        match i {
+            0 => x0 += 1,
+            1 => x1 -= 1,
+            2 => y0 += 1,
+            _ => y1 -= 1,
+        }
+    }
+}
+
+/// Resamples every band through its warp, crops to the common area and writes `images/<capture>.tif` under `dir`.
+pub fn write_frame(
+    cap: &Capture,
+    l: &Loaded,
+    registration: Vec<BandRegistration>,
+    ref_idx: usize,
+    undistort: bool,
+    dir: &Path,
+) -> Result<FrameOut, RigError> {
+    let nb = cap.bands.len();
+    let target = target_for(cap, ref_idx, undistort);
+    let (w, h) = (target.width, target.height);
+    let out: Vec<Plane> = cap
+        .bands
+        .iter()
+        .zip(&registration)
+        .enumerate()
+        .map(|(bi, (b, r))| resample(&l.values[bi], &target, lens_of(b, undistort).as_ref(), &r.warp))
+        .collect();
+    let valid: Vec<bool> = (0..w * h).map(|i| out.iter().all(|p| p.data[i].is_finite())).collect();
+    let (x0, y0, x1, y1) = common_rect(&valid, w, h).ok_or_else(|| RigError::Capture {
+        capture: cap.key.clone(),
+        reason: "the bands share no common area after registration".into(),
+    })?;
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    let mut data = Vec::with_capacity(cw * ch * nb);
+    for y in y0..y1 {
+        for x in x0..x1 {
+            for p in &out {
+                data.push(p.at(x, y));
+            }
+        }
+    }
+    let file = format!("images/{}.tif", cap.name());
+    let path = dir.join(&file);
+    write_tiff(&path, cw as u32, ch as u32, nb, TiffData::F32(&data))
+        .map_err(|e| RigError::Output { path: path.clone(), reason: e.to_string() })?;
+    Ok(FrameOut {
+        capture: cap.key.clone(),
+        file,
+        width: cw,
+        height: ch,
+        fx: target.f,
+        cx: target.cx - x0 as f64,
+        cy: target.cy - y0 as f64,
+        saturated: l.saturated.clone(),
+        registration,
+    })
+}

@@ -1,0 +1,403 @@
+//! `msnerf import rig`: a folder of raw single-band rig TIFFs -> a calibrated, registered msnerf dataset.
+//!
+//! Flow: scan and group ([`super::capture`]) -> irradiance per band from panel captures or the DLS
+//! ([`super::calibrate`]) -> per capture, in parallel over CPU threads: raw -> radiance ([`super::radiometry`])
+//! -> reflectance -> one resampling per band that undistorts into the reference band's pinhole camera and
+//! applies the band's registration homography ([`super::lens`], [`super::register`]) -> crop to the area every
+//! band covers -> one float32 multi-band TIFF. `transforms.json` (per-frame intrinsics after the crop, bands
+//! with wavelengths, GPS and time, pose priors from GPS), `import_report.json` and `panel_report.json` are written
+//! into a staging folder that is renamed onto `--out` only when everything succeeded; the input folder is only read.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+use serde_json::json;
+
+use super::calib::BandFile;
+use super::calibrate::{calibrate_panels, dls_irradiance, PanelReport};
+use super::capture::{list_tiffs, scan_files, Capture, Skipped};
+use super::error::RigError;
+use super::frame::{estimate_warps, load, median_warps, target_for, write_frame, BandRegistration};
+use super::geo::{enu, nadir_pose};
+use super::panel::Quad;
+use super::radiometry::radiance_units;
+use crate::sim::writer::StagingDir;
+
+/// What the output holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Units {
+    Reflectance,
+    Radiance,
+}
+
+/// Where irradiance comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum IrradianceSource {
+    /// Panel captures when `--panel` is given, else the DLS.
+    Auto,
+    Panel,
+    Dls,
+}
+
+/// How bands are registered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Registration {
+    /// Per capture up to 24 captures, shared rig warps above.
+    Auto,
+    /// Every capture aligned on its own.
+    Capture,
+    /// One warp per band for the whole flight (the median over `--register-sample` captures), as ODM computes one
+    /// alignment matrix per band: a rigid rig at flight altitude does not change between triggers.
+    Rig,
+    /// The rig data alone (XMP `RigRelatives` / DJI relative optical centres), no image alignment.
+    None,
+}
+
+/// Flights with more captures than this share the rig's warps under `--register auto`.
+pub const RIG_REGISTRATION_ABOVE: usize = 24;
+
+/// Runs `f(0..n)` on `threads` worker threads, in index order of the results; the first error wins.
+fn par_map<T: Send>(
+    n: usize,
+    threads: usize,
+    bar: &indicatif::ProgressBar,
+    f: impl Fn(usize) -> Result<T, RigError> + Sync,
+) -> Result<Vec<T>, RigError> {
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<Result<T, RigError>>>> = Mutex::new((0..n).map(|_| None).collect());
+    std::thread::scope(|s| {
+        for _ in 0..threads.min(n).max(1) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                if i >= n {
+                    break;
+                }
+                let r = f(i);
+                let failed = r.is_err();
+                results.lock().expect("results")[i] = Some(r);
+                bar.inc(1);
+                if failed {
+                    next.store(n, Ordering::Relaxed);
+                }
+            });
+        }
+    });
+    let mut out = Vec::with_capacity(n);
+    for r in results.into_inner().expect("results").into_iter().flatten() {
+        out.push(r?);
+    }
+    Ok(out)
+}
+
+/// Options of an import.
+#[derive(Debug, Clone)]
+pub struct ImportOptions {
+    pub input: PathBuf,
+    pub out: PathBuf,
+    pub panel_files: Vec<PathBuf>,
+    /// One value for every band, or one per band in wavelength order.
+    pub panel_reflectance: Vec<f64>,
+    pub panel_corners: Option<Quad>,
+    pub irradiance: IrradianceSource,
+    pub units: Units,
+    pub undistort: bool,
+    pub registration: Registration,
+    /// Captures the shared rig warps are estimated on.
+    pub register_sample: usize,
+    /// Reference band name (default: the band nearest 560 nm, as ODM picks green).
+    pub reference_band: Option<String>,
+    pub overwrite: bool,
+    pub threads: usize,
+    pub progress: bool,
+}
+
+/// The summary of an import.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ImportSummary {
+    pub captures: usize,
+    pub bands: Vec<String>,
+    pub units: Units,
+    pub calibration: String,
+    pub skipped: Vec<Skipped>,
+    pub warnings: Vec<String>,
+    pub seconds: f64,
+    pub captures_per_second: f64,
+    /// Largest registration residual over all captures and bands (pixels; over the sampled captures when the
+    /// rig's warps are shared).
+    pub max_residual_px: f64,
+    /// How bands were registered (`auto` resolved).
+    pub registration: Registration,
+    /// Shared rig warps: per band, the largest distance between a sampled capture's own warp and the median.
+    pub rig_spread_px: Option<Vec<f64>>,
+    pub panel: Option<PanelReport>,
+}
+
+fn reference_index(bands: &[BandFile], name: Option<&str>) -> Result<usize, RigError> {
+    match name {
+        Some(n) => bands.iter().position(|b| b.band_name.eq_ignore_ascii_case(n)).ok_or_else(|| {
+            let names: Vec<&str> = bands.iter().map(|b| b.band_name.as_str()).collect();
+            RigError::option("--reference-band", format!("no band {n:?} (bands: {})", names.join(", ")))
+        }),
+        None => Ok((0..bands.len())
+            .min_by(|&a, &b| (bands[a].center_nm - 560.0).abs().total_cmp(&(bands[b].center_nm - 560.0).abs()))
+            .unwrap_or(0)),
+    }
+}
+
+/// Reads the scan of the panel files (whole captures).
+fn panel_captures(files: &[PathBuf]) -> Result<Vec<Capture>, RigError> {
+    if files.is_empty() {
+        return Ok(Vec::new());
+    }
+    let scan = scan_files(files)?;
+    if scan.captures.is_empty() {
+        let why = scan.skipped.iter().map(|s| format!("{}: {}", s.what, s.reason)).collect::<Vec<_>>().join("; ");
+        return Err(RigError::option("--panel", format!("no complete panel capture ({why})")));
+    }
+    Ok(scan.captures)
+}
+
+/// Runs an import. Returns its summary (also written as `import_report.json`).
+pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
+    let t0 = Instant::now();
+    if !opts.input.is_dir() {
+        return Err(RigError::option("DIR", format!("{} is not a folder", opts.input.display())));
+    }
+    let files = list_tiffs(&opts.input)?;
+    // Panel files given by path: the whole capture of each, whether inside DIR or not.
+    let mut panels = panel_captures(&opts.panel_files)?;
+    if !panels.is_empty() {
+        // Complete the panel captures with their other bands from DIR.
+        let keys: Vec<String> = panels.iter().map(|c| c.key.clone()).collect();
+        let all = scan_files(&files)?;
+        for c in all.captures.iter().filter(|c| keys.contains(&c.key)) {
+            if let Some(p) = panels.iter_mut().find(|p| p.key == c.key) {
+                if c.bands.len() > p.bands.len() {
+                    *p = c.clone();
+                }
+            }
+        }
+    }
+    let panel_keys: Vec<String> = panels.iter().map(|c| c.key.clone()).collect();
+    let mut scan = scan_files(&files)?;
+    scan.captures.retain(|c| !panel_keys.contains(&c.key));
+    scan.skipped.retain(|s| s.capture.as_ref().is_none_or(|k| !panel_keys.contains(k)));
+    if scan.captures.is_empty() {
+        let why = scan.skipped.iter().map(|s| format!("{}: {}", s.what, s.reason)).collect::<Vec<_>>().join("; ");
+        return Err(RigError::option("DIR", format!("no complete flight capture in {} ({why})", opts.input.display())));
+    }
+    let first = &scan.captures[0];
+    let nb = first.bands.len();
+    let ref_idx = reference_index(&first.bands, opts.reference_band.as_deref())?;
+    let mut warnings = Vec::new();
+
+    // Irradiance.
+    let source = match (opts.units, opts.irradiance, panels.is_empty()) {
+        (Units::Radiance, _, _) => "none",
+        (_, IrradianceSource::Panel, true) => {
+            return Err(RigError::option("--irradiance panel", "needs --panel FILE (a band file of a panel capture)"))
+        }
+        (_, IrradianceSource::Panel | IrradianceSource::Auto, false) => "panel",
+        (_, IrradianceSource::Dls | IrradianceSource::Auto, _) => "dls",
+    };
+    let mut panel_report = None;
+    let panel_e: Option<Vec<f64>> = if source == "panel" {
+        let refl = match opts.panel_reflectance.len() {
+            1 => vec![opts.panel_reflectance[0]; nb],
+            n if n == nb => opts.panel_reflectance.clone(),
+            0 => {
+                return Err(RigError::option(
+                    "--panel-reflectance",
+                    "needed with --panel: the panel's reflectance from its calibration sheet (one value, or one per band by wavelength)",
+                ))
+            }
+            n => return Err(RigError::option("--panel-reflectance", format!("{n} values for {nb} bands"))),
+        };
+        if let Some(v) = refl.iter().find(|v| !(**v > 0.0 && **v <= 1.0)) {
+            return Err(RigError::option("--panel-reflectance", format!("{v} is not a reflectance in (0, 1]")));
+        }
+        let rep = calibrate_panels(&panels, &refl, opts.panel_corners, &mut warnings)?;
+        let e = rep.irradiance.clone();
+        panel_report = Some(rep);
+        Some(e)
+    } else {
+        None
+    };
+    if source == "dls" && opts.irradiance == IrradianceSource::Auto {
+        // Fail early and by name when the DLS is missing.
+        dls_irradiance(first)
+            .map_err(|e| RigError::option("--irradiance", format!("{e}; give --panel or --units radiance")))?;
+    }
+
+    let staging = StagingDir::new(&opts.out, opts.overwrite)
+        .map_err(|e| RigError::Output { path: opts.out.clone(), reason: e.to_string() })?;
+    let images = staging.path.join("images");
+    std::fs::create_dir_all(&images).map_err(RigError::io(&images))?;
+
+    let n = scan.captures.len();
+    let bar = if opts.progress {
+        let b = indicatif::ProgressBar::new(n as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("importing {bar:30} {pos}/{len} captures, {per_sec}, ETA {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let irradiance_of = |cap: &Capture| -> Result<Option<Vec<f64>>, RigError> {
+        match source {
+            "panel" => Ok(panel_e.clone()),
+            "dls" => dls_irradiance(cap).map(Some),
+            _ => Ok(None),
+        }
+    };
+    let mode = match opts.registration {
+        Registration::Auto if n > RIG_REGISTRATION_ABOVE => Registration::Rig,
+        Registration::Auto => Registration::Capture,
+        m => m,
+    };
+    let threads = opts.threads.max(1);
+    // Shared rig warps: estimated on captures spread over the flight, the median kept.
+    let mut rig_spread_px = None;
+    let mut sample_stats: Vec<Vec<BandRegistration>> = Vec::new();
+    let shared = if mode == Registration::Rig {
+        let k = opts.register_sample.clamp(1, n);
+        let picks: Vec<usize> = (0..k).map(|j| (j * n + n / 2) / k).collect();
+        let sets = par_map(k, threads, &indicatif::ProgressBar::hidden(), |j| {
+            let cap = &scan.captures[picks[j]];
+            let l = load(cap, irradiance_of(cap)?.as_deref())?;
+            Ok(estimate_warps(cap, &l, ref_idx, opts.undistort, true))
+        })?;
+        let t = target_for(first, ref_idx, opts.undistort);
+        let (warps, spread) = median_warps(&sets, t.width, t.height);
+        rig_spread_px = Some(spread);
+        sample_stats = sets;
+        Some(warps)
+    } else {
+        None
+    };
+    let frames = par_map(n, threads, &bar, |i| {
+        let cap = &scan.captures[i];
+        let l = load(cap, irradiance_of(cap)?.as_deref())?;
+        let regs = match &shared {
+            Some(w) => w.clone(),
+            None => estimate_warps(cap, &l, ref_idx, opts.undistort, mode == Registration::Capture),
+        };
+        write_frame(cap, &l, regs, ref_idx, opts.undistort, &staging.path)
+    })?;
+    bar.finish_and_clear();
+
+    // transforms.json.
+    let bands_json: Vec<_> = first
+        .bands
+        .iter()
+        .map(|b| json!({"name": b.band_name, "center_nm": b.center_nm, "fwhm_nm": b.fwhm_nm}))
+        .collect();
+    let origin = scan.captures.iter().find_map(|c| c.bands[ref_idx].meta.gps);
+    let mut frames_json = Vec::with_capacity(n);
+    for (cap, f) in scan.captures.iter().zip(&frames) {
+        let m = &cap.bands[ref_idx].meta;
+        let heading = m.xmp.number("dji.com", "GimbalYawDegree").or(m.xmp.number("pix4d.com", "Yaw")).unwrap_or(0.0);
+        let pos = match (origin, m.gps) {
+            (Some(o), Some(g)) => enu(
+                [o.latitude, o.longitude, o.altitude.unwrap_or(0.0)],
+                [g.latitude, g.longitude, g.altitude.unwrap_or(0.0)],
+            ),
+            _ => [0.0, 0.0, 0.0],
+        };
+        let mut frame = json!({
+            "file_path": f.file,
+            "transform_matrix": nadir_pose(pos, heading),
+            "fl_x": f.fx, "fl_y": f.fx,
+            "cx": f.cx + 0.5, "cy": f.cy + 0.5,
+            "w": f.width, "h": f.height,
+            "capture_id": cap.key,
+            "time": m.datetime,
+            "gps": m.gps,
+            "source_files": cap.bands.iter().map(|b| b.meta.path.display().to_string()).collect::<Vec<_>>(),
+            "registration_residual_px": f.registration.iter().map(|r| r.stats.map(|s| s.residual_px)).collect::<Vec<_>>(),
+        });
+        if !opts.undistort {
+            if let Some(l) = cap.bands[ref_idx].lens {
+                frame["camera_model"] = json!("OPENCV");
+                frame["fl_x"] = json!(l.fx);
+                frame["fl_y"] = json!(l.fy);
+                frame["cx"] = json!(l.cx + 0.5 - (cap.bands[ref_idx].meta.width as f64 - f.width as f64) * 0.0);
+                frame["k1"] = json!(l.k1);
+                frame["k2"] = json!(l.k2);
+                frame["k3"] = json!(l.k3);
+                frame["p1"] = json!(l.p1);
+                frame["p2"] = json!(l.p2);
+            }
+        }
+        frames_json.push(frame);
+    }
+    let calibration: Vec<_> = first
+        .bands
+        .iter()
+        .enumerate()
+        .map(|(bi, b)| {
+            json!({
+                "band": b.band_name,
+                "radiance": radiance_units(b),
+                "source": source,
+                "irradiance": panel_e.as_ref().map(|e| e[bi]),
+            })
+        })
+        .collect();
+    let transforms = json!({
+        "camera_model": if opts.undistort { "PINHOLE" } else { "OPENCV" },
+        "bands": bands_json,
+        "units": opts.units,
+        "calibration": calibration,
+        "reference_band": first.bands[ref_idx].band_name,
+        "pose_prior": {
+            "source": "gps",
+            "frame": "local east-north-up metres about the first capture with GPS; nadir cameras, heading from \
+                      the gimbal yaw when the files carry it",
+            "origin": origin,
+            "note": "priors only: import poses from SfM (or run it) before training a real flight",
+        },
+        "frames": frames_json,
+    });
+    let tpath = staging.path.join("transforms.json");
+    let text = serde_json::to_string_pretty(&transforms).expect("json");
+    std::fs::write(&tpath, text).map_err(RigError::io(&tpath))?;
+
+    let seconds = t0.elapsed().as_secs_f64();
+    let max_residual_px = frames
+        .iter()
+        .map(|f| &f.registration)
+        .chain(sample_stats.iter())
+        .flat_map(|regs| regs.iter().filter_map(|r| r.stats.map(|s| s.residual_px)))
+        .fold(0.0, f64::max);
+    let summary = ImportSummary {
+        captures: n,
+        bands: first.bands.iter().map(|b| b.band_name.clone()).collect(),
+        units: opts.units,
+        calibration: source.into(),
+        skipped: scan.skipped.clone(),
+        warnings,
+        seconds,
+        captures_per_second: n as f64 / seconds.max(1e-9),
+        max_residual_px,
+        registration: mode,
+        rig_spread_px,
+        panel: panel_report,
+    };
+    let report = json!({"summary": summary, "frames": frames, "rig_samples": sample_stats});
+    let rpath = staging.path.join("import_report.json");
+    std::fs::write(&rpath, serde_json::to_string_pretty(&report).expect("json")).map_err(RigError::io(&rpath))?;
+    if let Some(p) = &summary.panel {
+        let ppath = staging.path.join("panel_report.json");
+        std::fs::write(&ppath, serde_json::to_string_pretty(p).expect("json")).map_err(RigError::io(&ppath))?;
+    }
+    staging.commit().map_err(|e| RigError::Output { path: opts.out.clone(), reason: e.to_string() })?;
+    Ok(summary)
+}

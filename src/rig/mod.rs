@@ -1,0 +1,27 @@
+//! Import layer: raw multispectral rig captures (MicaSense, DJI P4M/M3M, Pix4D-XMP rigs) to a calibrated,
+//! registered msnerf dataset (`msnerf import rig`). docs/radiometry.md gives the chain and its sources.
+//!
+//! - [`meta`]: EXIF/TIFF tags and XMP of one file; [`calib`]: vendor conventions -> [`calib::BandFile`];
+//! - [`capture`]: grouping files into captures by XMP capture id, bands by wavelength;
+//! - [`radiometry`]: raw DN -> radiance; [`panel`], [`calibrate`]: panel detection, irradiance;
+//! - [`lens`], [`register`], [`warp`]: undistortion and band-to-band registration (one resampling per band);
+//! - [`plane`]: the f32 image type; [`geo`]: GPS -> local ENU pose priors;
+//! - [`frame`]: one capture through the chain; [`import`]: the whole flow, writing the dataset atomically.
+
+pub mod calib;
+pub mod calibrate;
+pub mod capture;
+pub mod error;
+pub mod frame;
+pub mod geo;
+pub mod import;
+pub mod lens;
+pub mod meta;
+pub mod panel;
+pub mod plane;
+pub mod radiometry;
+pub mod register;
+pub mod warp;
+
+pub use error::RigError;
+pub use import::{import_rig, ImportOptions, ImportSummary, IrradianceSource, Registration, Units};
