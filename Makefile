@@ -3,7 +3,7 @@ CARGO ?= cargo
 # The suite runs with the Khronos validation layer and fails on any message it prints.
 export MSNERF_REQUIRE_VALIDATION ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep import-bench
 
 setup:
 	@bash tools/setup-debian.sh
@@ -51,3 +51,7 @@ geometry-report: build
 
 clean:
 	$(CARGO) clean
+
+# docs/bench-import-<date>.json: raw rig import speed on the real RedEdge flight capture, replicated 16 times (~2 min).
+import-bench: build
+	bash tools/import-bench.sh

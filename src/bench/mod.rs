@@ -1,4 +1,5 @@
 //! Benchmarks that print numbers (`msnerf bench ...`). Speed goals are measured here, never in timed tests.
 
+pub mod import;
 pub mod kernels;
 pub mod train;

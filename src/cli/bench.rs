@@ -1,4 +1,4 @@
-//! `msnerf bench kernels`: prints the kernel benchmark table (or `--json`). See `msnerf::bench::kernels`.
+//! `msnerf bench kernels|train|import`: prints a benchmark table (or `--json`). See `msnerf::bench`.
 
 use super::Cli;
 use crate::gpu::Context;
@@ -30,6 +30,19 @@ pub enum BenchWhat {
         #[arg(long)]
         json: bool,
     },
+    /// Raw rig import speed (`import rig`): stage times of one capture, whole imports in both registration modes
+    Import {
+        /// A flight folder of raw rig TIFFs
+        dir: std::path::PathBuf,
+        /// Copies of the folder's captures to import (new capture ids), so one capture can stand for a flight
+        #[arg(long, default_value_t = 1)]
+        replicate: usize,
+        /// Worker threads (default: all cores)
+        #[arg(long)]
+        threads: Option<usize>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Hash grid points/s and MLP GFLOP/s at nerfacto's and Table 1's sizes
     Kernels {
         /// Points per hash grid measurement
@@ -51,6 +64,16 @@ pub enum BenchWhat {
 }
 
 pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
+    if let BenchWhat::Import { ref dir, replicate, threads, json } = args.what {
+        let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+        let r = crate::bench::import::run(dir, replicate, threads)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&r)?);
+        } else {
+            print!("{}", r.table());
+        }
+        return Ok(());
+    }
     let ctx = Context::new(&cli.context_desc())?;
     match args.what {
         BenchWhat::Train { ref models, ref bands, rays_per_batch, rays_per_chunk, steps, json } => {
@@ -79,6 +102,7 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
                 println!("{}", serde_json::to_string_pretty(&all)?);
             }
         }
+        BenchWhat::Import { .. } => unreachable!("handled above"),
         BenchWhat::Kernels { points, rows, repeats, json, ref filter } => {
             let r = crate::bench::kernels::run(&ctx, points, rows, repeats, filter.as_deref())?;
             if json {

@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# `make import-bench`: `msnerf bench import` on the real RedEdge flight capture of shared/data/real, replicated
+# 16 times, written to docs/bench-import-<date>.json (docs/radiometry.md §6 quotes it).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+real="${MSNERF_REAL_DATA:-../shared/data/real}/micasense-rededge"
+[ -d "$real" ] || { echo "import-bench: $real not found (set MSNERF_REAL_DATA to shared/data/real)" >&2; exit 1; }
+work="$(mktemp -d)"
+trap 'rm -rf "$work"' EXIT
+cp "$real"/0000SET_IMG_0001_*.tif "$work"/
+out="docs/bench-import-$(date -u +%Y-%m-%d).json"
+./target/release/msnerf bench import "$work" --replicate 16 --json > "$out.tmp"
+mv "$out.tmp" "$out"
+cat "$out"
