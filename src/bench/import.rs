@@ -77,7 +77,8 @@ fn replicate(src: &Path, dst: &Path, n: usize) -> Result<(), RigError> {
                     bytes[i + pos..i + pos + id.len()].copy_from_slice(&new_id);
                     i += pos + id.len();
                 }
-                let name = format!("r{k:04}_{}", p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default());
+                let name =
+                    format!("r{k:04}_{}", p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default());
                 let out = dst.join(name);
                 std::fs::write(&out, bytes).map_err(RigError::io(&out))?;
             }
