@@ -1,23 +1,15 @@
 //! Real sensor files from shared/data/real: MicaSense RedEdge rig TIFFs (XMP bands, black level) and a
 //! 5-band float GeoTIFF.
 
-use std::path::PathBuf;
+mod rig_support;
 
 use msnerf::data::reader::read_image_file;
 use msnerf::data::{load_dataset, LoadOptions, SampleType};
-
-fn real_dir() -> Option<PathBuf> {
-    let here = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let candidates = [here.join("../shared/data/real"), PathBuf::from("/work/shared/data/real")];
-    candidates.into_iter().find(|p| p.join("README.md").is_file())
-}
+use rig_support::real_dir;
 
 #[test]
 fn micasense_band_files_have_xmp_bands_and_black_level() {
-    let Some(dir) = real_dir() else {
-        eprintln!("skipping: shared/data/real not found");
-        return;
-    };
+    let dir = real_dir();
     let m = dir.join("micasense-rededge");
     let expect = [
         ("Blue", 475.0, 20.0),
@@ -50,7 +42,7 @@ fn micasense_band_files_have_xmp_bands_and_black_level() {
 
 #[test]
 fn micasense_capture_loads_as_a_dataset_with_bands_from_xmp() {
-    let Some(dir) = real_dir() else { return };
+    let dir = real_dir();
     let m = dir.join("micasense-rededge");
     let tmp = std::env::temp_dir().join(format!("msnerf_data_real_{}", std::process::id()));
     std::fs::create_dir_all(&tmp).unwrap();
@@ -80,7 +72,7 @@ fn micasense_capture_loads_as_a_dataset_with_bands_from_xmp() {
 
 #[test]
 fn geotiff_five_band_float_loads() {
-    let Some(dir) = real_dir() else { return };
+    let dir = real_dir();
     let d = read_image_file(&dir.join("plantcv-geospatial/615.tif"), 1 << 30).unwrap();
     let r = &d.raster;
     assert_eq!((r.width, r.height, r.bands), (161, 177, 5));

@@ -94,8 +94,13 @@ fn exif_for(k: usize) -> FixtureExif {
 
 /// Writes capture `k` (a panel capture when `panel`): one file per band, `IMG_{k:04}_{suffix}.tif`.
 fn write_capture(dir: &Path, k: usize, panel: bool, tweak: &dyn Fn(usize, &mut Vec<u16>)) {
+    write_capture_shifted(dir, k, panel, tweak, [0.0, 0.0]);
+}
+
+/// [`write_capture`] with the Red band moved by `extra` pixels more (a capture whose bands sit differently).
+fn write_capture_shifted(dir: &Path, k: usize, panel: bool, tweak: &dyn Fn(usize, &mut Vec<u16>), extra: [f64; 2]) {
     for (bi, (suffix, name, c, fw, e, ..)) in BANDS.iter().enumerate() {
-        let s = BANDS[bi].7;
+        let s = if *name == "Red" { [BANDS[bi].7[0] + extra[0], BANDS[bi].7[1] + extra[1]] } else { BANDS[bi].7 };
         let mut px = Vec::with_capacity((W * H) as usize);
         for y in 0..H {
             for x in 0..W {
@@ -534,4 +539,29 @@ fn shared_rig_warps_are_the_median_over_sampled_captures() {
         let sh = BANDS[bi].7;
         assert!((dx - sh[0]).abs() < 0.1 && (dy - sh[1]).abs() < 0.1, "band {bi}: ({dx:.3}, {dy:.3}) against {sh:?}");
     }
+}
+
+#[test]
+fn captures_whose_bands_sit_differently_share_one_crop() {
+    let t = TempDir::new("rig-crop");
+    let input = t.path().join("flight");
+    std::fs::create_dir_all(&input).unwrap();
+    write_capture(&input, 0, true, &|_, _| {});
+    for k in 1..=4 {
+        let extra = if k == 2 { [3.0, 2.0] } else { [0.0, 0.0] };
+        write_capture_shifted(&input, k, false, &|_, _| {}, extra);
+    }
+    let out = t.path().join("dataset");
+    let mut o = opts(&input, &out);
+    o.registration = Registration::Capture;
+    let s = import_rig(&o).unwrap();
+    assert_eq!(s.captures, 4);
+    let tj: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let sizes: Vec<(u64, u64)> =
+        tj["frames"].as_array().unwrap().iter().map(|f| (f["w"].as_u64().unwrap(), f["h"].as_u64().unwrap())).collect();
+    assert!(sizes.iter().all(|s| *s == sizes[0]), "one image size for the dataset: {sizes:?}");
+    // Capture 2's Red band sits 3 px further right: the common crop loses those columns for everyone.
+    assert!(sizes[0].0 <= 152 && sizes[0].0 >= 140, "{sizes:?}");
+    msnerf::data::load_dataset(&out, &msnerf::data::LoadOptions::default()).unwrap();
 }

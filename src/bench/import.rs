@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::rig::capture::{list_tiffs, scan_files};
-use crate::rig::frame::{estimate_warps, load, write_frame};
+use crate::rig::frame::{estimate_warps, load, valid_rect, write_frame};
 use crate::rig::{import_rig, ImportOptions, IrradianceSource, Registration, RigError, Units};
 
 /// The numbers `bench import` prints.
@@ -110,10 +110,12 @@ pub fn run(dir: &Path, replicate_n: usize, threads: usize) -> Result<ImportBench
         let t = Instant::now();
         let regs = estimate_warps(cap, &l, ref_idx, true, true);
         let register_capture_s = t.elapsed().as_secs_f64();
+        let rect =
+            valid_rect(cap, &regs, ref_idx, true).ok_or_else(|| RigError::option("DIR", "bands share no area"))?;
         let scratch = work.join("scratch");
         std::fs::create_dir_all(scratch.join("images")).map_err(RigError::io(&scratch))?;
         let t = Instant::now();
-        write_frame(cap, &l, regs, ref_idx, true, &scratch)?;
+        write_frame(cap, &l, regs, ref_idx, true, rect, &scratch)?;
         let resample_write_s = t.elapsed().as_secs_f64();
         let whole = |registration: Registration, name: &str| -> Result<f64, RigError> {
             let opts = ImportOptions {

@@ -1,6 +1,6 @@
 //! One capture through the chain: raw -> radiance (-> reflectance) per band, the band warps (estimated here,
 //! or shared across the flight), one resampling per band into the target camera, the crop to the area every
-//! band covers, and the float32 multi-band TIFF.
+//! band of every capture covers (one image size for the whole dataset), and the float32 multi-band TIFF.
 
 use std::path::Path;
 
@@ -123,6 +123,20 @@ pub fn estimate_warps(
         .collect()
 }
 
+/// The rig data's warps alone (no image alignment), without reading pixels.
+pub fn rig_only_warps(cap: &Capture, ref_idx: usize, undistort: bool) -> Vec<BandRegistration> {
+    let target = target_for(cap, ref_idx, undistort);
+    let r = &cap.bands[ref_idx];
+    cap.bands
+        .iter()
+        .map(|b| BandRegistration {
+            band: b.band_name.clone(),
+            warp: Warp::from_homography(rig_guess(r, b, &target)),
+            stats: None,
+        })
+        .collect()
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
@@ -203,18 +217,55 @@ fn common_rect(valid: &[bool], w: usize, h: usize) -> Option<(usize, usize, usiz
     }
 }
 
-/// Resamples every band through its warp, crops to the common area and writes `images/<capture>.tif` under `dir`.
+/// The rectangle of target pixels (x0, y0, x1, y1), end exclusive, where every band's warp lands inside its
+/// raw image: computed from the geometry alone, so a flight's common crop is known before any pixel is resampled.
+pub fn valid_rect(
+    cap: &Capture,
+    registration: &[BandRegistration],
+    ref_idx: usize,
+    undistort: bool,
+) -> Option<(usize, usize, usize, usize)> {
+    let target = target_for(cap, ref_idx, undistort);
+    let (w, h) = (target.width, target.height);
+    let mut valid = vec![true; w * h];
+    for (b, r) in cap.bands.iter().zip(registration) {
+        let lens = lens_of(b, undistort);
+        let (bw, bh) = ((b.meta.width - 1) as f64, (b.meta.height - 1) as f64);
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                if valid[i] {
+                    let (sx, sy) = super::lens::source_pixel(&target, lens.as_ref(), &r.warp, x as f64, y as f64);
+                    valid[i] = sx >= 0.0 && sy >= 0.0 && sx <= bw && sy <= bh;
+                }
+            }
+        }
+    }
+    common_rect(&valid, w, h)
+}
+
+/// Intersection of rectangles.
+pub fn intersect(
+    a: (usize, usize, usize, usize),
+    b: (usize, usize, usize, usize),
+) -> Option<(usize, usize, usize, usize)> {
+    let r = (a.0.max(b.0), a.1.max(b.1), a.2.min(b.2), a.3.min(b.3));
+    (r.2 > r.0 + 1 && r.3 > r.1 + 1).then_some(r)
+}
+
+/// Resamples every band through its warp, crops to `rect` (the flight's common area) and writes
+/// `images/<capture>.tif` under `dir`.
 pub fn write_frame(
     cap: &Capture,
     l: &Loaded,
     registration: Vec<BandRegistration>,
     ref_idx: usize,
     undistort: bool,
+    rect: (usize, usize, usize, usize),
     dir: &Path,
 ) -> Result<FrameOut, RigError> {
     let nb = cap.bands.len();
     let target = target_for(cap, ref_idx, undistort);
-    let (w, h) = (target.width, target.height);
     let out: Vec<Plane> = cap
         .bands
         .iter()
@@ -222,17 +273,22 @@ pub fn write_frame(
         .enumerate()
         .map(|(bi, (b, r))| resample(&l.values[bi], &target, lens_of(b, undistort).as_ref(), &r.warp))
         .collect();
-    let valid: Vec<bool> = (0..w * h).map(|i| out.iter().all(|p| p.data[i].is_finite())).collect();
-    let (x0, y0, x1, y1) = common_rect(&valid, w, h).ok_or_else(|| RigError::Capture {
-        capture: cap.key.clone(),
-        reason: "the bands share no common area after registration".into(),
-    })?;
+    let (x0, y0, x1, y1) = rect;
     let (cw, ch) = (x1 - x0, y1 - y0);
     let mut data = Vec::with_capacity(cw * ch * nb);
     for y in y0..y1 {
         for x in x0..x1 {
             for p in &out {
-                data.push(p.at(x, y));
+                let v = p.at(x, y);
+                if !v.is_finite() {
+                    return Err(RigError::Capture {
+                        capture: cap.key.clone(),
+                        reason: format!(
+                            "no value at ({x}, {y}) inside the common crop (a band's warp leaves its image)"
+                        ),
+                    });
+                }
+                data.push(v);
             }
         }
     }

@@ -19,7 +19,10 @@ use super::calib::BandFile;
 use super::calibrate::{calibrate_panels, dls_irradiance, PanelReport};
 use super::capture::{list_tiffs, scan_files, Capture, Skipped};
 use super::error::RigError;
-use super::frame::{estimate_warps, load, median_warps, target_for, write_frame, BandRegistration};
+use super::frame::{
+    estimate_warps, intersect, load, median_warps, rig_only_warps, target_for, valid_rect, write_frame,
+    BandRegistration,
+};
 use super::geo::{enu, nadir_pose};
 use super::panel::Quad;
 use super::radiometry::radiance_units;
@@ -282,14 +285,37 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     } else {
         None
     };
+    // Every capture's warps (estimated per capture, or the shared ones), then the flight's common crop from the
+    // warps' geometry alone, so that every frame has one size, then the pixels.
+    let warps: Vec<Vec<BandRegistration>> = match (&shared, mode) {
+        (Some(w), _) => vec![w.clone(); n],
+        (None, Registration::Capture) => par_map(n, threads, &bar, |i| {
+            let cap = &scan.captures[i];
+            let l = load(cap, irradiance_of(cap)?.as_deref())?;
+            Ok(estimate_warps(cap, &l, ref_idx, opts.undistort, true))
+        })?,
+        (None, _) => scan.captures.iter().map(|c| rig_only_warps(c, ref_idx, opts.undistort)).collect(),
+    };
+    let mut rect: Option<(usize, usize, usize, usize)> = None;
+    for (cap, regs) in scan.captures.iter().zip(&warps) {
+        let r = valid_rect(cap, regs, ref_idx, opts.undistort).ok_or_else(|| RigError::Capture {
+            capture: cap.key.clone(),
+            reason: "the bands share no common area after registration".into(),
+        })?;
+        rect = match rect {
+            None => Some(r),
+            Some(a) => Some(intersect(a, r).ok_or_else(|| RigError::Capture {
+                capture: cap.key.clone(),
+                reason: "its bands' common area does not overlap the other captures'".into(),
+            })?),
+        };
+    }
+    let rect = rect.expect("at least one capture");
+    bar.set_position(0);
     let frames = par_map(n, threads, &bar, |i| {
         let cap = &scan.captures[i];
         let l = load(cap, irradiance_of(cap)?.as_deref())?;
-        let regs = match &shared {
-            Some(w) => w.clone(),
-            None => estimate_warps(cap, &l, ref_idx, opts.undistort, mode == Registration::Capture),
-        };
-        write_frame(cap, &l, regs, ref_idx, opts.undistort, &staging.path)
+        write_frame(cap, &l, warps[i].clone(), ref_idx, opts.undistort, rect, &staging.path)
     })?;
     bar.finish_and_clear();
 
