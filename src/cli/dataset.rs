@@ -22,12 +22,16 @@ pub enum DatasetWhat {
         /// Print JSON
         #[arg(long)]
         json: bool,
+        /// Report outlying camera centres as left out instead of as problems
+        #[arg(long)]
+        drop_outliers: bool,
     },
 }
 
 pub fn run(_cli: &Cli, a: &DatasetArgs) -> anyhow::Result<()> {
-    let DatasetWhat::Check { dir, host_budget_gib, json } = &a.what;
-    let report = crate::data::check_dataset(dir, (host_budget_gib * (1u64 << 30) as f64) as u64);
+    let DatasetWhat::Check { dir, host_budget_gib, json, drop_outliers } = &a.what;
+    let opts = crate::data::LoadOptions { drop_outliers: *drop_outliers, ..Default::default() };
+    let report = crate::data::check::check_dataset_with(dir, (host_budget_gib * (1u64 << 30) as f64) as u64, &opts);
     if *json {
         println!("{}", report.to_json());
     } else {

@@ -60,6 +60,10 @@ pub struct TrainArgs {
     /// Explicit --rays-per-* flags still override the profile.
     #[arg(long)]
     pub hardware: Option<String>,
+    /// Leave frames whose camera centre lies far outside the others out (they are listed) instead of refusing
+    /// the dataset (model key `sampling.drop_outlier_cameras`)
+    #[arg(long)]
+    pub drop_outliers: bool,
 }
 
 pub fn model_with_overrides(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
@@ -72,6 +76,9 @@ fn resolve_model(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
     let mut m = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
     if let Some(v) = a.mlp_activations {
         m.mlp_activations = v;
+    }
+    if a.drop_outliers {
+        m.sampling.drop_outlier_cameras = true;
     }
     Ok(m)
 }
@@ -119,10 +126,10 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         ((a.host_budget_gib * (1u64 << 30) as f64) as u64, a.resample_every);
     if let Some(h) = &a.hardware {
         use crate::plan::{train as pt, DatasetShape};
-        let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref(), Default::default())
+        let base = resolve_model(a)?;
+        let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref(), &base.sampling)
             .map_err(anyhow::Error::msg)?;
         let shape = DatasetShape::from_dataset(&ds);
-        let base = resolve_model(a)?;
         let profile = pt::resolve_profile(&ctx, h, &base, &shape).map_err(anyhow::Error::msg)?;
         let mut m = base;
         pt::apply_profile(&mut m, &profile);

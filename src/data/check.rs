@@ -93,6 +93,8 @@ pub struct CheckReport {
     pub cache_budget_bytes: u64,
     /// The cache plan for the train split under the budget.
     pub cache: Option<CachePlan>,
+    /// Frames left out for an outlying camera centre (with `--drop-outliers`).
+    pub dropped_outliers: Vec<String>,
     /// What an import from raw rig files recorded (units, calibration, registration), when it did.
     pub import: Option<ImportInfo>,
     /// Every problem found, one line each.
@@ -118,6 +120,11 @@ impl CheckReport {
 
 /// Checks the dataset at `dir` (its folder or its transforms.json) against a host cache budget.
 pub fn check_dataset(dir: &Path, budget_bytes: u64) -> CheckReport {
+    check_dataset_with(dir, budget_bytes, &LoadOptions::default())
+}
+
+/// [`check_dataset`] with load options (`drop_outliers`).
+pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) -> CheckReport {
     let mut rep = CheckReport {
         dir: dir.display().to_string(),
         frames: 0,
@@ -136,10 +143,11 @@ pub fn check_dataset(dir: &Path, budget_bytes: u64) -> CheckReport {
         cache_budget_bytes: budget_bytes,
         cache: None,
         import: None,
+        dropped_outliers: vec![],
         errors: vec![],
         problems: vec![],
     };
-    let ds = match load_dataset(dir, &LoadOptions::default()) {
+    let ds = match load_dataset(dir, options) {
         Ok(ds) => ds,
         Err(e) => {
             rep.push(e);
@@ -149,6 +157,7 @@ pub fn check_dataset(dir: &Path, budget_bytes: u64) -> CheckReport {
     if let Ok(root) = super::transforms::read_json::<serde_json::Value>(&ds.transforms_path, "transforms.json") {
         rep.import = import_info(&root);
     }
+    rep.dropped_outliers = ds.dropped_outliers.clone();
     rep.frames = ds.frames.len();
     let count = |s: Split| ds.frames.iter().filter(|f| f.split == s).count();
     rep.train = count(Split::Train);
@@ -232,6 +241,9 @@ impl fmt::Display for CheckReport {
             self.unused,
             self.split_method.as_deref().unwrap_or("-")
         )?;
+        for n in &self.dropped_outliers {
+            writeln!(f, "  left out: {n} (camera centre far outside the others)")?;
+        }
         if let Some(t) = self.sample_type {
             writeln!(f, "  images {}x{} {:?}", self.width, self.height, t)?;
         }

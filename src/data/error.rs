@@ -72,6 +72,9 @@ pub enum DataError {
     /// Two frames name the same image file.
     #[error("{}: {}key `{key}`: duplicate file name `{name}`", path.display(), fr(frame))]
     DuplicateFileName { path: PathBuf, key: String, frame: Option<FrameRef>, name: String },
+    /// A camera centre far outside the others (a GPS glitch or a typo); `drop_outliers` excludes it instead.
+    #[error("{}: {}key `transform_matrix`: camera centre {distance:.6e} world units from the median centre, {:.0}x the cameras' median distance to it ({spread:.3e}): a GPS glitch or a typo? Fix the pose, or pass --drop-outliers to leave the frame out", path.display(), fr(frame), distance / spread)]
+    OutlierCamera { path: PathBuf, frame: Option<FrameRef>, distance: f64, spread: f64 },
     /// Several problems at once, in the order they were found.
     #[error("{} problems:\n{}", .0.len(), .0.iter().map(|e| format!("  - {e}")).collect::<Vec<_>>().join("\n"))]
     Many(Vec<DataError>),
@@ -88,6 +91,7 @@ impl DataError {
             | DataError::InvalidValue { path, .. }
             | DataError::NonPositiveFocal { path, .. }
             | DataError::NotOrthonormal { path, .. }
+            | DataError::OutlierCamera { path, .. }
             | DataError::BandCount { path, .. }
             | DataError::ImageSize { path, .. }
             | DataError::NonFinite { path, .. }
@@ -123,6 +127,7 @@ impl DataError {
             | DataError::InvalidValue { frame, .. }
             | DataError::NonPositiveFocal { frame, .. }
             | DataError::NotOrthonormal { frame, .. }
+            | DataError::OutlierCamera { frame, .. }
             | DataError::BandCount { frame, .. }
             | DataError::ImageSize { frame, .. }
             | DataError::NonFinite { frame, .. }

@@ -25,6 +25,9 @@ pub struct LoadOptions {
     pub mask_non_finite: bool,
     /// How [`Dataset::pose_transform`] normalises the poses.
     pub normalization: super::pose::PoseNormalization,
+    /// Leave frames with an outlying camera centre out (split `unused`, listed in `Dataset::dropped_outliers`)
+    /// instead of refusing the dataset ([`super::outliers`]).
+    pub drop_outliers: bool,
 }
 
 /// Where a frame's pixels come from.
@@ -79,6 +82,8 @@ pub struct Dataset {
     /// `sparse_points_path`: SfM-like sparse points with the frames that observed them ([`super::sparse_points`]).
     pub sparse_points_path: Option<PathBuf>,
     pub options: LoadOptions,
+    /// Frames left out for an outlying camera centre (`LoadOptions::drop_outliers`).
+    pub dropped_outliers: Vec<String>,
     /// Set by [`Dataset::select_bands`]: the dataset then reads and reports only these bands of its files.
     pub band_selection: Option<BandSelection>,
     /// [`Dataset::pose_transform`] and whether it is the aerial fit, computed once (the fit looks at pairs of
@@ -180,6 +185,34 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
             split,
         });
     }
+    // Implausible camera centres: refused by name, or left out when asked.
+    let mut dropped_outliers = Vec::new();
+    for o in super::outliers::outlier_cameras(&frames) {
+        let f = &mut frames[o.frame];
+        if options.drop_outliers {
+            log::warn!(
+                "{}: left out: camera centre {:.3e} from the others' median ({:.3e} median distance)",
+                f.name,
+                o.distance,
+                o.spread
+            );
+            f.split = Split::Unused;
+            dropped_outliers.push(f.name.clone());
+        } else {
+            errors.push(DataError::OutlierCamera {
+                path: tpath.clone(),
+                frame: Some(frame_of(f)),
+                distance: o.distance,
+                spread: o.spread,
+            });
+        }
+    }
+    if !dropped_outliers.is_empty() && !frames.iter().any(|f| f.split == Split::Train) {
+        errors.push(DataError::EmptyTrainSplit {
+            path: tpath.clone(),
+            key: "frames (after dropping outlying cameras)".into(),
+        });
+    }
     // One image size for the whole dataset.
     if let Some(f0) = frames.first() {
         for f in &frames[1..] {
@@ -216,6 +249,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         depth_is_z: raw.depth_is_z,
         sparse_points_path: raw.sparse_points.clone(),
         options: options.clone(),
+        dropped_outliers,
         band_selection: None,
         transform_cache: Default::default(),
     };
@@ -368,14 +402,19 @@ impl Dataset {
         self.aerial_normalization() || self.aerial_fit().is_ok()
     }
 
+    /// The frames whose poses define the normalisation: all but those dropped as outliers.
+    fn posed_frames(&self) -> impl Iterator<Item = &Frame> {
+        self.frames.iter().filter(|f| !self.dropped_outliers.contains(&f.name))
+    }
+
     fn aerial_fit(&self) -> Result<PoseTransform, super::aerial::NotAerial> {
-        let frames: Vec<(Mat4, super::camera::Camera)> = self.frames.iter().map(|f| (f.c2w, f.camera)).collect();
+        let frames: Vec<(Mat4, super::camera::Camera)> = self.posed_frames().map(|f| (f.c2w, f.camera)).collect();
         super::aerial::normalize_poses_aerial(&frames)
     }
 
     fn compute_pose_transform(&self) -> (PoseTransform, bool) {
         use super::pose::PoseNormalization;
-        let poses: Vec<Mat4> = self.frames.iter().map(|f| f.c2w).collect();
+        let poses: Vec<Mat4> = self.posed_frames().map(|f| f.c2w).collect();
         if self.options.normalization == PoseNormalization::Poses {
             return (normalize_poses(&poses), false);
         }

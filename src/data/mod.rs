@@ -9,6 +9,7 @@
 //! - [`cache`]: host image cache with a byte budget and pixel sampling.
 //! - [`check`]: `dataset check` as a library function.
 //! - [`bench`]: cache/load benchmark.
+//! - [`outliers`]: implausible camera centres (refused by name, or dropped with `drop_outliers`).
 //! - [`sparse_points`]: `sparse_points_path`, SfM-like points with the frames that observed them.
 
 pub mod aerial;
@@ -19,6 +20,7 @@ pub mod check;
 pub mod error;
 pub mod exr_reader;
 pub mod loader;
+pub mod outliers;
 pub mod png_reader;
 pub mod pose;
 pub mod raster;

@@ -86,6 +86,10 @@ pub struct SamplingConfig {
     /// cameras see, `data::aerial`) or `auto` (aerial when the cameras look down and their axes meet).
     #[serde(default)]
     pub pose_normalization: crate::data::PoseNormalization,
+    /// Leave frames whose camera centre lies far outside the others out of the run (listed in the log and the
+    /// run's dataset.json) instead of refusing the dataset (`data::outliers`; `msnerf train --drop-outliers`).
+    #[serde(default)]
+    pub drop_outlier_cameras: bool,
 }
 
 fn yes() -> bool {

@@ -174,13 +174,18 @@ fn add_kernel_times(totals: &mut Vec<KernelTime>, timing: &TimingReport) {
     }
 }
 
-/// Loads the dataset a run trains on: `data` with only the bands in `bands` when given.
+/// Loads the dataset a run trains on: `data` with only the bands in `bands` when given, poses normalised and
+/// outlying cameras handled as the model's `sampling` section says.
 pub fn load_run_dataset(
     data: &Path,
     bands: Option<&[usize]>,
-    normalization: crate::data::PoseNormalization,
+    sampling: &crate::nerf::config::SamplingConfig,
 ) -> Result<Dataset, String> {
-    let opts = LoadOptions { normalization, ..Default::default() };
+    let opts = LoadOptions {
+        normalization: sampling.pose_normalization,
+        drop_outliers: sampling.drop_outlier_cameras,
+        ..Default::default()
+    };
     let mut ds = load_dataset(data, &opts).map_err(|e| e.to_string())?;
     if let Some(b) = bands {
         ds.select_bands(b).map_err(|e| e.to_string())?;
@@ -191,7 +196,7 @@ pub fn load_run_dataset(
 /// Runs training; returns the summary. Errors are messages that name the file, key or step.
 pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String> {
     let cfg = &opts.model;
-    let ds = load_run_dataset(&opts.data, opts.bands.as_deref(), cfg.sampling.pose_normalization)?;
+    let ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &cfg.sampling)?;
     let bands = ds.n_bands();
     cfg.band_weights(bands)?;
     let train_frames = ds.split_indices(Split::Train);
@@ -216,6 +221,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     let ds_info = serde_json::json!({
         "data": opts.data, "bands": ds.bands, "band_indices": opts.bands, "width": ds.width, "height": ds.height,
         "train_frames": train_frames, "eval_frames": ds.split_indices(Split::Eval),
+        "dropped_outliers": ds.dropped_outliers,
     });
     write_atomic_str(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
 

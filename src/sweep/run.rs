@@ -91,7 +91,7 @@ pub fn run_sweep(ctx: &Context, grid: &Grid, opts: &SweepOptions) -> Result<Swee
     for c in &grid.cells {
         let cc = grid.resolve(c)?;
         if let Some(b) = &cc.bands {
-            load_run_dataset(&opts.data, Some(b), Default::default())
+            load_run_dataset(&opts.data, Some(b), &cc.model.sampling)
                 .map_err(|e| format!("cell {} ({}): {e}", c.index, c.describe()))?;
         }
     }
