@@ -15,6 +15,7 @@ pub mod nn;
 pub mod ops;
 pub mod output;
 pub mod plan;
+pub mod poses;
 pub mod reference;
 pub mod rig;
 pub mod shaders;

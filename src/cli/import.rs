@@ -15,6 +15,29 @@ pub struct ImportArgs {
 pub enum ImportWhat {
     /// A flight folder of raw single-band rig TIFFs (MicaSense, DJI P4M/M3M, Pix4D-XMP rigs)
     Rig(RigArgs),
+    /// Camera poses, intrinsics and sparse points from a photogrammetry tool into a dataset (docs/poses.md)
+    Poses(PosesArgs),
+}
+
+/// Pose sources.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PoseFormat {
+    /// A COLMAP sparse model folder (text or binary: cameras, images, points3D)
+    Colmap,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct PosesArgs {
+    /// Where the poses come from
+    #[arg(long, value_enum)]
+    pub from: PoseFormat,
+    /// The model (COLMAP: the sparse model folder, e.g. sparse/0)
+    pub model: PathBuf,
+    /// The dataset to put them in (its transforms.json is kept as transforms.before-poses.json)
+    pub dataset: PathBuf,
+    /// Print the report as JSON
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -62,8 +85,35 @@ pub struct RigArgs {
     pub threads: Option<usize>,
 }
 
+fn run_poses(p: &PosesArgs) -> anyhow::Result<()> {
+    let PoseFormat::Colmap = p.from;
+    let model = crate::poses::colmap::read_model(&p.model)?;
+    let rep = crate::poses::apply_colmap(&model, &p.model, &p.dataset)?;
+    if p.json {
+        println!("{}", serde_json::to_string_pretty(&rep)?);
+        return Ok(());
+    }
+    println!("{}: {} of {} frames posed from {}", p.dataset.display(), rep.registered, rep.frames, rep.source);
+    if let (Some(e), Some(t)) = (rep.mean_reprojection_error_px, rep.mean_track_length) {
+        println!("sparse points: {} (mean reprojection error {e:.3} px, mean track length {t:.1})", rep.points);
+    }
+    for f in &rep.unregistered {
+        println!("not registered (moved to unregistered_frames): {f}");
+    }
+    for i in &rep.unknown_images {
+        println!("model image not in the dataset: {i}");
+    }
+    if let Some(b) = &rep.backup {
+        println!("previous transforms.json kept as {}", b.display());
+    }
+    Ok(())
+}
+
 pub fn run(a: &ImportArgs) -> anyhow::Result<()> {
-    let ImportWhat::Rig(r) = &a.what;
+    let r = match &a.what {
+        ImportWhat::Rig(r) => r,
+        ImportWhat::Poses(p) => return run_poses(p),
+    };
     let panel_corners = match r.panel_corners.len() {
         0 => None,
         8 => {
