@@ -10,9 +10,14 @@ use std::io::Write;
 use std::path::Path;
 
 use common::TempDir;
-use msnerf::poses::apply_colmap;
 use msnerf::poses::colmap::read_model;
+use msnerf::poses::colmap::to_pose_model;
+use msnerf::poses::{apply_poses, PoseModel};
 use serde_json::{json, Value};
+
+fn pm(m: &msnerf::poses::colmap::ColmapModel, dir: &Path) -> PoseModel {
+    to_pose_model(m, dir).unwrap()
+}
 
 struct Truth {
     names: Vec<String>,
@@ -42,21 +47,7 @@ fn colmap_pose(c2w: &[[f64; 4]; 4]) -> ([f64; 4], [f64; 3]) {
     let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| rc[j][i])); // R_w2c = R_c2w^T
     let c = [c2w[0][3], c2w[1][3], c2w[2][3]];
     let t: [f64; 3] = std::array::from_fn(|i| -(r[i][0] * c[0] + r[i][1] * c[1] + r[i][2] * c[2]));
-    // Shepperd: pick the largest of w, x, y, z to divide by.
-    let tr = r[0][0] + r[1][1] + r[2][2];
-    let q = if tr > 0.0 {
-        let s = (tr + 1.0).sqrt() * 2.0;
-        [0.25 * s, (r[2][1] - r[1][2]) / s, (r[0][2] - r[2][0]) / s, (r[1][0] - r[0][1]) / s]
-    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
-        let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
-        [(r[2][1] - r[1][2]) / s, 0.25 * s, (r[0][1] + r[1][0]) / s, (r[0][2] + r[2][0]) / s]
-    } else if r[1][1] > r[2][2] {
-        let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
-        [(r[0][2] - r[2][0]) / s, (r[0][1] + r[1][0]) / s, 0.25 * s, (r[1][2] + r[2][1]) / s]
-    } else {
-        let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
-        [(r[1][0] - r[0][1]) / s, (r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s]
-    };
+    let q = common::quaternion_of(r);
     (q, t)
 }
 
@@ -229,7 +220,7 @@ fn colmap_text_and_binary_models_import_within_1e6() {
         unposed_copy(&data, &d);
         let m = read_model(&model).unwrap();
         assert_eq!(m.images.len(), t.names.len() - skip.len() + 1);
-        let rep = apply_colmap(&m, &model, &d).unwrap();
+        let rep = apply_poses(&pm(&m, &model), &model, &d).unwrap();
         assert_eq!(rep.registered, t.names.len() - skip.len());
         assert_eq!(rep.unknown_images, vec!["ghost_0001.png".to_string()]);
         assert_eq!(rep.unregistered.len(), skip.len());
@@ -252,7 +243,7 @@ fn radial_cameras_become_opencv_and_bad_models_are_named() {
     write_text(&model, &t, &[], "RADIAL");
     let d = tmp.path().join("d-radial");
     unposed_copy(&data, &d);
-    apply_colmap(&read_model(&model).unwrap(), &model, &d).unwrap();
+    apply_poses(&pm(&read_model(&model).unwrap(), &model), &model, &d).unwrap();
     let tj: Value = serde_json::from_str(&std::fs::read_to_string(d.join("transforms.json")).unwrap()).unwrap();
     let f = &tj["frames"][0];
     assert_eq!(
@@ -271,7 +262,7 @@ fn radial_cameras_become_opencv_and_bad_models_are_named() {
     let d2 = tmp.path().join("d-wrong");
     unposed_copy(&data, &d2);
     let before = std::fs::read_to_string(d2.join("transforms.json")).unwrap();
-    let e = apply_colmap(&read_model(&wrong).unwrap(), &wrong, &d2).unwrap_err().to_string();
+    let e = apply_poses(&pm(&read_model(&wrong).unwrap(), &wrong), &wrong, &d2).unwrap_err().to_string();
     assert!(e.contains("images.txt") || e.contains("wrong"), "{e}");
     assert!(e.contains(&format!("{}x{}", t.size.0 * 2, t.size.1)) && e.contains(stem(&t.names[0])), "{e}");
     assert_eq!(std::fs::read_to_string(d2.join("transforms.json")).unwrap(), before, "nothing written on error");

@@ -24,6 +24,10 @@ pub enum ImportWhat {
 pub enum PoseFormat {
     /// A COLMAP sparse model folder (text or binary: cameras, images, points3D)
     Colmap,
+    /// An OpenSfM reconstruction.json (tracks.csv beside it gives the points' tracks)
+    Opensfm,
+    /// An OpenDroneMap project folder (opensfm/reconstruction.json plus odm_georeferencing/coords.txt)
+    Odm,
 }
 
 #[derive(clap::Args, Debug)]
@@ -31,7 +35,7 @@ pub struct PosesArgs {
     /// Where the poses come from
     #[arg(long, value_enum)]
     pub from: PoseFormat,
-    /// The model (COLMAP: the sparse model folder, e.g. sparse/0)
+    /// The model: COLMAP's sparse model folder (e.g. sparse/0), OpenSfM's reconstruction.json, or the ODM project folder
     pub model: PathBuf,
     /// The dataset to put them in (its transforms.json is kept as transforms.before-poses.json)
     pub dataset: PathBuf,
@@ -86,9 +90,15 @@ pub struct RigArgs {
 }
 
 fn run_poses(p: &PosesArgs) -> anyhow::Result<()> {
-    let PoseFormat::Colmap = p.from;
-    let model = crate::poses::colmap::read_model(&p.model)?;
-    let rep = crate::poses::apply_colmap(&model, &p.model, &p.dataset)?;
+    let model = match p.from {
+        PoseFormat::Colmap => {
+            let m = crate::poses::colmap::read_model(&p.model)?;
+            crate::poses::colmap::to_pose_model(&m, &p.model)?
+        }
+        PoseFormat::Opensfm => crate::poses::opensfm::read_reconstruction(&p.model)?,
+        PoseFormat::Odm => crate::poses::opensfm::read_odm(&p.model)?,
+    };
+    let rep = crate::poses::apply_poses(&model, &p.model, &p.dataset)?;
     if p.json {
         println!("{}", serde_json::to_string_pretty(&rep)?);
         return Ok(());

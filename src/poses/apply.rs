@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 
 use serde_json::{json, Value};
 
-use super::colmap::{c2w_opengl, ColmapCamera, ColmapModel};
 use super::error::PoseError;
+use super::model::PoseModel;
 
 /// What an import did.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -39,48 +39,6 @@ pub fn stem(name: &str) -> String {
     }
 }
 
-/// msnerf's per-frame camera keys for a COLMAP camera.
-fn camera_keys(c: &ColmapCamera, path: &Path, image: &str) -> Result<Vec<(&'static str, Value)>, PoseError> {
-    let p = &c.params;
-    let mut k: Vec<(&'static str, Value)> = vec![("w", json!(c.width)), ("h", json!(c.height))];
-    let (model, fx, fy, cx, cy, dist): (&str, f64, f64, f64, f64, Vec<(&'static str, f64)>) = match c.model.as_str() {
-        "SIMPLE_PINHOLE" => ("PINHOLE", p[0], p[0], p[1], p[2], vec![]),
-        "PINHOLE" => ("PINHOLE", p[0], p[1], p[2], p[3], vec![]),
-        "SIMPLE_RADIAL" => ("OPENCV", p[0], p[0], p[1], p[2], vec![("k1", p[3])]),
-        "RADIAL" => ("OPENCV", p[0], p[0], p[1], p[2], vec![("k1", p[3]), ("k2", p[4])]),
-        "OPENCV" => ("OPENCV", p[0], p[1], p[2], p[3], vec![("k1", p[4]), ("k2", p[5]), ("p1", p[6]), ("p2", p[7])]),
-        "OPENCV_FISHEYE" => (
-            "OPENCV_FISHEYE",
-            p[0],
-            p[1],
-            p[2],
-            p[3],
-            vec![("k1", p[4]), ("k2", p[5]), ("k3", p[6]), ("k4", p[7])],
-        ),
-        "FULL_OPENCV" if p[9..12].iter().all(|v| *v == 0.0) => (
-            "OPENCV",
-            p[0],
-            p[1],
-            p[2],
-            p[3],
-            vec![("k1", p[4]), ("k2", p[5]), ("p1", p[6]), ("p2", p[7]), ("k3", p[8])],
-        ),
-        other => {
-            return Err(PoseError::parse(
-                path,
-                format!("camera {} (image {image})", c.id),
-                format!("camera model {other} has no msnerf equivalent (PINHOLE, OPENCV and OPENCV_FISHEYE families are supported); rerun COLMAP's mapper with --ImageReader.camera_model OPENCV"),
-            ))
-        }
-    };
-    k.push(("camera_model", json!(model)));
-    k.extend([("fl_x", json!(fx)), ("fl_y", json!(fy)), ("cx", json!(cx)), ("cy", json!(cy))]);
-    for (name, v) in dist {
-        k.push((name, json!(v)));
-    }
-    Ok(k)
-}
-
 fn frame_name(f: &Value) -> Option<String> {
     f.get("file_path")
         .and_then(|v| v.as_str())
@@ -95,7 +53,7 @@ fn write_atomic(path: &Path, text: &str) -> Result<(), PoseError> {
 }
 
 /// Puts the poses, intrinsics and points of `model` (read from `source`) into the dataset at `dataset`.
-pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Result<PoseImportReport, PoseError> {
+pub fn apply_poses(model: &PoseModel, source: &Path, dataset: &Path) -> Result<PoseImportReport, PoseError> {
     let tpath = if dataset.is_file() { dataset.to_path_buf() } else { dataset.join("transforms.json") };
     let dir = tpath.parent().unwrap_or(Path::new(".")).to_path_buf();
     let text = std::fs::read_to_string(&tpath).map_err(PoseError::io(&tpath))?;
@@ -105,7 +63,11 @@ pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Resul
         .and_then(|f| f.as_array())
         .cloned()
         .ok_or_else(|| PoseError::Dataset { path: tpath.clone(), reason: "no `frames` list".into() })?;
-    // Frames by stem; two frames with one stem cannot be told apart.
+    // Frames by stem; two frames with one stem cannot be told apart. A frame made by `import rig` is also found by
+    // the stem of its reference band's raw file (ODM and Metashape reconstruct the raw band files).
+    let reference = root.get("reference_band").and_then(|v| v.as_str()).and_then(|r| {
+        root.get("bands")?.as_array()?.iter().position(|b| b.get("name").and_then(|n| n.as_str()) == Some(r))
+    });
     let mut by_stem: HashMap<String, usize> = HashMap::new();
     for (i, f) in frames.iter().enumerate() {
         let name = frame_name(f).ok_or_else(|| PoseError::Dataset {
@@ -121,23 +83,25 @@ pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Resul
                 ),
             });
         }
+        if let Some(src) = reference.and_then(|r| f.get("source_files")?.get(r)?.as_str().map(str::to_string)) {
+            by_stem.entry(stem(&src)).or_insert(i);
+        }
     }
     let mut posed: Vec<Option<Value>> = vec![None; frames.len()];
     let mut unknown_images = Vec::new();
-    let mut image_frame: HashMap<u32, usize> = HashMap::new();
+    let mut image_frame: HashMap<u64, usize> = HashMap::new();
     for im in &model.images {
         let Some(&fi) = by_stem.get(&stem(&im.name)) else {
             unknown_images.push(im.name.clone());
             continue;
         };
-        let cam = model.cameras.get(&im.camera_id).ok_or_else(|| {
-            PoseError::parse(
-                source,
-                format!("image {}", im.name),
-                format!("camera {} is not in the model", im.camera_id),
-            )
-        })?;
-        let c2w = c2w_opengl(im.q, im.t).map_err(|e| PoseError::parse(source, format!("image {}", im.name), e))?;
+        if image_frame.values().any(|&v| v == fi) {
+            // Another image (another band of the same capture, in an ODM multispectral model) already posed it.
+            unknown_images.push(im.name.clone());
+            continue;
+        }
+        let cam = &im.camera;
+        let c2w = im.c2w;
         let mut f = frames[fi].clone();
         let obj = f.as_object_mut().expect("frames are objects");
         // Size check against what the frame (or the top level) says.
@@ -159,11 +123,14 @@ pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Resul
         for k in ["k1", "k2", "k3", "k4", "p1", "p2", "camera_model", "fl_x", "fl_y", "cx", "cy", "w", "h"] {
             obj.remove(k);
         }
-        for (k, v) in camera_keys(cam, source, &im.name)? {
-            obj.insert(k.into(), v);
+        obj.insert("w".into(), json!(cam.width));
+        obj.insert("h".into(), json!(cam.height));
+        obj.insert("camera_model".into(), json!(cam.model));
+        for (k, v) in &cam.keys {
+            obj.insert((*k).into(), json!(v));
         }
         obj.insert("transform_matrix".into(), json!(c2w));
-        obj.insert("colmap_image_id".into(), json!(im.id));
+        obj.insert(format!("{}_image_id", model.tool), json!(im.id));
         posed[fi] = Some(f);
         image_frame.insert(im.id, fi);
     }
@@ -193,6 +160,7 @@ pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Resul
     let mut pts = Vec::new();
     let mut track_sum = 0usize;
     let mut err_sum = 0.0;
+    let mut n_err = 0usize;
     for p in &model.points {
         let mut names: Vec<String> =
             p.images.iter().filter_map(|id| image_frame.get(id)).filter_map(|&fi| frame_name(&frames[fi])).collect();
@@ -202,8 +170,13 @@ pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Resul
             continue;
         }
         track_sum += p.images.len();
-        err_sum += p.error;
-        pts.push(json!({"xyz": p.xyz, "error": p.error, "rgb": p.rgb, "frames": names}));
+        err_sum += p.error.unwrap_or(0.0);
+        n_err += usize::from(p.error.is_some());
+        let mut pt = json!({"xyz": p.xyz, "rgb": p.rgb, "frames": names});
+        if let Some(e) = p.error {
+            pt["error"] = json!(e);
+        }
+        pts.push(pt);
     }
     let n_pts = pts.len();
     let obj = root.as_object_mut().expect("object");
@@ -216,7 +189,8 @@ pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Resul
     }
     obj.insert(
         "pose_source".into(),
-        json!({"from": "colmap", "model": source.display().to_string(), "registered": image_frame.len(), "convention": "COLMAP world frame, OpenGL camera axes"}),
+        json!({"from": model.tool, "model": source.display().to_string(), "registered": image_frame.len(),
+               "convention": "the tool's world frame, OpenGL camera axes", "crs": model.crs}),
     );
     // Backup, then the new files.
     let mut backup = dir.join("transforms.before-poses.json");
@@ -232,13 +206,13 @@ pub fn apply_colmap(model: &ColmapModel, source: &Path, dataset: &Path) -> Resul
     }
     write_atomic(&tpath, &serde_json::to_string_pretty(&root).expect("json"))?;
     Ok(PoseImportReport {
-        source: source.display().to_string(),
+        source: format!("{} ({})", source.display(), model.tool),
         frames: frames.len(),
         registered: image_frame.len(),
         unregistered,
         unknown_images,
         points: n_pts,
-        mean_reprojection_error_px: (n_pts > 0).then(|| err_sum / n_pts as f64),
+        mean_reprojection_error_px: (n_err > 0).then(|| err_sum / n_err as f64),
         mean_track_length: (n_pts > 0).then(|| track_sum as f64 / n_pts as f64),
         backup: Some(backup),
     })

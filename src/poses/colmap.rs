@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::error::PoseError;
+use super::model::{c2w_from_w2c_opencv, PoseCamera, PoseModel, PosePoint, PosedImage};
 
 /// A COLMAP camera model with its parameters in COLMAP's order.
 #[derive(Debug, Clone, PartialEq)]
@@ -307,29 +308,108 @@ pub fn read_binary(dir: &Path) -> Result<ColmapModel, PoseError> {
     Ok(m)
 }
 
-/// Camera-to-world in OpenGL axes (msnerf's `transform_matrix`) from COLMAP's world-to-camera (qw, qx, qy, qz; t)
-/// in OpenCV axes: R_c2w = R^T, centre = -R^T t, then the camera's y and z axes flipped.
-pub fn c2w_opengl(q: [f64; 4], t: [f64; 3]) -> Result<[[f64; 4]; 4], String> {
+/// The rotation matrix of COLMAP's world-to-camera quaternion (qw, qx, qy, qz; Hamilton, as Eigen's).
+pub fn quaternion_matrix(q: [f64; 4]) -> Result<[[f64; 3]; 3], String> {
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     if !(n.is_finite() && (n - 1.0).abs() < 1e-3) {
         return Err(format!("quaternion {q:?} is not a unit quaternion (norm {n})"));
     }
     let [w, x, y, z] = q.map(|v| v / n);
-    // Rotation matrix of a unit quaternion (Hamilton convention, as COLMAP's Eigen quaternions).
-    let r = [
+    Ok([
         [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
         [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
         [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-    ];
-    let mut m = [[0.0; 4]; 4];
-    for i in 0..3 {
-        for j in 0..3 {
-            // R^T, with OpenCV -> OpenGL: columns 1 and 2 (camera y, z) negated.
-            let s = if j == 0 { 1.0 } else { -1.0 };
-            m[i][j] = s * r[j][i];
+    ])
+}
+
+/// msnerf's camera for a COLMAP camera: pixel centres at (i + 0.5, j + 0.5) in both, so cx, cy are copied.
+fn camera(c: &ColmapCamera, path: &Path, image: &str) -> Result<PoseCamera, PoseError> {
+    let p = &c.params;
+    let (model, keys): (&'static str, Vec<(&'static str, f64)>) = match c.model.as_str() {
+        "SIMPLE_PINHOLE" => ("PINHOLE", vec![("fl_x", p[0]), ("fl_y", p[0]), ("cx", p[1]), ("cy", p[2])]),
+        "PINHOLE" => ("PINHOLE", vec![("fl_x", p[0]), ("fl_y", p[1]), ("cx", p[2]), ("cy", p[3])]),
+        "SIMPLE_RADIAL" => ("OPENCV", vec![("fl_x", p[0]), ("fl_y", p[0]), ("cx", p[1]), ("cy", p[2]), ("k1", p[3])]),
+        "RADIAL" => {
+            ("OPENCV", vec![("fl_x", p[0]), ("fl_y", p[0]), ("cx", p[1]), ("cy", p[2]), ("k1", p[3]), ("k2", p[4])])
         }
-        m[i][3] = -(r[0][i] * t[0] + r[1][i] * t[1] + r[2][i] * t[2]);
+        "OPENCV" => (
+            "OPENCV",
+            vec![
+                ("fl_x", p[0]),
+                ("fl_y", p[1]),
+                ("cx", p[2]),
+                ("cy", p[3]),
+                ("k1", p[4]),
+                ("k2", p[5]),
+                ("p1", p[6]),
+                ("p2", p[7]),
+            ],
+        ),
+        "OPENCV_FISHEYE" => (
+            "OPENCV_FISHEYE",
+            vec![
+                ("fl_x", p[0]),
+                ("fl_y", p[1]),
+                ("cx", p[2]),
+                ("cy", p[3]),
+                ("k1", p[4]),
+                ("k2", p[5]),
+                ("k3", p[6]),
+                ("k4", p[7]),
+            ],
+        ),
+        "FULL_OPENCV" if p[9..12].iter().all(|v| *v == 0.0) => (
+            "OPENCV",
+            vec![
+                ("fl_x", p[0]),
+                ("fl_y", p[1]),
+                ("cx", p[2]),
+                ("cy", p[3]),
+                ("k1", p[4]),
+                ("k2", p[5]),
+                ("p1", p[6]),
+                ("p2", p[7]),
+                ("k3", p[8]),
+            ],
+        ),
+        other => {
+            return Err(PoseError::parse(
+                path,
+                format!("camera {} (image {image})", c.id),
+                format!(
+                    "camera model {other} has no msnerf equivalent (PINHOLE, OPENCV and OPENCV_FISHEYE families are \
+                     supported); rerun COLMAP with --ImageReader.camera_model OPENCV"
+                ),
+            ))
+        }
+    };
+    Ok(PoseCamera { width: c.width, height: c.height, model, keys })
+}
+
+/// The tool-independent model: OpenGL camera-to-world in COLMAP's world frame.
+pub fn to_pose_model(m: &ColmapModel, path: &Path) -> Result<PoseModel, PoseError> {
+    let mut images = Vec::with_capacity(m.images.len());
+    for im in &m.images {
+        let cam = m.cameras.get(&im.camera_id).ok_or_else(|| {
+            PoseError::parse(path, format!("image {}", im.name), format!("camera {} is not in the model", im.camera_id))
+        })?;
+        let r = quaternion_matrix(im.q).map_err(|e| PoseError::parse(path, format!("image {}", im.name), e))?;
+        images.push(PosedImage {
+            id: im.id as u64,
+            name: im.name.clone(),
+            c2w: c2w_from_w2c_opencv(r, im.t),
+            camera: camera(cam, path, &im.name)?,
+        });
     }
-    m[3][3] = 1.0;
-    Ok(m)
+    let points = m
+        .points
+        .iter()
+        .map(|p| PosePoint {
+            xyz: p.xyz,
+            rgb: p.rgb,
+            error: Some(p.error),
+            images: p.images.iter().map(|&i| i as u64).collect(),
+        })
+        .collect();
+    Ok(PoseModel { tool: "colmap", images, points, crs: None })
 }

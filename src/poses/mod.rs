@@ -1,12 +1,22 @@
 //! Pose import (`msnerf import poses`): camera poses, intrinsics and sparse points from photogrammetry tools into
 //! a dataset. docs/poses.md gives each tool's conventions.
 //!
-//! - [`colmap`]: COLMAP sparse models (text and binary) and the pose convention change;
+//! - [`model`]: the tool-independent form (OpenGL camera-to-world, msnerf camera keys, points);
+//! - [`colmap`]: COLMAP sparse models (text and binary); [`opensfm`]: OpenSfM reconstructions and ODM projects;
 //! - [`apply`]: matching model images to frames and rewriting the dataset (backup kept, atomic writes).
 
 pub mod apply;
 pub mod colmap;
 pub mod error;
+pub mod model;
+pub mod opensfm;
 
-pub use apply::{apply_colmap, PoseImportReport};
+pub use apply::{apply_poses, PoseImportReport};
+pub use model::PoseModel;
+
+/// Reads a COLMAP model folder and puts it into the dataset.
+pub fn import_colmap(model_dir: &std::path::Path, dataset: &std::path::Path) -> Result<PoseImportReport, PoseError> {
+    let m = colmap::read_model(model_dir)?;
+    apply_poses(&colmap::to_pose_model(&m, model_dir)?, model_dir, dataset)
+}
 pub use error::PoseError;
