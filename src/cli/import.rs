@@ -28,6 +28,8 @@ pub enum PoseFormat {
     Opensfm,
     /// An OpenDroneMap project folder (opensfm/reconstruction.json plus odm_georeferencing/coords.txt)
     Odm,
+    /// An Agisoft Metashape camera XML (File > Export > Export Cameras)
+    Metashape,
 }
 
 #[derive(clap::Args, Debug)]
@@ -35,7 +37,8 @@ pub struct PosesArgs {
     /// Where the poses come from
     #[arg(long, value_enum)]
     pub from: PoseFormat,
-    /// The model: COLMAP's sparse model folder (e.g. sparse/0), OpenSfM's reconstruction.json, or the ODM project folder
+    /// The model: COLMAP's sparse model folder (e.g. sparse/0), OpenSfM's reconstruction.json, the ODM project
+    /// folder, or Metashape's cameras XML
     pub model: PathBuf,
     /// The dataset to put them in (its transforms.json is kept as transforms.before-poses.json)
     pub dataset: PathBuf,
@@ -97,6 +100,7 @@ fn run_poses(p: &PosesArgs) -> anyhow::Result<()> {
         }
         PoseFormat::Opensfm => crate::poses::opensfm::read_reconstruction(&p.model)?,
         PoseFormat::Odm => crate::poses::opensfm::read_odm(&p.model)?,
+        PoseFormat::Metashape => crate::poses::metashape::read_cameras_xml(&p.model)?,
     };
     let rep = crate::poses::apply_poses(&model, &p.model, &p.dataset)?;
     if p.json {

@@ -3,11 +3,13 @@
 //!
 //! - [`model`]: the tool-independent form (OpenGL camera-to-world, msnerf camera keys, points);
 //! - [`colmap`]: COLMAP sparse models (text and binary); [`opensfm`]: OpenSfM reconstructions and ODM projects;
+//!   [`metashape`]: Agisoft Metashape camera XML;
 //! - [`apply`]: matching model images to frames and rewriting the dataset (backup kept, atomic writes).
 
 pub mod apply;
 pub mod colmap;
 pub mod error;
+pub mod metashape;
 pub mod model;
 pub mod opensfm;
 

@@ -1,0 +1,228 @@
+//! Agisoft Metashape camera exports (`File > Export > Export Cameras`, Agisoft XML), parsed with roxmltree:
+//! - a camera's `<transform>` is its camera-to-chunk 4x4 (row-major; camera axes x right, y down, z forward, as
+//!   OpenCV), in the coordinates of its `component_id`'s component when there is one;
+//! - a component's and the chunk's `<transform>` (rotation 3x3, translation, scale) map local to outer
+//!   coordinates as `x_outer = s R x_local + t` (one popular converter divides t by s: wrong);
+//!   camera-to-world = chunk * component * camera, scale divided out of the rotation;
+//! - the *adjusted* calibration of each sensor (`<calibration class="adjusted">`; the `initial` one is what the
+//!   user typed in): f in pixels, cx/cy as offsets from the image centre, k1-k4, p1-p2, b1 (affinity: fx = f + b1)
+//!   and b2 (skew, refused when non-zero); note Metashape's p1/p2 are OpenCV's p2/p1;
+//! - disabled cameras (`enabled="false"` or `"0"`) and cameras without a transform (not aligned) are not posed;
+//! - a georeferenced chunk (`<reference>` holding a geographic CRS) has its chunk transform map to ECEF (EPSG:4978):
+//!   poses are converted to east-north-up metres about the cameras' mean position, recorded as the pose CRS.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::{DMat3, DMat4, DVec3};
+
+use super::error::PoseError;
+use super::model::{PoseCamera, PoseModel, PosedImage};
+
+fn numbers(node: roxmltree::Node, path: &Path, at: &str) -> Result<Vec<f64>, PoseError> {
+    node.text()
+        .unwrap_or("")
+        .split_whitespace()
+        .map(|s| s.parse::<f64>().map_err(|_| PoseError::parse(path, at, format!("{s:?} is not a number"))))
+        .collect()
+}
+
+fn child<'a>(node: roxmltree::Node<'a, 'a>, name: &str) -> Option<roxmltree::Node<'a, 'a>> {
+    node.children().find(|c| c.is_element() && c.tag_name().name() == name)
+}
+
+/// `s R x + t` as a 4x4, from a `<transform>` with `<rotation>`, `<translation>`, `<scale>` (each optional).
+fn similarity(t: roxmltree::Node, path: &Path, at: &str) -> Result<DMat4, PoseError> {
+    let r = match child(t, "rotation") {
+        Some(n) => {
+            let v = numbers(n, path, at)?;
+            if v.len() != 9 {
+                return Err(PoseError::parse(path, at, "rotation needs 9 numbers"));
+            }
+            DMat3::from_cols_array(&[v[0], v[3], v[6], v[1], v[4], v[7], v[2], v[5], v[8]])
+        }
+        None => DMat3::IDENTITY,
+    };
+    let tr = match child(t, "translation") {
+        Some(n) => {
+            let v = numbers(n, path, at)?;
+            if v.len() != 3 {
+                return Err(PoseError::parse(path, at, "translation needs 3 numbers"));
+            }
+            DVec3::new(v[0], v[1], v[2])
+        }
+        None => DVec3::ZERO,
+    };
+    let s = match child(t, "scale") {
+        Some(n) => *numbers(n, path, at)?.first().ok_or_else(|| PoseError::parse(path, at, "empty scale"))?,
+        None => 1.0,
+    };
+    let m = r * s;
+    Ok(DMat4::from_cols(m.x_axis.extend(0.0), m.y_axis.extend(0.0), m.z_axis.extend(0.0), tr.extend(1.0)))
+}
+
+fn sensor_camera(s: roxmltree::Node, path: &Path) -> Result<(String, PoseCamera), PoseError> {
+    let id = s.attribute("id").unwrap_or("?").to_string();
+    let at = format!("sensor {id}");
+    let cal = s
+        .children()
+        .filter(|c| c.is_element() && c.tag_name().name() == "calibration")
+        .find(|c| c.attribute("class") == Some("adjusted"))
+        .or_else(|| s.children().find(|c| c.is_element() && c.tag_name().name() == "calibration"))
+        .ok_or_else(|| PoseError::parse(path, &at, "no <calibration>"))?;
+    let res = child(cal, "resolution")
+        .or_else(|| child(s, "resolution"))
+        .ok_or_else(|| PoseError::parse(path, &at, "no <resolution>"))?;
+    let dim = |k: &str| -> Result<f64, PoseError> {
+        res.attribute(k)
+            .and_then(|v| v.parse::<f64>().ok())
+            .ok_or_else(|| PoseError::parse(path, &at, format!("resolution without {k}")))
+    };
+    let (w, h) = (dim("width")?, dim("height")?);
+    let get = |k: &str| -> Result<f64, PoseError> {
+        match child(cal, k) {
+            Some(n) => numbers(n, path, &at)?
+                .first()
+                .copied()
+                .ok_or_else(|| PoseError::parse(path, &at, format!("empty <{k}>"))),
+            None => Ok(0.0),
+        }
+    };
+    let f = get("f")?;
+    if f <= 0.0 {
+        return Err(PoseError::parse(path, &at, "calibration without a positive <f>"));
+    }
+    if get("b2")? != 0.0 {
+        return Err(PoseError::parse(path, &at, "skew b2 is not zero: msnerf's cameras have no skew"));
+    }
+    let typ = cal.attribute("type").unwrap_or("frame");
+    let (model, mut keys) = match typ {
+        "frame" => (
+            "OPENCV",
+            vec![("k1", get("k1")?), ("k2", get("k2")?), ("k3", get("k3")?), ("p1", get("p2")?), ("p2", get("p1")?)],
+        ),
+        "fisheye" => {
+            ("OPENCV_FISHEYE", vec![("k1", get("k1")?), ("k2", get("k2")?), ("k3", get("k3")?), ("k4", get("k4")?)])
+        }
+        other => {
+            return Err(PoseError::parse(
+                path,
+                &at,
+                format!("calibration type {other} has no msnerf equivalent (frame, fisheye)"),
+            ))
+        }
+    };
+    if typ == "frame" && get("k4")? != 0.0 {
+        return Err(PoseError::parse(path, &at, "k4 is not zero: msnerf's OPENCV model has k1-k3"));
+    }
+    keys.extend([("fl_x", f + get("b1")?), ("fl_y", f), ("cx", w / 2.0 + get("cx")?), ("cy", h / 2.0 + get("cy")?)]);
+    Ok((id, PoseCamera { width: w as u64, height: h as u64, model, keys }))
+}
+
+/// Reads a Metashape camera XML.
+pub fn read_cameras_xml(path: &Path) -> Result<PoseModel, PoseError> {
+    let text = std::fs::read_to_string(path).map_err(PoseError::io(path))?;
+    let doc = roxmltree::Document::parse(&text).map_err(|e| PoseError::parse(path, "XML", e.to_string()))?;
+    let chunk = doc
+        .descendants()
+        .find(|n| n.is_element() && n.tag_name().name() == "chunk")
+        .ok_or_else(|| PoseError::parse(path, "document", "no <chunk>"))?;
+    let mut sensors = HashMap::new();
+    for s in chunk.descendants().filter(|n| n.is_element() && n.tag_name().name() == "sensor") {
+        let (id, cam) = sensor_camera(s, path)?;
+        sensors.insert(id, cam);
+    }
+    let mut components = HashMap::new();
+    for c in chunk.descendants().filter(|n| n.is_element() && n.tag_name().name() == "component") {
+        let id = c.attribute("id").unwrap_or("?").to_string();
+        let m = match child(c, "transform") {
+            Some(t) => similarity(t, path, &format!("component {id}"))?,
+            None => DMat4::IDENTITY,
+        };
+        components.insert(id, m);
+    }
+    let chunk_m = match child(chunk, "transform") {
+        Some(t) => similarity(t, path, "chunk transform")?,
+        None => DMat4::IDENTITY,
+    };
+    let geocentric =
+        child(chunk, "reference").and_then(|r| r.text()).is_some_and(|t| t.trim_start().starts_with("GEOGCS"));
+    let mut images = Vec::new();
+    let mut raw: Vec<(String, DMat4, PoseCamera)> = Vec::new();
+    for (k, cam) in chunk.descendants().filter(|n| n.is_element() && n.tag_name().name() == "camera").enumerate() {
+        let label = cam.attribute("label").unwrap_or("").to_string();
+        let at = format!("camera {label}");
+        if matches!(cam.attribute("enabled"), Some("false") | Some("0")) {
+            continue;
+        }
+        let Some(t) = child(cam, "transform") else { continue };
+        let v = numbers(t, path, &at)?;
+        if v.len() != 16 {
+            return Err(PoseError::parse(path, &at, "camera transform needs 16 numbers"));
+        }
+        let local = DMat4::from_cols_slice(&v).transpose(); // row-major in the file
+        let comp = match cam.attribute("component_id") {
+            Some(c) => *components
+                .get(c)
+                .ok_or_else(|| PoseError::parse(path, &at, format!("component {c} is not in <components>")))?,
+            None => DMat4::IDENTITY,
+        };
+        let sid = cam.attribute("sensor_id").unwrap_or("");
+        let sensor = sensors
+            .get(sid)
+            .cloned()
+            .ok_or_else(|| PoseError::parse(path, &at, format!("sensor {sid:?} is not in <sensors>")))?;
+        let _ = k;
+        raw.push((label, chunk_m * comp * local, sensor));
+    }
+    // Georeferenced: ECEF -> east-north-up about the mean camera position.
+    let enu = if geocentric && !raw.is_empty() {
+        let mean = raw.iter().map(|r| r.1.w_axis.truncate()).sum::<DVec3>() / raw.len() as f64;
+        let lon = mean.y.atan2(mean.x);
+        let p = (mean.x * mean.x + mean.y * mean.y).sqrt();
+        // Geodetic latitude (Bowring's iteration on WGS84), good to well below a millimetre.
+        let (a, f) = (6_378_137.0, 1.0 / 298.257_223_563);
+        let e2 = f * (2.0 - f);
+        let mut lat = (mean.z / (p * (1.0 - e2))).atan();
+        for _ in 0..5 {
+            let n = a / (1.0 - e2 * lat.sin().powi(2)).sqrt();
+            let h = p / lat.cos() - n;
+            lat = (mean.z / (p * (1.0 - e2 * n / (n + h)))).atan();
+        }
+        let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
+        let north = DVec3::new(-lat.sin() * lon.cos(), -lat.sin() * lon.sin(), lat.cos());
+        let up = DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
+        let r = DMat3::from_cols(east, north, up).transpose();
+        let m = DMat4::from_cols(
+            r.x_axis.extend(0.0),
+            r.y_axis.extend(0.0),
+            r.z_axis.extend(0.0),
+            (-(r * mean)).extend(1.0),
+        );
+        Some((m, lat.to_degrees(), lon.to_degrees()))
+    } else {
+        None
+    };
+    for (k, (label, mut m, camera)) in raw.into_iter().enumerate() {
+        if let Some((e, _, _)) = enu {
+            m = e * m;
+        }
+        let r3 = DMat3::from_mat4(m);
+        let s = r3.determinant().cbrt();
+        let rot = r3 * (1.0 / s);
+        // Column j of the rotation is camera axis j in the world; OpenCV -> OpenGL negates y and z.
+        let c2w: [[f64; 4]; 4] = std::array::from_fn(|i| {
+            if i == 3 {
+                return [0.0, 0.0, 0.0, 1.0];
+            }
+            std::array::from_fn(|j| match j {
+                3 => m.w_axis[i],
+                0 => rot.col(0)[i],
+                _ => -rot.col(j)[i],
+            })
+        });
+        images.push(PosedImage { id: k as u64, name: label, c2w, camera });
+    }
+    let crs = enu.map(|(_, lat, lon)| format!("local east-north-up metres about latitude {lat:.9}, longitude {lon:.9} (from the chunk's ECEF georeference)"));
+    Ok(PoseModel { tool: "metashape", images, points: Vec::new(), crs })
+}
