@@ -95,6 +95,8 @@ pub struct CheckReport {
     pub cache: Option<CachePlan>,
     /// Frames left out for an outlying camera centre (with `--drop-outliers`).
     pub dropped_outliers: Vec<String>,
+    /// Whether nerfstudio's `applied_transform` was undone (poses in COLMAP's frame).
+    pub applied_transform_undone: bool,
     /// What an import from raw rig files recorded (units, calibration, registration), when it did.
     pub import: Option<ImportInfo>,
     /// Every problem found, one line each.
@@ -144,6 +146,7 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
         cache: None,
         import: None,
         dropped_outliers: vec![],
+        applied_transform_undone: false,
         errors: vec![],
         problems: vec![],
     };
@@ -158,6 +161,7 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
         rep.import = import_info(&root);
     }
     rep.dropped_outliers = ds.dropped_outliers.clone();
+    rep.applied_transform_undone = ds.applied_transform_undone.is_some();
     rep.frames = ds.frames.len();
     let count = |s: Split| ds.frames.iter().filter(|f| f.split == s).count();
     rep.train = count(Split::Train);
@@ -241,6 +245,9 @@ impl fmt::Display for CheckReport {
             self.unused,
             self.split_method.as_deref().unwrap_or("-")
         )?;
+        if self.applied_transform_undone {
+            writeln!(f, "  poses: nerfstudio's applied_transform undone (outputs in COLMAP's frame)")?;
+        }
         for n in &self.dropped_outliers {
             writeln!(f, "  left out: {n} (camera centre far outside the others)")?;
         }

@@ -82,6 +82,9 @@ pub struct Dataset {
     /// `sparse_points_path`: SfM-like sparse points with the frames that observed them ([`super::sparse_points`]).
     pub sparse_points_path: Option<PathBuf>,
     pub options: LoadOptions,
+    /// The inverse of nerfstudio's `applied_transform` when the file had one: already applied to every pose, and
+    /// applied to the sparse points as they are read, so the dataset's world is COLMAP's (or the georeferenced) frame.
+    pub applied_transform_undone: Option<Mat4>,
     /// Frames left out for an outlying camera centre (`LoadOptions::drop_outliers`).
     pub dropped_outliers: Vec<String>,
     /// Set by [`Dataset::select_bands`]: the dataset then reads and reports only these bands of its files.
@@ -146,6 +149,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         });
     }
 
+    let undo = raw.applied_transform.map(|a| super::pose::rigid_inverse(&a));
     let mut frames = Vec::with_capacity(raw_frames.len());
     for (f, split) in raw_frames.into_iter().zip(splits) {
         let fr = FrameRef { index: f.index, name: f.name.clone() };
@@ -177,7 +181,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         frames.push(Frame {
             name: f.name,
             index_in_file: f.index,
-            c2w: f.c2w,
+            c2w: undo.as_ref().map_or(f.c2w, |u| super::pose::mat_mul(u, &f.c2w)),
             camera: f.camera,
             image,
             mask: f.mask_path,
@@ -249,6 +253,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         depth_is_z: raw.depth_is_z,
         sparse_points_path: raw.sparse_points.clone(),
         options: options.clone(),
+        applied_transform_undone: undo,
         dropped_outliers,
         band_selection: None,
         transform_cache: Default::default(),

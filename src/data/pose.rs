@@ -182,3 +182,21 @@ pub fn normalize_poses(poses: &[Mat4]) -> PoseTransform {
     t.scale = if max_abs > 0.0 { 1.0 / max_abs } else { 1.0 };
     t
 }
+
+/// Inverse of a rigid transform (orthonormal rotation, translation).
+pub fn rigid_inverse(m: &Mat4) -> Mat4 {
+    let mut r = [[0.0; 4]; 4];
+    for i in 0..3 {
+        for j in 0..3 {
+            r[i][j] = m[j][i];
+        }
+        r[i][3] = -(0..3).map(|k| m[k][i] * m[k][3]).sum::<f64>();
+    }
+    r[3][3] = 1.0;
+    r
+}
+
+/// Matrix product of two 4x4 matrices.
+pub fn mat_mul(a: &Mat4, b: &Mat4) -> Mat4 {
+    std::array::from_fn(|i| std::array::from_fn(|j| (0..4).map(|k| a[i][k] * b[k][j]).sum()))
+}

@@ -70,7 +70,11 @@ pub fn read_sparse_points(ds: &Dataset, path: &Path) -> Result<Vec<SparsePoint>,
         if p.frames.is_empty() {
             errors.push(invalid(path, format!("points[{i}].frames"), "a point needs at least one observing frame"));
         }
-        out.push(SparsePoint { xyz: [p.xyz[0], p.xyz[1], p.xyz[2]], error: p.error, frames });
+        let mut xyz = [p.xyz[0], p.xyz[1], p.xyz[2]];
+        if let Some(u) = &ds.applied_transform_undone {
+            xyz = std::array::from_fn(|r| u[r][0] * xyz[0] + u[r][1] * xyz[1] + u[r][2] * xyz[2] + u[r][3]);
+        }
+        out.push(SparsePoint { xyz, error: p.error, frames });
     }
     match DataError::from_list(errors) {
         Some(e) => Err(e),

@@ -53,6 +53,8 @@ pub struct RawTransforms {
     pub lists: SplitLists,
     /// `sparse_points_path`, resolved against the file's folder ([`super::sparse_points`]).
     pub sparse_points: Option<PathBuf>,
+    /// nerfstudio's `applied_transform` (poses and points as written are this times the original ones).
+    pub applied_transform: Option<Mat4>,
 }
 
 struct Ctx<'a> {
@@ -161,6 +163,10 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
         }
     };
     let sparse_points = cx.string(top, "sparse_points_path", None).map(|p| dir.join(p));
+    // nerfstudio's `ns-process-data` writes poses as `applied_transform * c2w` (an axis permutation of COLMAP's
+    // frame); msnerf undoes it so its outputs land in COLMAP's (or the georeferenced) frame.
+    let applied_transform =
+        top.get("applied_transform").and_then(|v| rigid_matrix(&mut cx, v, "applied_transform", None));
     let bands = parse_bands(&mut cx, top);
     let lists = SplitLists {
         train: cx.string_list(top, "train_filenames", None),
@@ -203,6 +209,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
         depth_is_z,
         lists,
         sparse_points,
+        applied_transform,
     })
 }
 
@@ -376,21 +383,25 @@ fn parse_frame(
 }
 
 fn parse_matrix(cx: &mut Ctx, f: &Map<String, Value>, fr: &FrameRef) -> Option<Mat4> {
-    let key = "transform_matrix";
-    let Some(v) = f.get(key) else {
-        cx.missing(key, Some(fr));
+    let Some(v) = f.get("transform_matrix") else {
+        cx.missing("transform_matrix", Some(fr));
         return None;
     };
+    rigid_matrix(cx, v, "transform_matrix", Some(fr))
+}
+
+/// A 3x4 or 4x4 matrix whose rotation part is orthonormal with determinant +1.
+fn rigid_matrix(cx: &mut Ctx, v: &Value, key: &str, fr: Option<&FrameRef>) -> Option<Mat4> {
     let rows: Option<Vec<Vec<f64>>> = v.as_array().and_then(|rows| {
         rows.iter().map(|r| r.as_array().and_then(|r| r.iter().map(|x| x.as_f64()).collect())).collect()
     });
     let Some(rows) = rows else {
-        cx.invalid(key, Some(fr), "expected a 4x4 list of numbers");
+        cx.invalid(key, fr, "expected a 4x4 list of numbers");
         return None;
     };
     let ok_shape = (rows.len() == 4 || rows.len() == 3) && rows.iter().all(|r| r.len() == 4);
     if !ok_shape || rows.iter().flatten().any(|x| !x.is_finite()) {
-        cx.invalid(key, Some(fr), "expected a 4x4 list of finite numbers");
+        cx.invalid(key, fr, "expected a 4x4 list of finite numbers");
         return None;
     }
     let mut m = [[0.0; 4]; 4];
@@ -410,11 +421,19 @@ fn parse_matrix(cx: &mut Ctx, f: &Map<String, Value>, fr: &FrameRef) -> Option<M
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
     dev = dev.max((det - 1.0).abs());
     if dev > 1e-3 {
-        cx.errors.push(DataError::NotOrthonormal {
-            path: cx.path.to_path_buf(),
-            frame: Some(fr.clone()),
-            deviation: dev,
-        });
+        if key == "transform_matrix" {
+            cx.errors.push(DataError::NotOrthonormal {
+                path: cx.path.to_path_buf(),
+                frame: fr.cloned(),
+                deviation: dev,
+            });
+        } else {
+            cx.invalid(
+                key,
+                fr,
+                format!("rotation part is not orthonormal with determinant +1 (max deviation {dev:.3e})"),
+            );
+        }
         return None;
     }
     Some(m)
