@@ -295,6 +295,13 @@ fn flight_imports_to_registered_reflectance_that_trains() {
         let (med, p99) = (errs[errs.len() / 2], errs[errs.len() * 99 / 100]);
         assert!(med < 0.005 && p99 < 0.02, "frame {k}: reflectance error median {med:.4}, p99 {p99:.4}");
         assert!(f["gps"]["latitude"].as_f64().is_some() && f["time"].as_str().is_some());
+        // The reference band for SfM tools: an 8-bit PNG of the frame's size and stem, stretched to 0-255.
+        let stem = f["file_path"].as_str().unwrap().trim_start_matches("images/").trim_end_matches(".tif");
+        let png = image::open(out.join("sfm_images").join(format!("{stem}.png"))).unwrap();
+        assert_eq!((png.width() as usize, png.height() as usize), (w, h));
+        let g = png.as_luma8().expect("8-bit greyscale");
+        let (mn, mx) = g.pixels().fold((255u8, 0u8), |(a, b), p| (a.min(p.0[0]), b.max(p.0[0])));
+        assert!(mn == 0 && mx == 255, "stretched: {mn}..{mx}");
     }
     // `dataset check` and training accept it.
     let report = msnerf::data::check_dataset(&out, 1 << 30);

@@ -1,6 +1,7 @@
 //! One capture through the chain: raw -> radiance (-> reflectance) per band, the band warps (estimated here,
 //! or shared across the flight), one resampling per band into the target camera, the crop to the area every
-//! band of every capture covers (one image size for the whole dataset), and the float32 multi-band TIFF.
+//! band of every capture covers (one image size for the whole dataset), the float32 multi-band TIFF, and an
+//! 8-bit PNG of the reference band for SfM tools (`sfm_images/`).
 
 use std::path::Path;
 
@@ -253,6 +254,29 @@ pub fn intersect(
     (r.2 > r.0 + 1 && r.3 > r.1 + 1).then_some(r)
 }
 
+/// The reference band of the crop as an 8-bit greyscale PNG for SfM tools (COLMAP, ODM, Metashape read it; they do
+/// not read multi-band float TIFFs), stretched from its 0.5th to its 99.5th percentile. Same stem and size as the
+/// frame, so `import poses` matches the tool's images to the frames.
+fn write_sfm_png(p: &Plane, (x0, y0, x1, y1): (usize, usize, usize, usize), path: &Path) -> Result<(), RigError> {
+    let mut v: Vec<f32> = Vec::with_capacity((x1 - x0) * (y1 - y0));
+    for y in y0..y1 {
+        for x in x0..x1 {
+            v.push(p.at(x, y));
+        }
+    }
+    let mut sorted = v.clone();
+    sorted.sort_by(f32::total_cmp);
+    let lo = sorted[sorted.len() / 200];
+    let hi = sorted[sorted.len() - 1 - sorted.len() / 200].max(lo + f32::EPSILON);
+    let bytes: Vec<u8> = v.iter().map(|x| (((x - lo) / (hi - lo)).clamp(0.0, 1.0) * 255.0).round() as u8).collect();
+    let img = image::GrayImage::from_raw((x1 - x0) as u32, (y1 - y0) as u32, bytes).expect("size");
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(RigError::io(parent))?;
+    }
+    img.save_with_format(path, image::ImageFormat::Png)
+        .map_err(|e| RigError::Output { path: path.to_path_buf(), reason: e.to_string() })
+}
+
 /// Resamples every band through its warp, crops to `rect` (the flight's common area) and writes
 /// `images/<capture>.tif` under `dir`.
 pub fn write_frame(
@@ -292,6 +316,7 @@ pub fn write_frame(
             }
         }
     }
+    write_sfm_png(&out[ref_idx], rect, &dir.join("sfm_images").join(format!("{}.png", cap.name())))?;
     let file = format!("images/{}.tif", cap.name());
     let path = dir.join(&file);
     write_tiff(&path, cw as u32, ch as u32, nb, TiffData::F32(&data))
