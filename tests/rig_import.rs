@@ -572,3 +572,57 @@ fn captures_whose_bands_sit_differently_share_one_crop() {
     assert!(sizes[0].0 <= 152 && sizes[0].0 >= 140, "{sizes:?}");
     msnerf::data::load_dataset(&out, &msnerf::data::LoadOptions::default()).unwrap();
 }
+
+#[test]
+fn raw_geometry_keeps_the_lens_model_with_the_crop_applied() {
+    let t = TempDir::new("rig-raw");
+    let input = flight(t.path(), 2);
+    let (a, b) = (t.path().join("undistorted"), t.path().join("raw"));
+    import_rig(&opts(&input, &a)).unwrap();
+    let mut o = opts(&input, &b);
+    o.undistort = false;
+    import_rig(&o).unwrap();
+    let read = |d: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join("transforms.json")).unwrap()).unwrap()
+    };
+    let (ta, tb) = (read(&a), read(&b));
+    // The fixture's lens has no distortion, so both crops are the same and so must be the principal points.
+    let (fa, fb) = (&ta["frames"][0], &tb["frames"][0]);
+    assert_eq!(fb["camera_model"], "OPENCV");
+    assert_eq!((fa["w"].clone(), fa["h"].clone()), (fb["w"].clone(), fb["h"].clone()));
+    for k in ["fl_x", "fl_y", "cx", "cy"] {
+        assert!((fa[k].as_f64().unwrap() - fb[k].as_f64().unwrap()).abs() < 1e-9, "{k}: {} against {}", fa[k], fb[k]);
+    }
+    assert!(fb["k1"].as_f64().is_some());
+}
+
+#[test]
+fn a_rig_without_a_lens_model_is_refused_by_name() {
+    let t = TempDir::new("rig-nolens");
+    let input = flight(t.path(), 2);
+    for e in std::fs::read_dir(&input).unwrap() {
+        let p = e.unwrap().path();
+        let b = interpret(read_meta(&p).unwrap()).unwrap();
+        let px: Vec<u16> = read_pixels(&b.meta).unwrap().iter().map(|v| *v as u16).collect();
+        let k: usize = p.file_name().unwrap().to_string_lossy()[4..8].parse().unwrap();
+        let xmp = micasense_xmp(&MsXmp {
+            band: &b.band_name,
+            center: b.center_nm,
+            fwhm: 10.0,
+            capture: &b.capture_key,
+            a: A,
+            vignetting_center: VC,
+            vignetting_poly: VP,
+            focal_px: 100.0,
+            principal_mm: [0.795, 0.595],
+            distortion: [0.0; 5],
+            horizontal_irradiance: Some(1.0),
+        })
+        .replace("Camera:PerspectiveFocalLength", "Camera:Other");
+        write_rig_tiff(&p, W, H, &px, &xmp, &exif_for(k));
+    }
+    let out = t.path().join("out");
+    let e = expect_err(import_rig(&opts(&input, &out)));
+    assert!(e.contains("Camera:PerspectiveFocalLength") && e.contains("IMG_0001"), "{e}");
+    no_partial_output(t.path(), &out);
+}

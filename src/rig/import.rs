@@ -197,6 +197,14 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     let first = &scan.captures[0];
     let nb = first.bands.len();
     let ref_idx = reference_index(&first.bands, opts.reference_band.as_deref())?;
+    if first.bands[ref_idx].lens.is_none() {
+        // Without a lens model the frames' intrinsics would be made up: refuse, naming what is missing.
+        return Err(RigError::missing(
+            &first.bands[ref_idx].meta.path,
+            "Camera:PerspectiveFocalLength + Camera:PrincipalPoint (or drone-dji:DewarpData)",
+            "the reference band's camera model; without it the dataset's intrinsics are unknown",
+        ));
+    }
     let mut warnings = Vec::new();
 
     // Irradiance.
@@ -354,7 +362,9 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
                 frame["camera_model"] = json!("OPENCV");
                 frame["fl_x"] = json!(l.fx);
                 frame["fl_y"] = json!(l.fy);
-                frame["cx"] = json!(l.cx + 0.5 - (cap.bands[ref_idx].meta.width as f64 - f.width as f64) * 0.0);
+                // The raw camera's principal point moved by the crop (f.cx, f.cy are -x0, -y0 here).
+                frame["cx"] = json!(l.cx + f.cx + 0.5);
+                frame["cy"] = json!(l.cy + f.cy + 0.5);
                 frame["k1"] = json!(l.k1);
                 frame["k2"] = json!(l.k2);
                 frame["k3"] = json!(l.k3);
