@@ -89,6 +89,7 @@ fn exif_for(k: usize) -> FixtureExif {
         datetime: format!("2026:06:01 10:00:{:02}", k),
         gps: Some((45.0, 7.0 + 1e-5 * k as f64, 100.0)),
         focal_plane_res_per_mm: Some(100.0),
+        focal_mm: None,
     }
 }
 
@@ -597,32 +598,42 @@ fn raw_geometry_keeps_the_lens_model_with_the_crop_applied() {
 }
 
 #[test]
-fn a_rig_without_a_lens_model_is_refused_by_name() {
+fn a_rig_without_a_lens_model_is_refused_by_name_or_uses_exif_focal_length() {
     let t = TempDir::new("rig-nolens");
     let input = flight(t.path(), 2);
-    for e in std::fs::read_dir(&input).unwrap() {
-        let p = e.unwrap().path();
-        let b = interpret(read_meta(&p).unwrap()).unwrap();
-        let px: Vec<u16> = read_pixels(&b.meta).unwrap().iter().map(|v| *v as u16).collect();
-        let k: usize = p.file_name().unwrap().to_string_lossy()[4..8].parse().unwrap();
-        let xmp = micasense_xmp(&MsXmp {
-            band: &b.band_name,
-            center: b.center_nm,
-            fwhm: 10.0,
-            capture: &b.capture_key,
-            a: A,
-            vignetting_center: VC,
-            vignetting_poly: VP,
-            focal_px: 100.0,
-            principal_mm: [0.795, 0.595],
-            distortion: [0.0; 5],
-            horizontal_irradiance: Some(1.0),
-        })
-        .replace("Camera:PerspectiveFocalLength", "Camera:Other");
-        write_rig_tiff(&p, W, H, &px, &xmp, &exif_for(k));
-    }
+    let strip = |focal_mm: Option<f64>| {
+        for e in std::fs::read_dir(&input).unwrap() {
+            let p = e.unwrap().path();
+            let b = interpret(read_meta(&p).unwrap()).unwrap();
+            let px: Vec<u16> = read_pixels(&b.meta).unwrap().iter().map(|v| *v as u16).collect();
+            let k: usize = p.file_name().unwrap().to_string_lossy()[4..8].parse().unwrap();
+            let xmp = micasense_xmp(&MsXmp {
+                band: &b.band_name,
+                center: b.center_nm,
+                fwhm: 10.0,
+                capture: &b.capture_key,
+                a: A,
+                vignetting_center: VC,
+                vignetting_poly: VP,
+                focal_px: 100.0,
+                principal_mm: [0.795, 0.595],
+                distortion: [0.0; 5],
+                horizontal_irradiance: Some(1.0),
+            })
+            .replace("Camera:PerspectiveFocalLength", "Camera:Other");
+            write_rig_tiff(&p, W, H, &px, &xmp, &FixtureExif { focal_mm, ..exif_for(k) });
+        }
+    };
+    strip(None);
     let out = t.path().join("out");
     let e = expect_err(import_rig(&opts(&input, &out)));
     assert!(e.contains("Camera:PerspectiveFocalLength") && e.contains("IMG_0001"), "{e}");
     no_partial_output(t.path(), &out);
+    // With EXIF FocalLength (8 mm) and FocalPlaneXResolution (100 px/mm): an 800 px pinhole about the centre.
+    strip(Some(8.0));
+    import_rig(&opts(&input, &out)).unwrap();
+    let tj: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let f = &tj["frames"][0];
+    assert_eq!((f["fl_x"].as_f64(), f["fl_y"].as_f64()), (Some(800.0), Some(800.0)));
 }

@@ -14,6 +14,7 @@
 //!   ("date;fx,fy,cx,cy,k1,k2,p1,p2,k3", cx/cy relative to the calibrated optical centre), irradiance `Irradiance`.
 //! - **Generic** Pix4D-camera rigs (e.g. MS600Pro files with `Camera:BandName` and `CentralWavelength`): band
 //!   identity, exposure and gain from EXIF, no absolute calibration: relative radiance, reflectance from a panel.
+//! - Without an XMP camera model, EXIF FocalLength x FocalPlaneXResolution gives a pinhole (centre principal point).
 
 use super::error::RigError;
 use super::meta::FileMeta;
@@ -216,7 +217,7 @@ pub fn interpret(meta: FileMeta) -> Result<BandFile, RigError> {
         return Err(RigError::bad(&meta.path, "VignettingPolynomial", "more than 8 coefficients"));
     }
 
-    let lens = lens(vendor, &meta)?;
+    let lens = lens(vendor, &meta)?.or_else(|| exif_lens(&meta));
     let rig_relatives = x.numbers(NS_CAMERA, "RigRelatives").filter(|v| v.len() == 3).map(|v| [v[0], v[1], v[2]]);
     let relative_center = match (x.number(NS_DJI, "RelativeOpticalCenterX"), x.number(NS_DJI, "RelativeOpticalCenterY"))
     {
@@ -248,6 +249,14 @@ pub fn interpret(meta: FileMeta) -> Result<BandFile, RigError> {
         irradiance,
         meta,
     })
+}
+
+/// A pinhole from EXIF alone (FocalLength times FocalPlaneXResolution, principal point at the image centre, no
+/// distortion) for rigs whose XMP has no camera model: a starting point that SfM refines (`import poses`).
+fn exif_lens(meta: &FileMeta) -> Option<Lens> {
+    let f = meta.focal_length_mm? * meta.focal_plane_x_res_per_mm?;
+    let (cx, cy) = ((meta.width as f64 - 1.0) / 2.0, (meta.height as f64 - 1.0) / 2.0);
+    Some(Lens { fx: f, fy: f, cx, cy, k1: 0.0, k2: 0.0, k3: 0.0, p1: 0.0, p2: 0.0 })
 }
 
 fn lens(vendor: Vendor, meta: &FileMeta) -> Result<Option<Lens>, RigError> {

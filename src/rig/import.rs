@@ -201,7 +201,7 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         // Without a lens model the frames' intrinsics would be made up: refuse, naming what is missing.
         return Err(RigError::missing(
             &first.bands[ref_idx].meta.path,
-            "Camera:PerspectiveFocalLength + Camera:PrincipalPoint (or drone-dji:DewarpData)",
+            "Camera:PerspectiveFocalLength + Camera:PrincipalPoint (or drone-dji:DewarpData, or EXIF FocalLength with FocalPlaneXResolution)",
             "the reference band's camera model; without it the dataset's intrinsics are unknown",
         ));
     }

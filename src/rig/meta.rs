@@ -34,6 +34,8 @@ pub struct FileMeta {
     pub iso: Option<f64>,
     pub black_level: Option<Vec<f64>>,
     pub focal_plane_x_res_per_mm: Option<f64>,
+    /// EXIF FocalLength in millimetres.
+    pub focal_length_mm: Option<f64>,
     pub datetime: Option<String>,
     pub gps: Option<GpsFix>,
     pub xmp: XmpProps,
@@ -167,6 +169,7 @@ pub fn read_meta(path: &Path) -> Result<FileMeta, RigError> {
         iso,
         black_level,
         focal_plane_x_res_per_mm: fp_res,
+        focal_length_mm: num(&exif, Tag::FocalLength).filter(|f| *f > 0.0),
         datetime,
         gps,
         xmp,

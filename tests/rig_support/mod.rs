@@ -138,6 +138,8 @@ pub struct FixtureExif {
     pub datetime: String,
     pub gps: Option<(f64, f64, f64)>,
     pub focal_plane_res_per_mm: Option<f64>,
+    /// EXIF FocalLength (mm).
+    pub focal_mm: Option<f64>,
 }
 
 fn dms(v: f64) -> Vec<exif::Rational> {
@@ -186,6 +188,9 @@ pub fn write_rig_tiff(path: &std::path::Path, w: u32, h: u32, px: &[u16], xmp: &
             Value::Rational(vec![Rational { num: (r * 1000.0) as u32, denom: 1000 }]),
         ));
         fields.push(f(Tag::FocalPlaneResolutionUnit, Value::Short(vec![4])));
+    }
+    if let Some(fm) = e.focal_mm {
+        fields.push(f(Tag::FocalLength, Value::Rational(vec![Rational { num: (fm * 1000.0) as u32, denom: 1000 }])));
     }
     if let Some((lat, lon, alt)) = e.gps {
         fields.push(f(Tag::GPSLatitudeRef, ascii(if lat < 0.0 { "S" } else { "N" })));
