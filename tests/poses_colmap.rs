@@ -5,6 +5,7 @@
 //! and bad models refused by name.
 
 mod common;
+mod poses_support;
 
 use std::io::Write;
 use std::path::Path;
@@ -13,30 +14,11 @@ use common::TempDir;
 use msnerf::poses::colmap::read_model;
 use msnerf::poses::colmap::to_pose_model;
 use msnerf::poses::{apply_poses, PoseModel};
+use poses_support::{stem, truth, Truth};
 use serde_json::{json, Value};
 
 fn pm(m: &msnerf::poses::colmap::ColmapModel, dir: &Path) -> PoseModel {
     to_pose_model(m, dir).unwrap()
-}
-
-struct Truth {
-    names: Vec<String>,
-    c2w: Vec<[[f64; 4]; 4]>,
-    cam: [f64; 4],
-    size: (u64, u64),
-}
-
-fn truth(data: &Path) -> Truth {
-    let t: Value = serde_json::from_str(&std::fs::read_to_string(data.join("transforms.json")).unwrap()).unwrap();
-    let frames = t["frames"].as_array().unwrap();
-    let m =
-        |v: &Value| -> [[f64; 4]; 4] { std::array::from_fn(|i| std::array::from_fn(|j| v[i][j].as_f64().unwrap())) };
-    Truth {
-        names: frames.iter().map(|f| f["file_path"].as_str().unwrap().to_string()).collect(),
-        c2w: frames.iter().map(|f| m(&f["transform_matrix"])).collect(),
-        cam: ["fl_x", "fl_y", "cx", "cy"].map(|k| t[k].as_f64().unwrap()),
-        size: (t["w"].as_u64().unwrap(), t["h"].as_u64().unwrap()),
-    }
 }
 
 /// COLMAP's world-to-camera (quaternion qw qx qy qz, translation) of an OpenGL camera-to-world.
@@ -49,11 +31,6 @@ fn colmap_pose(c2w: &[[f64; 4]; 4]) -> ([f64; 4], [f64; 3]) {
     let t: [f64; 3] = std::array::from_fn(|i| -(r[i][0] * c[0] + r[i][1] * c[1] + r[i][2] * c[2]));
     let q = common::quaternion_of(r);
     (q, t)
-}
-
-fn stem(p: &str) -> &str {
-    let b = p.rsplit('/').next().unwrap();
-    b.rsplit_once('.').map(|x| x.0).unwrap_or(b)
 }
 
 /// Image list of the model: (id, name as COLMAP would have it, frame index), `skip` frames left out, plus a ghost.

@@ -8,6 +8,7 @@
 #![allow(clippy::needless_range_loop)]
 
 mod common;
+mod poses_support;
 
 use std::path::Path;
 
@@ -15,32 +16,8 @@ use common::TempDir;
 use glam::{DMat3, DMat4, DVec3};
 use msnerf::poses::apply_poses;
 use msnerf::poses::metashape::read_cameras_xml;
+use poses_support::{copy_dataset, stem, truth, Truth};
 use serde_json::Value;
-
-struct Truth {
-    names: Vec<String>,
-    c2w: Vec<[[f64; 4]; 4]>,
-    cam: [f64; 4],
-    size: (f64, f64),
-}
-
-fn truth(data: &Path) -> Truth {
-    let t: Value = serde_json::from_str(&std::fs::read_to_string(data.join("transforms.json")).unwrap()).unwrap();
-    let frames = t["frames"].as_array().unwrap();
-    let m =
-        |v: &Value| -> [[f64; 4]; 4] { std::array::from_fn(|i| std::array::from_fn(|j| v[i][j].as_f64().unwrap())) };
-    Truth {
-        names: frames.iter().map(|f| f["file_path"].as_str().unwrap().to_string()).collect(),
-        c2w: frames.iter().map(|f| m(&f["transform_matrix"])).collect(),
-        cam: ["fl_x", "fl_y", "cx", "cy"].map(|k| t[k].as_f64().unwrap()),
-        size: (t["w"].as_f64().unwrap(), t["h"].as_f64().unwrap()),
-    }
-}
-
-fn stem(p: &str) -> &str {
-    let b = p.rsplit('/').next().unwrap();
-    b.rsplit_once('.').map(|x| x.0).unwrap_or(b)
-}
 
 /// OpenGL camera-to-world -> the OpenCV-axes 4x4 Metashape stores (y and z camera axes negated).
 fn opencv(c2w: &[[f64; 4]; 4]) -> DMat4 {
@@ -72,7 +49,7 @@ fn transform_xml(r: DMat3, t: DVec3, s: f64) -> String {
 
 /// The XML: `world_of` maps the truth's world to the file's world (identity, or into ECEF).
 fn write_xml(path: &Path, t: &Truth, world_of: DMat4, georef: bool) {
-    let (w, h) = t.size;
+    let (w, h) = (t.size.0 as f64, t.size.1 as f64);
     let [fx, fy, cx, cy] = t.cam;
     let chunk = (DMat3::from_rotation_z(0.3) * DMat3::from_rotation_x(-0.2), DVec3::new(10.0, -4.0, 2.0), 2.5);
     let comp = (DMat3::from_rotation_y(0.7), DVec3::new(-1.5, 0.25, 3.0), 0.8);
@@ -115,19 +92,6 @@ fn write_xml(path: &Path, t: &Truth, world_of: DMat4, georef: bool) {
         transform_xml(chunk.0, chunk.1, chunk.2),
     );
     std::fs::write(path, xml).unwrap();
-}
-
-fn copy_dataset(src: &Path, dst: &Path) {
-    std::fs::create_dir_all(dst).unwrap();
-    for e in std::fs::read_dir(src).unwrap() {
-        let p = e.unwrap().path();
-        let to = dst.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_dataset(&p, &to);
-        } else {
-            std::fs::copy(&p, &to).unwrap();
-        }
-    }
 }
 
 fn imported(d: &Path) -> Vec<(String, [[f64; 4]; 4], Value)> {

@@ -5,38 +5,15 @@
 //! camera per band; imported back and compared with the truth within 1e-6 relative.
 
 mod common;
+mod poses_support;
 
 use std::path::Path;
 
 use common::TempDir;
 use msnerf::poses::apply_poses;
 use msnerf::poses::opensfm::{read_odm, read_reconstruction};
+use poses_support::{copy_dataset, stem, truth, Truth};
 use serde_json::{json, Value};
-
-struct Truth {
-    names: Vec<String>,
-    c2w: Vec<[[f64; 4]; 4]>,
-    cam: [f64; 4],
-    size: (f64, f64),
-}
-
-fn truth(data: &Path) -> Truth {
-    let t: Value = serde_json::from_str(&std::fs::read_to_string(data.join("transforms.json")).unwrap()).unwrap();
-    let frames = t["frames"].as_array().unwrap();
-    let m =
-        |v: &Value| -> [[f64; 4]; 4] { std::array::from_fn(|i| std::array::from_fn(|j| v[i][j].as_f64().unwrap())) };
-    Truth {
-        names: frames.iter().map(|f| f["file_path"].as_str().unwrap().to_string()).collect(),
-        c2w: frames.iter().map(|f| m(&f["transform_matrix"])).collect(),
-        cam: ["fl_x", "fl_y", "cx", "cy"].map(|k| t[k].as_f64().unwrap()),
-        size: (t["w"].as_f64().unwrap(), t["h"].as_f64().unwrap()),
-    }
-}
-
-fn stem(p: &str) -> &str {
-    let b = p.rsplit('/').next().unwrap();
-    b.rsplit_once('.').map(|x| x.0).unwrap_or(b)
-}
 
 /// OpenSfM's shot (rotation as axis-angle, translation) of an OpenGL camera-to-world, world shifted by -offset.
 fn shot(c2w: &[[f64; 4]; 4], offset: [f64; 2], camera: &str) -> Value {
@@ -53,7 +30,7 @@ fn shot(c2w: &[[f64; 4]; 4], offset: [f64; 2], camera: &str) -> Value {
 }
 
 fn cameras(t: &Truth) -> Value {
-    let (w, h) = t.size;
+    let (w, h) = (t.size.0 as f64, t.size.1 as f64);
     let size = w.max(h);
     let [fx, fy, cx, cy] = t.cam;
     json!({
@@ -86,19 +63,6 @@ fn compare(t: &Truth, data: &Path, expect_frames: usize) -> Value {
     assert!(worst < 1e-6, "poses differ by {worst:e}");
     msnerf::data::load_dataset(data, &msnerf::data::LoadOptions::default()).unwrap();
     tj
-}
-
-fn copy_dataset(src: &Path, dst: &Path) {
-    std::fs::create_dir_all(dst).unwrap();
-    for e in std::fs::read_dir(src).unwrap() {
-        let p = e.unwrap().path();
-        let to = dst.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_dataset(&p, &to);
-        } else {
-            std::fs::copy(&p, &to).unwrap();
-        }
-    }
 }
 
 #[test]

@@ -47,9 +47,8 @@ fn frame_name(f: &Value) -> Option<String> {
 }
 
 fn write_atomic(path: &Path, text: &str) -> Result<(), PoseError> {
-    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    std::fs::write(&tmp, text).map_err(PoseError::io(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(PoseError::io(path))
+    crate::util::atomic::write_bytes(path, text.as_bytes())
+        .map_err(|e| PoseError::Dataset { path: path.to_path_buf(), reason: e.to_string() })
 }
 
 /// Puts the poses, intrinsics and points of `model` (read from `source`) into the dataset at `dataset`.
