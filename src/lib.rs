@@ -8,6 +8,7 @@
 pub mod bench;
 pub mod cli;
 pub mod data;
+pub mod geo;
 pub mod gpu;
 pub mod maths;
 pub mod nerf;
@@ -18,6 +19,7 @@ pub mod plan;
 pub mod poses;
 pub mod reference;
 pub mod rig;
+pub mod sfm;
 pub mod shaders;
 pub mod sim;
 pub mod sweep;

@@ -8,6 +8,7 @@
 #![allow(clippy::needless_range_loop)]
 
 mod common;
+mod geo_support;
 mod poses_support;
 
 use std::path::Path;
@@ -118,7 +119,7 @@ fn metashape_chunk_and_component_transforms_compose_and_adjusted_calibration_win
     write_xml(&xml, &t, DMat4::IDENTITY, false);
     let d = tmp.path().join("data");
     copy_dataset(&data, &d);
-    let m = read_cameras_xml(&xml).unwrap();
+    let m = read_cameras_xml(&xml, None).unwrap();
     let rep = apply_poses(&m, &xml, &d).unwrap();
     assert_eq!(rep.registered, t.names.len() - 2);
     assert_eq!(rep.unregistered.len(), 2, "the unaligned and the disabled camera: {rep:?}");
@@ -150,7 +151,7 @@ fn metashape_chunk_and_component_transforms_compose_and_adjusted_calibration_win
 }
 
 #[test]
-fn georeferenced_chunk_becomes_east_north_up_metres_with_its_geometry() {
+fn georeferenced_chunk_lands_in_its_utm_zone_as_gdal_projects_it() {
     let tmp = TempDir::new("poses-ms-geo");
     let data = tmp.path().join("truth");
     common::simulate_ci_small(&data);
@@ -166,43 +167,80 @@ fn georeferenced_chunk_becomes_east_north_up_metres_with_its_geometry() {
     let north = DVec3::new(-lat.sin() * lon.cos(), -lat.sin() * lon.sin(), lat.cos());
     let up = DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
     let enu_to_ecef = DMat4::from_cols(east.extend(0.0), north.extend(0.0), up.extend(0.0), o.extend(1.0));
-    // The simulated world may sit at UTM-sized coordinates: centre it on the cameras first, so "up" at O is up
-    // for them too (600 km away, the tangent plane would tilt by 5 degrees).
+    // The simulated world may sit at UTM-sized coordinates: centre it on the cameras first, so the cameras' mean
+    // position is the tangent point (600 km away, the tangent plane would tilt by 5 degrees).
     let mean = t.c2w.iter().map(|m| DVec3::new(m[0][3], m[1][3], m[2][3])).sum::<DVec3>() / t.c2w.len() as f64;
     let enu_to_ecef = enu_to_ecef * DMat4::from_translation(-mean);
     let xml = tmp.path().join("cameras.xml");
     write_xml(&xml, &t, enu_to_ecef, true);
     let d = tmp.path().join("data");
     copy_dataset(&data, &d);
-    let m = read_cameras_xml(&xml).unwrap();
-    assert!(m.crs.as_deref().unwrap().contains("east-north-up"), "{:?}", m.crs);
-    apply_poses(&m, &xml, &d).unwrap();
+    let m = read_cameras_xml(&xml, None).unwrap();
+    assert_eq!(m.crs.as_ref().and_then(|c| c.epsg), Some(32632), "7 E, 45 N is in UTM zone 32N");
+    let rep = apply_poses(&m, &xml, &d).unwrap();
+    assert_eq!(rep.crs.as_deref(), Some("EPSG:32632 (WGS 84 / UTM zone 32N)"));
+    let tj: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("transforms.json")).unwrap()).unwrap();
+    assert_eq!(tj["crs"], "EPSG:32632");
+    msnerf::data::load_dataset(&d, &msnerf::data::LoadOptions::default()).expect("the dataset loads with its crs");
     let got = imported(&d);
-    // Distances between camera centres and relative rotations are the truth's (the frame differs by a rigid
-    // motion only: ENU about the cameras' mean position instead of the chosen point).
     let idx: Vec<usize> = got.iter().map(|g| t.names.iter().position(|n| *n == g.0).unwrap()).collect();
-    let centre = |m: &[[f64; 4]; 4]| DVec3::new(m[0][3], m[1][3], m[2][3]);
+    // Camera centres: GDAL/PROJ projects each true ECEF centre (EPSG:4978 -> 32632); ellipsoidal heights.
+    let ecef: Vec<[f64; 3]> = idx
+        .iter()
+        .map(|&i| enu_to_ecef.transform_point3(DVec3::new(t.c2w[i][0][3], t.c2w[i][1][3], t.c2w[i][2][3])).to_array())
+        .collect();
+    let want = geo_support::gdaltransform("EPSG:4978", "EPSG:32632", &ecef);
+    let mut worst: f64 = 0.0;
+    for (g, w) in got.iter().zip(&want) {
+        for k in 0..3 {
+            worst = worst.max((g.1[k][3] - w[k]).abs());
+        }
+    }
+    eprintln!("georeferenced: camera centres within {worst:.2e} m of gdaltransform's");
+    assert!(worst < 1e-3, "{worst} m");
+    // Orientations: turned with the grid at the posed cameras' mean position m (camera 5 is disabled, so m is a
+    // few metres from the tangent point): truth rotation -> ECEF (tangent-point ENU) -> ENU at m -> turned about
+    // the vertical by the grid's convergence at m, measured on GDAL's projection of a 100 m step north centred on m.
+    let m_ecef = ecef.iter().fold(DVec3::ZERO, |a, p| a + DVec3::from_array(*p)) / ecef.len() as f64;
+    let geo = geo_support::gdaltransform("EPSG:4978", "EPSG:4979", &[m_ecef.to_array()])[0];
+    let (mlat, mlon) = (geo[1].to_radians(), geo[0].to_radians());
+    let m_east = DVec3::new(-mlon.sin(), mlon.cos(), 0.0);
+    let m_north = DVec3::new(-mlat.sin() * mlon.cos(), -mlat.sin() * mlon.sin(), mlat.cos());
+    let m_up = DVec3::new(mlat.cos() * mlon.cos(), mlat.cos() * mlon.sin(), mlat.sin());
+    let step = geo_support::gdaltransform(
+        "EPSG:4978",
+        "EPSG:32632",
+        &[(m_ecef - 50.0 * m_north).to_array(), (m_ecef + 50.0 * m_north).to_array()],
+    );
+    let gamma = (-(step[1][0] - step[0][0])).atan2(step[1][1] - step[0][1]);
+    let expected = DMat3::from_rotation_z(gamma)
+        * DMat3::from_cols(m_east, m_north, m_up).transpose()
+        * DMat3::from_cols(east, north, up);
     let rot = |m: &[[f64; 4]; 4]| {
         DMat3::from_cols_array(&[m[0][0], m[1][0], m[2][0], m[0][1], m[1][1], m[2][1], m[0][2], m[1][2], m[2][2]])
     };
-    let mut worst: f64 = 0.0;
-    for a in 0..got.len() {
-        for b in a + 1..got.len() {
-            let dg = centre(&got[a].1).distance(centre(&got[b].1));
-            let dt = centre(&t.c2w[idx[a]]).distance(centre(&t.c2w[idx[b]]));
-            worst = worst.max((dg - dt).abs() / dt.max(1.0));
-            let rg = rot(&got[a].1).transpose() * rot(&got[b].1);
-            let rt = rot(&t.c2w[idx[a]]).transpose() * rot(&t.c2w[idx[b]]);
-            worst = worst.max((rg - rt).to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs())));
-        }
-    }
-    eprintln!("georeferenced: largest relative geometry difference {worst:e}");
-    assert!(worst < 1e-6, "{worst:e}");
-    // Up stays up: the truth's world z was up, so the cameras' z axes agree with the truth's in the new frame.
+    let mut worst_r: f64 = 0.0;
     for (g, &i) in got.iter().zip(&idx) {
-        let (zg, zt) = (rot(&g.1).z_axis.z, rot(&t.c2w[i]).z_axis.z);
-        assert!((zg - zt).abs() < 1e-3, "camera z-axis height {zg} against {zt}");
+        let d = rot(&g.1) - expected * rot(&t.c2w[i]);
+        worst_r = worst_r.max(d.to_cols_array().iter().fold(0.0, |m, v| m.max(v.abs())));
     }
+    eprintln!("convergence {:.4} deg; rotations within {worst_r:.2e}", gamma.to_degrees());
+    assert!(gamma.to_degrees().abs() > 1.0, "7 E is 2 degrees from zone 32's meridian: the grid turns");
+    assert!(worst_r < 1e-7, "{worst_r}");
+    // Another projected CRS on request; a geographic one is refused, named.
+    let wgs = msnerf::geo::Crs::parse("EPSG:32631").unwrap();
+    assert_eq!(read_cameras_xml(&xml, Some(&wgs)).unwrap().crs.unwrap().epsg, Some(32631));
+    let e = read_cameras_xml(&xml, Some(&msnerf::geo::Crs::parse("EPSG:4326").unwrap())).unwrap_err().to_string();
+    assert!(e.contains("--crs") && e.contains("EPSG:4326"), "{e}");
+    // A reference without a chunk transform (never georeferenced): the local frame, no crs, and a note says why.
+    let text = std::fs::read_to_string(&xml).unwrap();
+    let (head, tail) = text.split_once("</cameras>\n").unwrap();
+    let (chunk_transform, rest) = tail.split_once('\n').unwrap();
+    assert!(chunk_transform.starts_with("<transform>"), "{chunk_transform}");
+    let bare = tmp.path().join("no-chunk-transform.xml");
+    std::fs::write(&bare, format!("{head}</cameras>\n{rest}")).unwrap();
+    let m = read_cameras_xml(&bare, None).unwrap();
+    assert!(m.crs.is_none() && m.notes.iter().any(|n| n.contains("no <transform>")), "{:?}", m.notes);
 }
 
 #[test]
@@ -210,11 +248,11 @@ fn bad_metashape_files_are_named() {
     let tmp = TempDir::new("poses-ms-bad");
     let p = tmp.path().join("c.xml");
     std::fs::write(&p, "<document><chunk><sensors><sensor id=\"0\" type=\"frame\"><resolution width=\"4\" height=\"3\"/><calibration type=\"spherical\" class=\"adjusted\"><f>1</f></calibration></sensor></sensors></chunk></document>").unwrap();
-    let e = read_cameras_xml(&p).unwrap_err().to_string();
+    let e = read_cameras_xml(&p, None).unwrap_err().to_string();
     assert!(e.contains("c.xml") && e.contains("sensor 0") && e.contains("spherical"), "{e}");
     std::fs::write(&p, "<document><chunk><cameras><camera label=\"A\" sensor_id=\"7\"><transform>1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1</transform></camera></cameras></chunk></document>").unwrap();
-    let e = read_cameras_xml(&p).unwrap_err().to_string();
+    let e = read_cameras_xml(&p, None).unwrap_err().to_string();
     assert!(e.contains("camera A") && e.contains("sensor \"7\""), "{e}");
     std::fs::write(&p, "<document><chunk>").unwrap();
-    assert!(read_cameras_xml(&p).unwrap_err().to_string().contains("XML"));
+    assert!(read_cameras_xml(&p, None).unwrap_err().to_string().contains("XML"));
 }

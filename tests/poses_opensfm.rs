@@ -142,12 +142,21 @@ fn odm_project_adds_the_utm_offset_and_matches_band_files() {
     std::fs::write(proj.join("odm_georeferencing/coords.txt"), format!("WGS84 UTM 32N\n{} {}\n", off[0], off[1]))
         .unwrap();
     let m = read_odm(&proj).unwrap();
-    assert_eq!(m.crs.as_deref(), Some("WGS84 UTM 32N"));
+    let coords_bad = tmp.path().join("coords-bad");
+    std::fs::create_dir_all(coords_bad.join("odm_georeferencing")).unwrap();
+    std::fs::create_dir_all(coords_bad.join("opensfm")).unwrap();
+    std::fs::copy(proj.join("opensfm/reconstruction.json"), coords_bad.join("opensfm/reconstruction.json")).unwrap();
+    std::fs::write(coords_bad.join("odm_georeferencing/coords.txt"), "WGS84 UTM 99Q\n1 2\n").unwrap();
+    let e = read_odm(&coords_bad).unwrap_err().to_string();
+    assert!(e.contains("coords.txt") && e.contains("line 1") && e.contains("99Q"), "{e}");
+    assert_eq!(m.crs.as_ref().and_then(|c| c.epsg), Some(32632), "ODM's `WGS84 UTM 32N` is EPSG:32632");
     let rep = apply_poses(&m, &proj, &d).unwrap();
     assert_eq!(rep.registered, t.names.len());
     assert_eq!(rep.unknown_images.len(), t.names.len(), "the other band's shots are listed, not used");
     let tj = compare(&t, &d, t.names.len());
-    assert_eq!(tj["pose_source"]["crs"], "WGS84 UTM 32N");
+    assert_eq!(tj["pose_source"]["crs"], "EPSG:32632");
+    assert_eq!(tj["crs"], "EPSG:32632", "the dataset's crs is the project's");
+    assert_eq!(rep.crs.as_deref(), Some("EPSG:32632 (WGS 84 / UTM zone 32N)"));
     assert_eq!(tj["pose_source"]["from"], "odm");
 
     // Bad input named: an unknown projection type, a shot without its camera, not an ODM project.

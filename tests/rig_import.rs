@@ -4,6 +4,7 @@
 //! imported end to end into a dataset that `train` accepts; and every kind of bad input the issue lists.
 
 mod common;
+mod geo_support;
 mod rig_support;
 
 use std::f64::consts::PI;
@@ -162,6 +163,7 @@ fn opts(input: &Path, out: &Path) -> ImportOptions {
         registration: Registration::Auto,
         register_sample: 8,
         reference_band: None,
+        crs: None,
         overwrite: false,
         threads: 2,
         progress: false,
@@ -304,6 +306,32 @@ fn flight_imports_to_registered_reflectance_that_trains() {
         let (mn, mx) = g.pixels().fold((255u8, 0u8), |(a, b), p| (a.min(p.0[0]), b.max(p.0[0])));
         assert!(mn == 0 && mx == 255, "stretched: {mn}..{mx}");
     }
+    // GPS pose priors in the flight's UTM zone (7 E, 45 N: EPSG:32632), where GDAL/PROJ puts the recorded fixes;
+    // a nadir camera's image top points to true north (no yaw recorded), which on the grid is turned by the
+    // meridian convergence.
+    let tj: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
+    assert_eq!(tj["crs"], "EPSG:32632");
+    for f in tj["frames"].as_array().unwrap() {
+        let (lat, lon, alt) = (
+            f["gps"]["latitude"].as_f64().unwrap(),
+            f["gps"]["longitude"].as_f64().unwrap(),
+            f["gps"]["altitude"].as_f64().unwrap(),
+        );
+        let want = geo_support::gdaltransform("EPSG:4326", "EPSG:32632", &[[lon, lat, alt], [lon, lat + 1e-4, alt]]);
+        let m = &f["transform_matrix"];
+        let at = |r: usize, c: usize| m[r][c].as_f64().unwrap();
+        for (k, w) in want[0].iter().enumerate() {
+            assert!((at(k, 3) - w).abs() < 1e-3, "frame position {k}: {} against GDAL's {w}", at(k, 3));
+        }
+        let north = [want[1][0] - want[0][0], want[1][1] - want[0][1]];
+        let n = (north[0] * north[0] + north[1] * north[1]).sqrt();
+        let up_of_image = [at(0, 1), at(1, 1)];
+        assert!(
+            (up_of_image[0] - north[0] / n).abs() < 1e-6 && (up_of_image[1] - north[1] / n).abs() < 1e-6,
+            "image top {up_of_image:?} against true north on the grid {:?}",
+            [north[0] / n, north[1] / n]
+        );
+    }
     // `dataset check` and training accept it.
     let report = msnerf::data::check_dataset(&out, 1 << 30);
     assert!(report.is_ok(), "{report}");
@@ -317,6 +345,7 @@ fn flight_imports_to_registered_reflectance_that_trains() {
         "Red: radiance in W/(m^2 sr nm), irradiance from panel",
         "registration residual up to",
         "gps priors",
+        "crs EPSG:32632 (WGS 84 / UTM zone 32N)",
     ] {
         assert!(text.contains(want), "`dataset check` lacks {want:?}:\n{text}");
     }

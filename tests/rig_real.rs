@@ -170,6 +170,7 @@ fn import_opts(input: &Path, out: &Path) -> ImportOptions {
         registration: Registration::Auto,
         register_sample: 8,
         reference_band: None,
+        crs: None,
         overwrite: false,
         threads: 2,
         progress: false,

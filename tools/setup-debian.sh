@@ -2,7 +2,9 @@
 # Installs what msnerf needs on Debian 12 (and Ubuntu 22.04+), then prepares the shaderc library that build.rs links.
 #   - Vulkan loader, Mesa lavapipe (the CPU Vulkan driver CI uses), Khronos validation layers, vulkaninfo
 #   - Debian's shaderc / glslang / SPIRV-Tools static libraries, merged into .shaderc/libshaderc_combined.a
-#   - gdal-bin: `gdalinfo`, which tests/output_raster.rs runs to check that GDAL reads msnerf's GeoTIFFs
+#   - gdal-bin: `gdalinfo`, `gdalsrsinfo`, `gdaltransform`, which the tests run to check msnerf's GeoTIFFs, LAS CRS
+#     records and projections against GDAL/PROJ
+#   - colmap (3.8, no CUDA): `msnerf sfm` runs it, and tests/sfm_colmap.rs runs that
 # Runs apt-get as root or through sudo; otherwise prints the command to run. Idempotent: a second run does nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,7 +26,7 @@ for comp in rustfmt clippy; do
 done
 
 # --- System packages -------------------------------------------------------------------------------
-PKGS=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers vulkan-tools libshaderc-dev glslang-dev spirv-tools binutils g++ gdal-bin)
+PKGS=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers vulkan-tools libshaderc-dev glslang-dev spirv-tools binutils g++ gdal-bin colmap)
 if command -v dpkg-query >/dev/null 2>&1; then
   missing=()
   for p in "${PKGS[@]}"; do

@@ -130,6 +130,7 @@ pub fn run(dir: &Path, replicate_n: usize, threads: usize) -> Result<ImportBench
                 registration,
                 register_sample: 8,
                 reference_band: None,
+                crs: None,
                 overwrite: true,
                 threads,
                 progress: false,

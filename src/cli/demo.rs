@@ -165,8 +165,8 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         keep_outside_box: false,
     };
     let cloud = filter(raw, &pargs)?;
-    write_cloud(&cloud, &cloud_path)?;
-    write_cloud(&cloud, &cloud_path.with_extension("las"))?;
+    write_cloud(&cloud, &cloud_path, run.ds.crs.as_ref())?;
+    write_cloud(&cloud, &cloud_path.with_extension("las"), run.ds.crs.as_ref())?;
 
     println!("[6/6] comparing with the ground-truth cloud");
     let reference = read_ply(&data.join("ground_truth.ply"))?;

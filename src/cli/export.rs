@@ -7,10 +7,11 @@
 //! is the accumulation-threshold export that came before it.
 
 use super::Cli;
+use crate::geo::Crs;
 use crate::gpu::Context;
 use crate::nerf::export::{export_points_with_stats, Consistency, ExportOptions, ExportStats};
 use crate::nerf::run::LoadedRun;
-use crate::output::pointcloud::{self, PointCloud};
+use crate::output::pointcloud::{self, LasOptions, PlyOptions, PointCloud};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -144,10 +145,18 @@ pub fn filter(mut cloud: PointCloud, a: &PointcloudArgs) -> anyhow::Result<Point
     Ok(cloud)
 }
 
-pub fn write_cloud(cloud: &PointCloud, out: &std::path::Path) -> anyhow::Result<()> {
+/// Writes `cloud` as PLY or LAS (by extension), carrying the dataset's `crs`: LAS as its OGC WKT record
+/// (`LASF_Projection`/2112), PLY as `comment crs EPSG:n` and `comment crs_wkt WKT` lines.
+pub fn write_cloud(cloud: &PointCloud, out: &std::path::Path, crs: Option<&Crs>) -> anyhow::Result<()> {
     match out.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
-        Some("ply") => pointcloud::write_ply(out, cloud, &Default::default())?,
-        Some("las") => pointcloud::write_las(out, cloud, &Default::default())?,
+        Some("ply") => {
+            let comments =
+                crs.map(|c| vec![format!("crs {}", c.key()), format!("crs_wkt {}", c.wkt)]).unwrap_or_default();
+            pointcloud::write_ply(out, cloud, &PlyOptions { comments, ..Default::default() })?
+        }
+        Some("las") => {
+            pointcloud::write_las(out, cloud, &LasOptions { wkt: crs.map(|c| c.wkt.clone()), ..Default::default() })?
+        }
         _ => anyhow::bail!("--out {}: the file must end in .ply or .las", out.display()),
     }
     Ok(())
@@ -162,9 +171,12 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
     let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
     let (raw, stats) = export_points_with_stats(&mut run, &opts).map_err(anyhow::Error::msg)?;
     let cloud = filter(raw, a)?;
-    write_cloud(&cloud, &a.out)?;
+    write_cloud(&cloud, &a.out, run.ds.crs.as_ref())?;
     println!("{}", summary(&stats, a.min_accumulation, cloud.len()));
-    println!("-> {}", a.out.display());
+    match &run.ds.crs {
+        Some(c) => println!("-> {} (crs {})", a.out.display(), c.describe()),
+        None => println!("-> {} (the dataset's local frame: no crs)", a.out.display()),
+    }
     Ok(())
 }
 

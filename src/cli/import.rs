@@ -42,6 +42,9 @@ pub struct PosesArgs {
     pub model: PathBuf,
     /// The dataset to put them in (its transforms.json is kept as transforms.before-poses.json)
     pub dataset: PathBuf,
+    /// Projected CRS for a georeferenced Metashape chunk (EPSG:n; default: the cameras' WGS 84 UTM zone)
+    #[arg(long)]
+    pub crs: Option<String>,
     /// Print the report as JSON
     #[arg(long)]
     pub json: bool,
@@ -84,6 +87,10 @@ pub struct RigArgs {
     /// Band the others are registered to (default: the one nearest 560 nm)
     #[arg(long)]
     pub reference_band: Option<String>,
+    /// Projected CRS of the GPS pose priors and the dataset's `crs` (EPSG:n or OGC WKT; default: the WGS 84 UTM
+    /// zone of the first capture with GPS)
+    #[arg(long)]
+    pub crs: Option<String>,
     /// Replace an existing output folder
     #[arg(long)]
     pub overwrite: bool,
@@ -93,6 +100,12 @@ pub struct RigArgs {
 }
 
 fn run_poses(p: &PosesArgs) -> anyhow::Result<()> {
+    let crs = p.crs.as_deref().map(crate::geo::Crs::parse).transpose().map_err(|e| anyhow::anyhow!("--crs: {e}"))?;
+    anyhow::ensure!(
+        crs.is_none() || p.from == PoseFormat::Metashape,
+        "--crs: only a georeferenced Metashape chunk (ECEF) is projected on import; COLMAP, OpenSfM and ODM poses \
+         stay in the model's own frame"
+    );
     let model = match p.from {
         PoseFormat::Colmap => {
             let m = crate::poses::colmap::read_model(&p.model)?;
@@ -100,7 +113,7 @@ fn run_poses(p: &PosesArgs) -> anyhow::Result<()> {
         }
         PoseFormat::Opensfm => crate::poses::opensfm::read_reconstruction(&p.model)?,
         PoseFormat::Odm => crate::poses::opensfm::read_odm(&p.model)?,
-        PoseFormat::Metashape => crate::poses::metashape::read_cameras_xml(&p.model)?,
+        PoseFormat::Metashape => crate::poses::metashape::read_cameras_xml(&p.model, crs.as_ref())?,
     };
     let rep = crate::poses::apply_poses(&model, &p.model, &p.dataset)?;
     if p.json {
@@ -116,6 +129,16 @@ fn run_poses(p: &PosesArgs) -> anyhow::Result<()> {
     }
     for i in &rep.unknown_images {
         println!("model image not in the dataset: {i}");
+    }
+    for n in &rep.notes {
+        println!("note: {n}");
+    }
+    match (&rep.crs, &rep.crs_removed) {
+        (Some(c), _) => println!("poses in {c}: the dataset's crs"),
+        (None, Some(old)) => {
+            println!("crs {old} removed: the model is not georeferenced, so its poses are in a local frame")
+        }
+        (None, None) => println!("the model is not georeferenced: the poses are in its local frame (no crs)"),
     }
     if let Some(b) = &rep.backup {
         println!("previous transforms.json kept as {}", b.display());
@@ -149,6 +172,7 @@ pub fn run(a: &ImportArgs) -> anyhow::Result<()> {
         registration: if r.no_register { Registration::None } else { r.register },
         register_sample: r.register_sample,
         reference_band: r.reference_band.clone(),
+        crs: r.crs.as_deref().map(crate::geo::Crs::parse).transpose().map_err(|e| anyhow::anyhow!("--crs: {e}"))?,
         overwrite: r.overwrite,
         threads,
         progress: true,

@@ -10,6 +10,7 @@ pub mod export;
 pub mod import;
 pub mod plan;
 pub mod render;
+pub mod sfm;
 pub mod simulate;
 pub mod sweep;
 pub mod train;
@@ -46,6 +47,8 @@ pub enum Command {
     Export(export::ExportArgs),
     /// Import raw captures: `import rig DIR --out DATASET` (raw multispectral rig TIFFs to reflectance)
     Import(import::ImportArgs),
+    /// Camera poses by running COLMAP on a dataset (geo-registered to the frames' GPS when they have it)
+    Sfm(sfm::SfmArgs),
     /// Dataset tools (check)
     Dataset(dataset::DatasetArgs),
     /// The whole job on a built-in simulated scene: simulate, train, evaluate, render, export, compare
@@ -86,6 +89,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(a) => export::run(&cli, a),
         Command::Dataset(a) => dataset::run(&cli, a),
         Command::Import(a) => import::run(a),
+        Command::Sfm(a) => sfm::run(a),
         Command::Demo(a) => demo::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),

@@ -97,6 +97,8 @@ pub struct CheckReport {
     pub dropped_outliers: Vec<String>,
     /// Whether nerfstudio's `applied_transform` was undone (poses in COLMAP's frame).
     pub applied_transform_undone: bool,
+    /// `crs` of the world frame, described (`EPSG:32650 (WGS 84 / UTM zone 50N)`), when the dataset has one.
+    pub crs: Option<String>,
     /// What an import from raw rig files recorded (units, calibration, registration), when it did.
     pub import: Option<ImportInfo>,
     /// Every problem found, one line each.
@@ -147,6 +149,7 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
         import: None,
         dropped_outliers: vec![],
         applied_transform_undone: false,
+        crs: None,
         errors: vec![],
         problems: vec![],
     };
@@ -162,6 +165,7 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
     }
     rep.dropped_outliers = ds.dropped_outliers.clone();
     rep.applied_transform_undone = ds.applied_transform_undone.is_some();
+    rep.crs = ds.crs.as_ref().map(|c| c.describe());
     rep.frames = ds.frames.len();
     let count = |s: Split| ds.frames.iter().filter(|f| f.split == s).count();
     rep.train = count(Split::Train);
@@ -245,6 +249,11 @@ impl fmt::Display for CheckReport {
             self.unused,
             self.split_method.as_deref().unwrap_or("-")
         )?;
+        match &self.crs {
+            Some(c) => writeln!(f, "  crs {c}: outputs with coordinates carry it")?,
+            None if self.frames > 0 => writeln!(f, "  crs: none (a local frame; outputs carry no CRS)")?,
+            None => {}
+        }
         if self.applied_transform_undone {
             writeln!(f, "  poses: nerfstudio's applied_transform undone (outputs in COLMAP's frame)")?;
         }

@@ -85,6 +85,8 @@ pub struct Dataset {
     /// The inverse of nerfstudio's `applied_transform` when the file had one: already applied to every pose, and
     /// applied to the sparse points as they are read, so the dataset's world is COLMAP's (or the georeferenced) frame.
     pub applied_transform_undone: Option<Mat4>,
+    /// `crs`: the projected CRS of the world frame (outputs with coordinates carry it).
+    pub crs: Option<crate::geo::Crs>,
     /// Frames left out for an outlying camera centre (`LoadOptions::drop_outliers`).
     pub dropped_outliers: Vec<String>,
     /// Set by [`Dataset::select_bands`]: the dataset then reads and reports only these bands of its files.
@@ -254,6 +256,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         sparse_points_path: raw.sparse_points.clone(),
         options: options.clone(),
         applied_transform_undone: undo,
+        crs: raw.crs.clone(),
         dropped_outliers,
         band_selection: None,
         transform_cache: Default::default(),

@@ -55,6 +55,8 @@ pub struct RawTransforms {
     pub sparse_points: Option<PathBuf>,
     /// nerfstudio's `applied_transform` (poses and points as written are this times the original ones).
     pub applied_transform: Option<Mat4>,
+    /// `crs`: the projected CRS the poses' world frame is in (easting, northing, height in metres).
+    pub crs: Option<crate::geo::Crs>,
 }
 
 struct Ctx<'a> {
@@ -167,6 +169,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
     // frame); msnerf undoes it so its outputs land in COLMAP's (or the georeferenced) frame.
     let applied_transform =
         top.get("applied_transform").and_then(|v| rigid_matrix(&mut cx, v, "applied_transform", None));
+    let crs = parse_crs(&mut cx, top);
     let bands = parse_bands(&mut cx, top);
     let lists = SplitLists {
         train: cx.string_list(top, "train_filenames", None),
@@ -210,7 +213,32 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
         lists,
         sparse_points,
         applied_transform,
+        crs,
     })
+}
+
+/// `crs`: an EPSG code (`EPSG:32650`) or OGC WKT; it must be a projected CRS, since the world frame is metric.
+fn parse_crs(cx: &mut Ctx, top: &Map<String, Value>) -> Option<crate::geo::Crs> {
+    let text = cx.string(top, "crs", None)?;
+    match crate::geo::Crs::parse(&text) {
+        Ok(c) if c.kind == crate::geo::CrsKind::Projected => Some(c),
+        Ok(c) => {
+            cx.invalid(
+                "crs",
+                None,
+                format!(
+                    "{} is a {} CRS; poses need a projected CRS in metres (e.g. the flight's UTM zone, EPSG:326zz)",
+                    c.describe(),
+                    serde_json::to_value(c.kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
+                ),
+            );
+            None
+        }
+        Err(e) => {
+            cx.invalid("crs", None, e.to_string());
+            None
+        }
+    }
 }
 
 fn parse_bands(cx: &mut Ctx, top: &Map<String, Value>) -> Option<Vec<Band>> {

@@ -4,6 +4,7 @@
 //! GLSL helper, whose kernels the twins check.
 
 pub mod field;
+pub mod similarity;
 pub mod so3;
 
 use num_traits::Float;

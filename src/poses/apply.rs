@@ -28,6 +28,12 @@ pub struct PoseImportReport {
     pub mean_reprojection_error_px: Option<f64>,
     pub mean_track_length: Option<f64>,
     pub backup: Option<PathBuf>,
+    /// The model's CRS (described), now the dataset's `crs`.
+    pub crs: Option<String>,
+    /// The dataset's earlier `crs`, removed because the model is not georeferenced.
+    pub crs_removed: Option<String>,
+    /// The reader's notes (`PoseModel::notes`).
+    pub notes: Vec<String>,
 }
 
 /// The file stem a frame or image is matched by.
@@ -53,10 +59,42 @@ fn write_atomic(path: &Path, text: &str) -> Result<(), PoseError> {
 
 /// Puts the poses, intrinsics and points of `model` (read from `source`) into the dataset at `dataset`.
 pub fn apply_poses(model: &PoseModel, source: &Path, dataset: &Path) -> Result<PoseImportReport, PoseError> {
-    let tpath = if dataset.is_file() { dataset.to_path_buf() } else { dataset.join("transforms.json") };
+    let tpath = transforms_path(dataset);
+    let root = read_transforms(&tpath)?;
+    apply_poses_to(model, source, &tpath, root)
+}
+
+/// `dataset`'s transforms.json (the folder's, or the file itself).
+pub fn transforms_path(dataset: &Path) -> PathBuf {
+    if dataset.is_file() {
+        dataset.to_path_buf()
+    } else {
+        dataset.join("transforms.json")
+    }
+}
+
+/// The parsed transforms.json at `tpath`.
+pub fn read_transforms(tpath: &Path) -> Result<Value, PoseError> {
+    let text = std::fs::read_to_string(tpath).map_err(PoseError::io(tpath))?;
+    serde_json::from_str(&text).map_err(|e| PoseError::parse(tpath, "JSON", e.to_string()))
+}
+
+/// [`apply_poses`] on an already-read `root` of the transforms.json at `tpath` (which is backed up as it is on
+/// disk, then replaced).
+pub fn apply_poses_to(
+    model: &PoseModel,
+    source: &Path,
+    tpath: &Path,
+    mut root: Value,
+) -> Result<PoseImportReport, PoseError> {
+    let tpath = tpath.to_path_buf();
     let dir = tpath.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let text = std::fs::read_to_string(&tpath).map_err(PoseError::io(&tpath))?;
-    let mut root: Value = serde_json::from_str(&text).map_err(|e| PoseError::parse(&tpath, "JSON", e.to_string()))?;
+    // Frames an earlier import left unregistered are candidates again.
+    if let Some(Value::Array(mut old)) = root.as_object_mut().and_then(|o| o.remove("unregistered_frames")) {
+        if let Some(Value::Array(f)) = root.get_mut("frames") {
+            f.append(&mut old);
+        }
+    }
     let frames = root
         .get("frames")
         .and_then(|f| f.as_array())
@@ -189,8 +227,14 @@ pub fn apply_poses(model: &PoseModel, source: &Path, dataset: &Path) -> Result<P
     obj.insert(
         "pose_source".into(),
         json!({"from": model.tool, "model": source.display().to_string(), "registered": image_frame.len(),
-               "convention": "the tool's world frame, OpenGL camera axes", "crs": model.crs}),
+               "convention": "the tool's world frame, OpenGL camera axes",
+               "crs": model.crs.as_ref().map(|c| c.key())}),
     );
+    // The poses' CRS replaces the dataset's; a model in a local frame takes the old `crs` away (GPS priors).
+    let crs_removed = match &model.crs {
+        Some(c) => obj.insert("crs".into(), json!(c.key())).and(None),
+        None => obj.remove("crs").map(|v| v.as_str().map(str::to_string).unwrap_or_else(|| v.to_string())),
+    };
     // Backup, then the new files.
     let mut backup = dir.join("transforms.before-poses.json");
     let mut k = 1;
@@ -214,5 +258,8 @@ pub fn apply_poses(model: &PoseModel, source: &Path, dataset: &Path) -> Result<P
         mean_reprojection_error_px: (n_err > 0).then(|| err_sum / n_err as f64),
         mean_track_length: (n_pts > 0).then(|| track_sum as f64 / n_pts as f64),
         backup: Some(backup),
+        crs: model.crs.as_ref().map(|c| c.describe()),
+        crs_removed,
+        notes: model.notes.clone(),
     })
 }

@@ -411,5 +411,5 @@ pub fn to_pose_model(m: &ColmapModel, path: &Path) -> Result<PoseModel, PoseErro
             images: p.images.iter().map(|&i| i as u64).collect(),
         })
         .collect();
-    Ok(PoseModel { tool: "colmap", images, points, crs: None })
+    Ok(PoseModel { tool: "colmap", images, points, crs: None, notes: Vec::new() })
 }

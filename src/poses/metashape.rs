@@ -9,7 +9,9 @@
 //!   and b2 (skew, refused when non-zero); note Metashape's p1/p2 are OpenCV's p2/p1;
 //! - disabled cameras (`enabled="false"` or `"0"`) and cameras without a transform (not aligned) are not posed;
 //! - a georeferenced chunk (`<reference>` holding a geographic CRS) has its chunk transform map to ECEF (EPSG:4978):
-//!   poses are converted to east-north-up metres about the cameras' mean position, recorded as the pose CRS.
+//!   poses are projected into a projected CRS (`--crs`, default the cameras' WGS 84 UTM zone): centres exactly
+//!   through [`crate::geo::Projector`], rotations turned with the grid at the cameras' mean position (meridian
+//!   convergence included); heights are ellipsoidal. The CRS becomes the dataset's `crs`.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -18,6 +20,7 @@ use glam::{DMat3, DMat4, DVec3};
 
 use super::error::PoseError;
 use super::model::{PoseCamera, PoseModel, PosedImage};
+use crate::geo::{Crs, Projector};
 
 fn numbers(node: roxmltree::Node, path: &Path, at: &str) -> Result<Vec<f64>, PoseError> {
     node.text()
@@ -119,8 +122,9 @@ fn sensor_camera(s: roxmltree::Node, path: &Path) -> Result<(String, PoseCamera)
     Ok((id, PoseCamera { width: w as u64, height: h as u64, model, keys }))
 }
 
-/// Reads a Metashape camera XML.
-pub fn read_cameras_xml(path: &Path) -> Result<PoseModel, PoseError> {
+/// Reads a Metashape camera XML; a georeferenced chunk's poses come out in `crs` (default: the WGS 84 UTM zone of
+/// the cameras).
+pub fn read_cameras_xml(path: &Path, crs: Option<&Crs>) -> Result<PoseModel, PoseError> {
     let text = std::fs::read_to_string(path).map_err(PoseError::io(path))?;
     let doc = roxmltree::Document::parse(&text).map_err(|e| PoseError::parse(path, "XML", e.to_string()))?;
     let chunk = doc
@@ -141,12 +145,22 @@ pub fn read_cameras_xml(path: &Path) -> Result<PoseModel, PoseError> {
         };
         components.insert(id, m);
     }
+    let mut notes = Vec::new();
     let chunk_m = match child(chunk, "transform") {
         Some(t) => similarity(t, path, "chunk transform")?,
         None => DMat4::IDENTITY,
     };
-    let geocentric =
+    let has_reference =
         child(chunk, "reference").and_then(|r| r.text()).is_some_and(|t| t.trim_start().starts_with("GEOGCS"));
+    // The chunk transform is what maps chunk coordinates to ECEF: without it a reference says nothing about them.
+    let geocentric = has_reference && child(chunk, "transform").is_some();
+    if has_reference && !geocentric {
+        notes.push(
+            "the chunk has a geographic reference but no <transform>: it was never georeferenced (no markers or \
+             camera references used), so the poses stay in the chunk's local frame, without a crs"
+                .to_string(),
+        );
+    }
     let mut images = Vec::new();
     let mut raw: Vec<(String, DMat4, PoseCamera)> = Vec::new();
     for (k, cam) in chunk.descendants().filter(|n| n.is_element() && n.tag_name().name() == "camera").enumerate() {
@@ -175,54 +189,68 @@ pub fn read_cameras_xml(path: &Path) -> Result<PoseModel, PoseError> {
         let _ = k;
         raw.push((label, chunk_m * comp * local, sensor));
     }
-    // Georeferenced: ECEF -> east-north-up about the mean camera position.
-    let enu = if geocentric && !raw.is_empty() {
+    // Georeferenced: ECEF -> the projected CRS asked for, or the cameras' UTM zone. Positions are projected
+    // exactly; rotations turn with the grid at the cameras' mean position (its Jacobian, made orthonormal).
+    let projected = if geocentric && !raw.is_empty() {
         let mean = raw.iter().map(|r| r.1.w_axis.truncate()).sum::<DVec3>() / raw.len() as f64;
-        let lon = mean.y.atan2(mean.x);
-        let p = (mean.x * mean.x + mean.y * mean.y).sqrt();
-        // Geodetic latitude (Bowring's iteration on WGS84), good to well below a millimetre.
-        let (a, f) = (6_378_137.0, 1.0 / 298.257_223_563);
-        let e2 = f * (2.0 - f);
-        let mut lat = (mean.z / (p * (1.0 - e2))).atan();
-        for _ in 0..5 {
-            let n = a / (1.0 - e2 * lat.sin().powi(2)).sqrt();
-            let h = p / lat.cos() - n;
-            lat = (mean.z / (p * (1.0 - e2 * n / (n + h)))).atan();
-        }
-        let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
-        let north = DVec3::new(-lat.sin() * lon.cos(), -lat.sin() * lon.sin(), lat.cos());
-        let up = DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
-        let r = DMat3::from_cols(east, north, up).transpose();
-        let m = DMat4::from_cols(
-            r.x_axis.extend(0.0),
-            r.y_axis.extend(0.0),
-            r.z_axis.extend(0.0),
-            (-(r * mean)).extend(1.0),
-        );
-        Some((m, lat.to_degrees(), lon.to_degrees()))
+        let crs = match crs {
+            Some(c) => c.clone(),
+            None => {
+                let (lat, lon) = geodetic_of(mean);
+                Crs::utm_for(lat, lon).map_err(|e| PoseError::parse(path, "chunk reference", e.to_string()))?
+            }
+        };
+        let proj =
+            Projector::new(&crs).map_err(|e| PoseError::Option { key: "--crs".into(), reason: e.to_string() })?;
+        let r = proj
+            .ecef_rotation(mean.to_array(), 1.0)
+            .map_err(|e| PoseError::parse(path, "chunk reference", e.to_string()))?;
+        let r = DMat3::from_cols_array_2d(&r).transpose(); // rows in the array
+        Some((proj, r))
     } else {
         None
     };
-    for (k, (label, mut m, camera)) in raw.into_iter().enumerate() {
-        if let Some((e, _, _)) = enu {
-            m = e * m;
-        }
+    for (k, (label, m, camera)) in raw.into_iter().enumerate() {
         let r3 = DMat3::from_mat4(m);
         let s = r3.determinant().cbrt();
-        let rot = r3 * (1.0 / s);
+        let mut rot = r3 * (1.0 / s);
+        let mut centre = m.w_axis.truncate();
+        if let Some((proj, r)) = &projected {
+            rot = *r * rot;
+            centre = DVec3::from_array(
+                proj.from_ecef(centre.to_array())
+                    .map_err(|e| PoseError::parse(path, format!("camera {label}"), e.to_string()))?,
+            );
+        }
         // Column j of the rotation is camera axis j in the world; OpenCV -> OpenGL negates y and z.
         let c2w: [[f64; 4]; 4] = std::array::from_fn(|i| {
             if i == 3 {
                 return [0.0, 0.0, 0.0, 1.0];
             }
             std::array::from_fn(|j| match j {
-                3 => m.w_axis[i],
+                3 => centre[i],
                 0 => rot.col(0)[i],
                 _ => -rot.col(j)[i],
             })
         });
         images.push(PosedImage { id: k as u64, name: label, c2w, camera });
     }
-    let crs = enu.map(|(_, lat, lon)| format!("local east-north-up metres about latitude {lat:.9}, longitude {lon:.9} (from the chunk's ECEF georeference)"));
-    Ok(PoseModel { tool: "metashape", images, points: Vec::new(), crs })
+    let crs = projected.map(|(p, _)| p.crs);
+    Ok(PoseModel { tool: "metashape", images, points: Vec::new(), crs, notes })
+}
+
+/// Geodetic latitude and longitude (degrees) of an ECEF position (Bowring's iteration on WGS84, far below a
+/// millimetre); used to pick the UTM zone.
+fn geodetic_of(p: DVec3) -> (f64, f64) {
+    let lon = p.y.atan2(p.x);
+    let r = (p.x * p.x + p.y * p.y).sqrt();
+    let (a, f) = (6_378_137.0, 1.0 / 298.257_223_563);
+    let e2 = f * (2.0 - f);
+    let mut lat = (p.z / (r * (1.0 - e2))).atan();
+    for _ in 0..5 {
+        let n = a / (1.0 - e2 * lat.sin().powi(2)).sqrt();
+        let h = r / lat.cos() - n;
+        lat = (p.z / (r * (1.0 - e2 * n / (n + h)))).atan();
+    }
+    (lat.to_degrees(), lon.to_degrees())
 }

@@ -13,7 +13,7 @@ pub mod metashape;
 pub mod model;
 pub mod opensfm;
 
-pub use apply::{apply_poses, PoseImportReport};
+pub use apply::{apply_poses, apply_poses_to, read_transforms, transforms_path, PoseImportReport};
 pub use model::PoseModel;
 
 /// Reads a COLMAP model folder and puts it into the dataset.

@@ -36,8 +36,11 @@ pub struct PoseModel {
     pub tool: &'static str,
     pub images: Vec<PosedImage>,
     pub points: Vec<PosePoint>,
-    /// The coordinate system the poses are in, when the tool says (e.g. ODM's "WGS84 UTM 32N").
-    pub crs: Option<String>,
+    /// The projected CRS the poses are in, when the model is georeferenced (ODM's coords.txt, Metashape's chunk
+    /// reference, `msnerf sfm` with GPS).
+    pub crs: Option<crate::geo::Crs>,
+    /// What the reader decided that the user should know (e.g. a reference without a chunk transform).
+    pub notes: Vec<String>,
 }
 
 /// Camera-to-world in OpenGL axes from a world-to-camera rotation (row-major) and translation in OpenCV axes

@@ -163,7 +163,7 @@ pub fn read_reconstruction(path: &Path) -> Result<PoseModel, PoseError> {
             points.push(PosePoint { xyz, rgb: rgb.unwrap_or([0; 3]), error: None, images: imgs });
         }
     }
-    Ok(PoseModel { tool: "opensfm", images, points, crs: None })
+    Ok(PoseModel { tool: "opensfm", images, points, crs: None, notes: Vec::new() })
 }
 
 /// Reads an ODM project: `opensfm/reconstruction.json` plus the offset and CRS of `odm_georeferencing/coords.txt`.
@@ -181,7 +181,12 @@ pub fn read_odm(project: &Path) -> Result<PoseModel, PoseError> {
     if coords.is_file() {
         let text = std::fs::read_to_string(&coords).map_err(PoseError::io(&coords))?;
         let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-        let crs = lines.next().map(|l| l.trim().to_string());
+        let crs = lines
+            .next()
+            .map(|l| {
+                crate::geo::Crs::parse(l).map_err(|e| PoseError::parse(&coords, "line 1 (the CRS)", e.to_string()))
+            })
+            .transpose()?;
         let off: Vec<f64> = lines
             .next()
             .map(|l| l.split_whitespace().filter_map(|x| x.parse::<f64>().ok()).collect())

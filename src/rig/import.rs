@@ -23,9 +23,10 @@ use super::frame::{
     estimate_warps, intersect, load, median_warps, rig_only_warps, target_for, valid_rect, write_frame,
     BandRegistration,
 };
-use super::geo::{enu, nadir_pose};
+use super::geo::nadir_pose;
 use super::panel::Quad;
 use super::radiometry::radiance_units;
+use crate::geo::Projector;
 use crate::sim::writer::StagingDir;
 
 /// What the output holds.
@@ -114,6 +115,8 @@ pub struct ImportOptions {
     pub register_sample: usize,
     /// Reference band name (default: the band nearest 560 nm, as ODM picks green).
     pub reference_band: Option<String>,
+    /// Projected CRS of the GPS pose priors (default: the WGS 84 UTM zone of the first capture with GPS).
+    pub crs: Option<crate::geo::Crs>,
     pub overwrite: bool,
     pub threads: usize,
     pub progress: bool,
@@ -334,16 +337,29 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         .map(|b| json!({"name": b.band_name, "center_nm": b.center_nm, "fwhm_nm": b.fwhm_nm}))
         .collect();
     let origin = scan.captures.iter().find_map(|c| c.bands[ref_idx].meta.gps);
+    // GPS pose priors in a projected CRS: the one asked for, or the first GPS fix's UTM zone.
+    let projector = match (origin, &opts.crs) {
+        (None, _) => None,
+        (Some(_), Some(c)) => Some(Projector::new(c)),
+        (Some(o), None) => Some(crate::geo::Crs::utm_for(o.latitude, o.longitude).and_then(|c| Projector::new(&c))),
+    }
+    .transpose()
+    .map_err(|e| RigError::Option { key: "--crs".into(), reason: e.to_string() })?;
     let mut frames_json = Vec::with_capacity(n);
     for (cap, f) in scan.captures.iter().zip(&frames) {
         let m = &cap.bands[ref_idx].meta;
-        let heading = m.xmp.number("dji.com", "GimbalYawDegree").or(m.xmp.number("pix4d.com", "Yaw")).unwrap_or(0.0);
-        let pos = match (origin, m.gps) {
-            (Some(o), Some(g)) => enu(
-                [o.latitude, o.longitude, o.altitude.unwrap_or(0.0)],
-                [g.latitude, g.longitude, g.altitude.unwrap_or(0.0)],
-            ),
-            _ => [0.0, 0.0, 0.0],
+        let yaw = m.xmp.number("dji.com", "GimbalYawDegree").or(m.xmp.number("pix4d.com", "Yaw")).unwrap_or(0.0);
+        let (pos, heading) = match (&projector, m.gps) {
+            (Some(p), Some(g)) => {
+                let proj_err = |e: crate::geo::CrsError| RigError::Capture {
+                    capture: cap.key.clone(),
+                    reason: format!("GPS position: {e}"),
+                };
+                let pos = p.from_geodetic(g.latitude, g.longitude, g.altitude.unwrap_or(0.0)).map_err(proj_err)?;
+                // The yaw is from true north; the grid's north is off by the meridian convergence.
+                (pos, yaw - p.convergence_deg(g.latitude, g.longitude).map_err(proj_err)?)
+            }
+            _ => ([0.0, 0.0, 0.0], yaw),
         };
         let mut frame = json!({
             "file_path": f.file,
@@ -395,13 +411,20 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         "reference_band": first.bands[ref_idx].band_name,
         "pose_prior": {
             "source": "gps",
-            "frame": "local east-north-up metres about the first capture with GPS; nadir cameras, heading from \
-                      the gimbal yaw when the files carry it",
+            "frame": match &projector {
+                Some(p) => format!("{}: easting, northing, ellipsoidal height (metres); nadir cameras, heading from the \
+                                    gimbal yaw when the files carry it, turned by the meridian convergence", p.crs.describe()),
+                None => "no GPS in the files: every camera at the origin".to_string(),
+            },
             "origin": origin,
             "note": "priors only: import poses from SfM (or run it) before training a real flight",
         },
         "frames": frames_json,
     });
+    let mut transforms = transforms;
+    if let Some(p) = &projector {
+        transforms["crs"] = json!(p.crs.key());
+    }
     let tpath = staging.path.join("transforms.json");
     let text = serde_json::to_string_pretty(&transforms).expect("json");
     std::fs::write(&tpath, text).map_err(RigError::io(&tpath))?;

@@ -189,6 +189,11 @@ impl Prepared {
             effects,
             seed: opts.seed.unwrap_or(desc.seed),
             world_offset: desc.world_offset,
+            crs: desc.crs.as_deref().map(crate::geo::Crs::parse).transpose().map_err(|e| SimError::Scene {
+                file: desc.source.clone(),
+                key: "crs".into(),
+                reason: e.to_string(),
+            })?,
             transforms,
             band_transform,
             point_stride,

@@ -247,6 +247,9 @@ fn write_transforms(prep: &Prepared, opts: &SimOptions, root: &Path, sparse: Opt
     if let Some(p) = sparse {
         t["sparse_points_path"] = json!(p);
     }
+    if let Some(c) = &prep.crs {
+        t["crs"] = json!(c.key());
+    }
     writer::write_json(&root.join("transforms.json"), &t)
 }
 
@@ -267,12 +270,16 @@ fn write_points(prep: &Prepared, root: &Path, points: &[([f64; 3], usize)]) -> R
         .collect();
     let path = root.join("ground_truth.ply");
     let cloud = PointCloud::new(xyz, bands, refl)?;
-    let comments = vec![
+    let mut comments = vec![
         format!("msnerf simulate scene {}", prep.name),
         format!("world frame: local scene frame + world_offset {} {} {} (metres, z up)", o[0], o[1], o[2]),
         "values: band-integrated Lambertian reflectance of the surface times its texture factor (no light or sensor effects)"
             .to_string(),
     ];
+    if let Some(c) = &prep.crs {
+        comments.push(format!("crs {}", c.key()));
+        comments.push(format!("crs_wkt {}", c.wkt));
+    }
     Ok(write_ply(&path, &cloud, &PlyOptions { comments, ..Default::default() })?)
 }
 

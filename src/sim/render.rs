@@ -53,6 +53,8 @@ pub struct Prepared {
     pub effects: EffectsDesc,
     pub seed: u64,
     pub world_offset: [f64; 3],
+    /// The scene's `crs` (validated), as written into `transforms.json`.
+    pub crs: Option<crate::geo::Crs>,
     /// Distinct sampling transforms; index 0 is the identity (the reference ray, depth and points).
     pub transforms: Vec<Affine2>,
     /// Per band: index into `transforms`.

@@ -29,6 +29,10 @@ pub struct SceneDesc {
     /// Added to every written coordinate (poses, point cloud); metres.
     #[serde(default)]
     pub world_offset: [f64; 3],
+    /// The projected CRS `world_offset` is in (`EPSG:32650`, or OGC WKT): written as the dataset's `crs`, so its
+    /// outputs (LAS, PLY, GeoTIFF) carry it.
+    #[serde(default)]
+    pub crs: Option<String>,
     /// Seed for every random choice (noise, drift); `--seed` overrides.
     #[serde(default)]
     pub seed: u64,
@@ -335,6 +339,13 @@ impl SceneDesc {
                 ),
             ))
         };
+        if let Some(c) = &self.crs {
+            match crate::geo::Crs::parse(c) {
+                Ok(crs) if crs.kind == crate::geo::CrsKind::Projected => {}
+                Ok(crs) => return bad("crs".into(), &format!("{} is not a projected CRS in metres", crs.describe())),
+                Err(e) => return bad("crs".into(), &e.to_string()),
+            }
+        }
         if self.bands.is_some() && self.band_range.is_some() {
             return bad("band_range".into(), "give either `bands` or `band_range`, not both");
         }

@@ -35,6 +35,23 @@ pub struct GeoReference {
     pub epsg: Option<u16>,
 }
 
+impl GeoReference {
+    /// A north-up grid in `crs` (a dataset's `crs`, or none): GeoTIFF's keys carry an EPSG code, so a CRS known
+    /// only by its WKT is refused, named.
+    pub fn in_crs(origin: [f64; 2], pixel_size: [f64; 2], crs: Option<&crate::geo::Crs>) -> Result<Self> {
+        let epsg = match crs {
+            None => None,
+            Some(c) => Some(c.epsg.and_then(|e| u16::try_from(e).ok()).ok_or_else(|| {
+                OutputError::invalid(
+                    "crs",
+                    format!("{}: GeoTIFF keys need an EPSG code; give the dataset's crs as EPSG:n", c.describe()),
+                )
+            })?),
+        };
+        Ok(GeoReference { origin, pixel_size, epsg })
+    }
+}
+
 /// GeoTIFF options.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct GeoTiffOptions {

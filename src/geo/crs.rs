@@ -1,0 +1,227 @@
+//! A coordinate reference system as datasets and outputs carry it: an EPSG code when there is one, its OGC WKT1
+//! (for LAS's `LASF_Projection` record and PLY comments) and its PROJ.4 definition (for [`super::Projector`]).
+//!
+//! Accepted spellings of `transforms.json`'s `crs` and of `--crs`:
+//! - `EPSG:32650` (any case; also `urn:ogc:def:crs:EPSG::32650` and a bare `32650`);
+//! - OGC WKT (WKT1 `PROJCS[...]`, `GEOGCS[...]`, `COMPD_CS[...]` or WKT2 `PROJCRS[...]`, ...): kept as given; its
+//!   top-level `AUTHORITY["EPSG","n"]` / `ID["EPSG",n]` gives the code;
+//! - OpenDroneMap's `coords.txt` form `WGS84 UTM 32N` (WGS 84 UTM zones: EPSG 326zz north, 327zz south).
+
+use super::error::CrsError;
+
+/// What the coordinates are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CrsKind {
+    /// Easting, northing (and height): the only kind a dataset's world frame may be in.
+    Projected,
+    /// Latitude and longitude in degrees.
+    Geographic,
+    /// Earth-centred, earth-fixed metres (EPSG:4978).
+    Geocentric,
+}
+
+/// A coordinate reference system.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Crs {
+    pub epsg: Option<u32>,
+    /// OGC WKT (WKT1 from the EPSG table, or the text given).
+    pub wkt: String,
+    /// PROJ.4 definition when the EPSG table has the code (needed to project coordinates into this CRS).
+    pub proj4: Option<String>,
+    /// The CRS's name (the WKT's first quoted string).
+    pub name: String,
+    pub kind: CrsKind,
+}
+
+/// EPSG:4978 as GDAL writes it in WKT1.
+const WGS84_GEOCENTRIC_WKT: &str = r#"GEOCCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563,AUTHORITY["EPSG","7030"]],AUTHORITY["EPSG","6326"]],PRIMEM["Greenwich",0,AUTHORITY["EPSG","8901"]],UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["Geocentric X",OTHER],AXIS["Geocentric Y",OTHER],AXIS["Geocentric Z",NORTH],AUTHORITY["EPSG","4978"]]"#;
+
+const WKT_ROOTS: [&str; 14] = [
+    "PROJCS[",
+    "GEOGCS[",
+    "GEOCCS[",
+    "COMPD_CS[",
+    "PROJCRS[",
+    "GEOGCRS[",
+    "GEODCRS[",
+    "GEODETICCRS[",
+    "PROJECTEDCRS[",
+    "COMPOUNDCRS[",
+    "BOUNDCRS[",
+    "BASEGEOGCRS[",
+    "GEOGRAPHICCRS[",
+    "VERT_CS[",
+];
+
+impl Crs {
+    /// Parses any accepted spelling (module doc).
+    pub fn parse(text: &str) -> Result<Crs, CrsError> {
+        let t = text.trim();
+        if t.is_empty() {
+            return Err(CrsError::invalid(text, "empty"));
+        }
+        let upper = t.to_ascii_uppercase();
+        if WKT_ROOTS.iter().any(|r| upper.starts_with(r)) {
+            return Self::from_wkt(t);
+        }
+        if let Some(code) = upper.strip_prefix("EPSG:").or_else(|| upper.strip_prefix("URN:OGC:DEF:CRS:EPSG::")) {
+            let code = code.trim().parse::<u32>().map_err(|_| CrsError::invalid(text, "not an EPSG code number"))?;
+            return Self::from_epsg(code).map_err(|e| match e {
+                CrsError::Invalid { reason, .. } => CrsError::invalid(text, reason),
+                e => e,
+            });
+        }
+        if let Ok(code) = t.parse::<u32>() {
+            return Self::from_epsg(code);
+        }
+        if let Some(code) = odm_utm(&upper) {
+            return Self::from_epsg(code);
+        }
+        Err(CrsError::invalid(
+            text,
+            "not an EPSG code (EPSG:32650), OGC WKT (PROJCS[...]) or a WGS84 UTM zone (WGS84 UTM 50N)",
+        ))
+    }
+
+    /// The CRS with EPSG code `code`, from the EPSG table (plus WGS 84 geocentric, EPSG:4978, which the table
+    /// lacks and Metashape's georeferenced chunks use).
+    pub fn from_epsg(code: u32) -> Result<Crs, CrsError> {
+        if code == 4978 {
+            return Ok(Crs {
+                epsg: Some(4978),
+                wkt: WGS84_GEOCENTRIC_WKT.into(),
+                proj4: Some("+proj=geocent +datum=WGS84 +units=m +no_defs".into()),
+                name: "WGS 84".into(),
+                kind: CrsKind::Geocentric,
+            });
+        }
+        let def = u16::try_from(code).ok().and_then(crs_definitions::from_code).ok_or_else(|| {
+            CrsError::invalid(
+                &format!("EPSG:{code}"),
+                "not in the EPSG table msnerf carries (crs-definitions); give the CRS as OGC WKT instead",
+            )
+        })?;
+        let proj4 = def.proj4.trim().to_string();
+        let kind = if proj4.contains("+proj=longlat") || proj4.contains("+proj=latlong") {
+            CrsKind::Geographic
+        } else if proj4.contains("+proj=geocent") {
+            CrsKind::Geocentric
+        } else {
+            CrsKind::Projected
+        };
+        Ok(Crs { epsg: Some(code), wkt: def.wkt.to_string(), proj4: Some(proj4), name: wkt_name(def.wkt), kind })
+    }
+
+    fn from_wkt(t: &str) -> Result<Crs, CrsError> {
+        let depth_ok = t.chars().try_fold(0i32, |d, c| {
+            let d = d + i32::from(c == '[') - i32::from(c == ']');
+            (d >= 0).then_some(d)
+        });
+        if depth_ok != Some(0) {
+            return Err(CrsError::invalid(t, "WKT brackets do not balance"));
+        }
+        let upper = t.to_ascii_uppercase();
+        let kind =
+            if upper.starts_with("GEOGCS[") || upper.starts_with("GEOGCRS[") || upper.starts_with("GEOGRAPHICCRS[") {
+                CrsKind::Geographic
+            } else if upper.starts_with("GEOCCS[")
+                || ((upper.starts_with("GEODCRS[") || upper.starts_with("GEODETICCRS["))
+                    && upper.contains("CS[CARTESIAN"))
+            {
+                CrsKind::Geocentric
+            } else if upper.starts_with("GEODCRS[") || upper.starts_with("GEODETICCRS[") {
+                CrsKind::Geographic
+            } else {
+                CrsKind::Projected
+            };
+        let epsg = top_level_epsg(t);
+        let proj4 = epsg
+            .and_then(|c| u16::try_from(c).ok())
+            .and_then(crs_definitions::from_code)
+            .map(|d| d.proj4.trim().to_string());
+        Ok(Crs { epsg, wkt: t.to_string(), proj4, name: wkt_name(t), kind })
+    }
+
+    /// The WGS 84 / UTM zone CRS for a position (degrees).
+    pub fn utm_for(lat_deg: f64, lon_deg: f64) -> Result<Crs, CrsError> {
+        Self::from_epsg(utm_epsg(lat_deg, lon_deg).ok_or_else(|| {
+            CrsError::invalid(&format!("latitude {lat_deg}, longitude {lon_deg}"), "outside UTM's range (80 S to 84 N)")
+        })?)
+    }
+
+    /// What `transforms.json` stores: `EPSG:n` when the code is known, else the WKT.
+    pub fn key(&self) -> String {
+        match self.epsg {
+            Some(c) => format!("EPSG:{c}"),
+            None => self.wkt.clone(),
+        }
+    }
+
+    /// `EPSG:32650 (WGS 84 / UTM zone 50N)` or the name alone.
+    pub fn describe(&self) -> String {
+        match self.epsg {
+            Some(c) => format!("EPSG:{c} ({})", self.name),
+            None => format!("{} (WKT, no EPSG code)", self.name),
+        }
+    }
+}
+
+/// EPSG code of the WGS 84 / UTM zone of a position: zone `floor((lon + 180) / 6) + 1`, 326zz north of the equator,
+/// 327zz south (the plain zone formula as ODM and pyproj's `utm_crs` use, without the Norway/Svalbard exceptions).
+pub fn utm_epsg(lat_deg: f64, lon_deg: f64) -> Option<u32> {
+    if !(lat_deg.is_finite() && lon_deg.is_finite() && (-80.0..=84.0).contains(&lat_deg)) {
+        return None;
+    }
+    let lon = (lon_deg + 180.0).rem_euclid(360.0);
+    let zone = ((lon / 6.0).floor() as u32).min(59) + 1;
+    Some(if lat_deg >= 0.0 { 32600 + zone } else { 32700 + zone })
+}
+
+/// ODM's `coords.txt` CRS line, `WGS84 UTM 32N`.
+fn odm_utm(upper: &str) -> Option<u32> {
+    let mut w = upper.split_whitespace();
+    let (Some("WGS84"), Some("UTM"), Some(z), None) = (w.next(), w.next(), w.next(), w.next()) else {
+        return None;
+    };
+    let (num, hemi) = z.split_at(z.len().checked_sub(1)?);
+    let zone: u32 = num.parse().ok().filter(|z| (1..=60).contains(z))?;
+    match hemi {
+        "N" => Some(32600 + zone),
+        "S" => Some(32700 + zone),
+        _ => None,
+    }
+}
+
+/// The first quoted string of a WKT (the CRS's name).
+fn wkt_name(wkt: &str) -> String {
+    wkt.split('"').nth(1).unwrap_or("unnamed").to_string()
+}
+
+/// The EPSG code of the WKT's top-level `AUTHORITY["EPSG","n"]` (WKT1) or `ID["EPSG",n]` (WKT2).
+fn top_level_epsg(wkt: &str) -> Option<u32> {
+    let bytes = wkt.as_bytes();
+    let mut depth = 0;
+    let mut found = None;
+    for (i, &c) in bytes.iter().enumerate() {
+        match c {
+            b'[' | b'(' => {
+                depth += 1;
+                if depth == 2 {
+                    let head = wkt[..i].rsplit([',', '[', '(']).next().unwrap_or("").trim().to_ascii_uppercase();
+                    if head == "AUTHORITY" || head == "ID" {
+                        let body = &wkt[i + 1..];
+                        let end = body.find([']', ')']).unwrap_or(body.len());
+                        let parts: Vec<&str> = body[..end].split(',').map(|s| s.trim().trim_matches('"')).collect();
+                        if parts.len() >= 2 && parts[0].eq_ignore_ascii_case("EPSG") {
+                            found = parts[1].parse().ok();
+                        }
+                    }
+                }
+            }
+            b']' | b')' => depth -= 1,
+            _ => {}
+        }
+    }
+    found
+}
