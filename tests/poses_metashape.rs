@@ -256,3 +256,75 @@ fn bad_metashape_files_are_named() {
     std::fs::write(&p, "<document><chunk>").unwrap();
     assert!(read_cameras_xml(&p, None).unwrap_err().to_string().contains("XML"));
 }
+
+#[test]
+fn multi_camera_slaves_are_posed_from_their_master_and_sensor_offset() {
+    let tmp = TempDir::new("poses-ms-rig");
+    // Three master cameras (camera-to-chunk, OpenCV axes) and a slave sensor 5 degrees about y, 4 cm across.
+    let masters: Vec<DMat4> = (0..3)
+        .map(|k| {
+            DMat4::from_rotation_translation(
+                glam::DQuat::from_euler(glam::EulerRot::XYZ, 3.0 + 0.1 * k as f64, 0.2, 0.05 * k as f64),
+                DVec3::new(k as f64, 0.5 * k as f64, 10.0),
+            )
+        })
+        .collect();
+    let slave =
+        DMat4::from_rotation_translation(glam::DQuat::from_rotation_y(5f64.to_radians()), DVec3::new(0.04, 0.0, 0.001));
+    let chunk = DMat4::from_scale_rotation_translation(
+        DVec3::splat(2.0),
+        glam::DQuat::from_rotation_z(0.4),
+        DVec3::new(100.0, 200.0, 5.0),
+    );
+    let rows = |m: &DMat4| {
+        (0..4).flat_map(|i| (0..4).map(move |j| m.col(j)[i])).map(|v| format!("{v:e}")).collect::<Vec<_>>().join(" ")
+    };
+    let r3 = |m: &DMat4| {
+        (0..3).flat_map(|i| (0..3).map(move |j| m.col(j)[i])).map(|v| format!("{v:e}")).collect::<Vec<_>>().join(" ")
+    };
+    let calib = r#"<resolution width="64" height="48"/><calibration type="frame" class="adjusted"><resolution width="64" height="48"/><f>50</f></calibration>"#;
+    let mut cams = String::new();
+    for (k, m) in masters.iter().enumerate() {
+        cams += &format!(
+            "<camera id=\"{}\" sensor_id=\"0\" label=\"m{k}\"><transform>{}</transform></camera>\n",
+            2 * k,
+            rows(m)
+        );
+        cams += &format!("<camera id=\"{}\" sensor_id=\"1\" master_id=\"{}\" label=\"s{k}\"/>\n", 2 * k + 1, 2 * k);
+    }
+    let xml = format!(
+        r#"<?xml version="1.0" encoding="UTF-8"?>
+<document version="1.5.0"><chunk label="rig">
+<sensors><sensor id="0" label="Green" type="frame" master_id="0">{calib}</sensor>
+<sensor id="1" label="NIR" type="frame" master_id="0">{calib}<rotation>{}</rotation><location>{} {} {}</location></sensor></sensors>
+<cameras><group id="0" label="captures" type="folder">{cams}</group></cameras>
+<transform><rotation>{}</rotation><translation>100 200 5</translation><scale>2</scale></transform>
+</chunk></document>"#,
+        r3(&slave),
+        slave.w_axis.x,
+        slave.w_axis.y,
+        slave.w_axis.z,
+        r3(&DMat4::from_rotation_z(0.4)),
+    );
+    let path = tmp.path().join("rig.xml");
+    std::fs::write(&path, xml).unwrap();
+    let m = read_cameras_xml(&path, None).unwrap();
+    assert_eq!(m.images.len(), 6, "masters and slaves (inside a camera group) are posed");
+    assert!(m.notes.iter().any(|n| n.contains("3 slave camera(s)")), "{:?}", m.notes);
+    let mut worst: f64 = 0.0;
+    for (k, master) in masters.iter().enumerate() {
+        for (label, local) in [(format!("m{k}"), *master), (format!("s{k}"), *master * slave)] {
+            let w = chunk * local;
+            // Expected OpenGL camera-to-world: scale out of the rotation, camera y and z negated.
+            let rot = glam::DMat3::from_mat4(w) * 0.5;
+            let im = m.images.iter().find(|i| i.name == label).unwrap();
+            for i in 0..3 {
+                let want = [rot.col(0)[i], -rot.col(1)[i], -rot.col(2)[i], w.w_axis[i]];
+                for j in 0..4 {
+                    worst = worst.max((im.c2w[i][j] - want[j]).abs() / want[j].abs().max(1.0));
+                }
+            }
+        }
+    }
+    assert!(worst < 1e-9, "{worst}");
+}

@@ -78,9 +78,8 @@ fn time_ms(repeats: usize, mut f: impl FnMut() -> GpuResult<()>) -> GpuResult<f6
 }
 
 /// The middle value (the upper one of an even count); `v` is not empty.
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+fn median(v: Vec<f64>) -> f64 {
+    crate::util::stats::upper_median(&v)
 }
 
 fn random(n: usize, lo: f32, hi: f32, seed: u64) -> Vec<f32> {

@@ -116,7 +116,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
     println!("[3/6] evaluating held-out views");
     let mut run = LoadedRun::load(&ctx, &run_dir).map_err(anyhow::Error::msg)?;
     let has_depth = run.ds.frames.iter().all(|f| f.depth.is_some());
-    let report = super::eval::evaluate(&mut run, Split::Eval, Some(a.eval_views), None, has_depth)?;
+    let report = crate::nerf::evaluate::evaluate(&mut run, Split::Eval, Some(a.eval_views), None, has_depth)?;
     report.write(&run_dir.join("eval.json"))?;
 
     println!("[4/6] rendering CIR and NDVI previews");

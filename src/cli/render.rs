@@ -4,11 +4,11 @@
 //! sheet. Dataset frames are named after their images; novel views (`orbit`: [`crate::nerf::views`], a camera path:
 //! [`crate::nerf::camera_path`]) are `orbit_000`, `path_000`, ... and have no error preview (no ground truth).
 
-use super::eval::ground_truth;
 use super::Cli;
 use crate::data::Split;
 use crate::gpu::Context;
 use crate::nerf::camera_path::load_camera_path;
+use crate::nerf::evaluate::ground_truth;
 use crate::nerf::run::{LoadedRun, RenderedView};
 use crate::nerf::views::{orbit_views, NovelView, OrbitDesc};
 use crate::output::image::SpectralImage;

@@ -19,9 +19,8 @@ pub struct Outlier {
     pub spread: f64,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+fn median(v: Vec<f64>) -> f64 {
+    crate::util::stats::upper_median(&v)
 }
 
 /// The outlying cameras of `frames` (in the dataset's own world units).

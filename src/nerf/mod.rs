@@ -6,6 +6,7 @@ pub mod camera_path;
 pub mod camera_poses;
 pub mod config;
 pub mod depth_targets;
+pub mod evaluate;
 pub mod export;
 pub mod kernels;
 pub mod model;

@@ -293,23 +293,7 @@ fn sorted(d: &[f64]) -> Vec<f64> {
     s
 }
 
-/// Median (mean of the two middle values for an even count); NaN when empty. Shared by the depth metrics.
-pub fn median(d: &[f64]) -> f64 {
-    median_of_sorted(&sorted(d))
-}
-
-/// Median of sorted values (mean of the two middle values for an even count); NaN when empty.
-fn median_of_sorted(s: &[f64]) -> f64 {
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    let m = s.len() / 2;
-    if s.len() % 2 == 1 {
-        s[m]
-    } else {
-        (s[m - 1] + s[m]) / 2.0
-    }
-}
+pub use crate::util::stats::{median, median_of_sorted};
 
 /// Planar / elevation errors of the matched pairs (every predicted point and its nearest reference point):
 /// planar = `√(dx² + dy²)`, elevation = `|dz|`, signed dz = pred z − ref z.

@@ -51,6 +51,8 @@ pub struct ColmapModel {
     pub cameras: BTreeMap<u32, ColmapCamera>,
     pub images: Vec<ColmapImage>,
     pub points: Vec<ColmapPoint>,
+    /// COLMAP >= 3.12 rigs and frames (`rigs.*`, `frames.*`), when the model has them.
+    pub rigs: Option<super::colmap_rigs::RigModel>,
 }
 
 /// (name, model id, number of parameters) of the models COLMAP defines.
@@ -89,7 +91,7 @@ pub fn read_model(dir: &Path) -> Result<ColmapModel, PoseError> {
     }
 }
 
-fn data_lines(path: &Path) -> Result<Vec<(usize, String)>, PoseError> {
+pub(super) fn data_lines(path: &Path) -> Result<Vec<(usize, String)>, PoseError> {
     let text = std::fs::read_to_string(path).map_err(PoseError::io(path))?;
     Ok(text
         .lines()
@@ -99,7 +101,7 @@ fn data_lines(path: &Path) -> Result<Vec<(usize, String)>, PoseError> {
         .collect())
 }
 
-fn num<T: std::str::FromStr>(path: &Path, line: usize, what: &str, s: Option<&str>) -> Result<T, PoseError> {
+pub(super) fn num<T: std::str::FromStr>(path: &Path, line: usize, what: &str, s: Option<&str>) -> Result<T, PoseError> {
     let s = s.ok_or_else(|| PoseError::parse(path, format!("line {line}"), format!("missing {what}")))?;
     s.parse::<T>().map_err(|_| PoseError::parse(path, format!("line {line}"), format!("{what}: {s:?} is not a number")))
 }
@@ -187,18 +189,19 @@ pub fn read_text(dir: &Path) -> Result<ColmapModel, PoseError> {
             });
         }
     }
+    super::colmap_rigs::compose(dir, &mut m, false)?;
     Ok(m)
 }
 
-struct Reader<'a> {
-    path: &'a Path,
-    b: &'a [u8],
-    at: usize,
-    record: String,
+pub(super) struct Reader<'a> {
+    pub(super) path: &'a Path,
+    pub(super) b: &'a [u8],
+    pub(super) at: usize,
+    pub(super) record: String,
 }
 
 impl Reader<'_> {
-    fn take(&mut self, n: usize) -> Result<&[u8], PoseError> {
+    pub(super) fn take(&mut self, n: usize) -> Result<&[u8], PoseError> {
         if self.at + n > self.b.len() {
             return Err(PoseError::parse(self.path, format!("byte {} ({})", self.at, self.record), "file ends early"));
         }
@@ -206,22 +209,22 @@ impl Reader<'_> {
         self.at += n;
         Ok(s)
     }
-    fn u64(&mut self) -> Result<u64, PoseError> {
+    pub(super) fn u64(&mut self) -> Result<u64, PoseError> {
         Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
     }
-    fn i64(&mut self) -> Result<i64, PoseError> {
+    pub(super) fn i64(&mut self) -> Result<i64, PoseError> {
         Ok(i64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
     }
-    fn i32(&mut self) -> Result<i32, PoseError> {
+    pub(super) fn i32(&mut self) -> Result<i32, PoseError> {
         Ok(i32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
     }
-    fn f64(&mut self) -> Result<f64, PoseError> {
+    pub(super) fn f64(&mut self) -> Result<f64, PoseError> {
         Ok(f64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
     }
-    fn u8(&mut self) -> Result<u8, PoseError> {
+    pub(super) fn u8(&mut self) -> Result<u8, PoseError> {
         Ok(self.take(1)?[0])
     }
-    fn name(&mut self) -> Result<String, PoseError> {
+    pub(super) fn name(&mut self) -> Result<String, PoseError> {
         let end = self.b[self.at..].iter().position(|&c| c == 0).ok_or_else(|| {
             PoseError::parse(self.path, format!("byte {} ({})", self.at, self.record), "image name not terminated")
         })?;
@@ -230,7 +233,7 @@ impl Reader<'_> {
         Ok(s)
     }
     /// A count that cannot exceed what is left of the file (`each` bytes per item at least).
-    fn count(&mut self, each: usize) -> Result<usize, PoseError> {
+    pub(super) fn count(&mut self, each: usize) -> Result<usize, PoseError> {
         let n = self.u64()?;
         if n as u128 * each as u128 > (self.b.len() - self.at) as u128 {
             return Err(PoseError::parse(
@@ -243,7 +246,7 @@ impl Reader<'_> {
     }
 }
 
-fn read_file(path: &Path) -> Result<Vec<u8>, PoseError> {
+pub(super) fn read_file(path: &Path) -> Result<Vec<u8>, PoseError> {
     std::fs::read(path).map_err(PoseError::io(path))
 }
 
@@ -305,6 +308,7 @@ pub fn read_binary(dir: &Path) -> Result<ColmapModel, PoseError> {
             m.points.push(ColmapPoint { id, xyz, rgb, error, images });
         }
     }
+    super::colmap_rigs::compose(dir, &mut m, true)?;
     Ok(m)
 }
 
@@ -411,5 +415,21 @@ pub fn to_pose_model(m: &ColmapModel, path: &Path) -> Result<PoseModel, PoseErro
             images: p.images.iter().map(|&i| i as u64).collect(),
         })
         .collect();
-    Ok(PoseModel { tool: "colmap", images, points, crs: None, notes: Vec::new() })
+    let notes = m
+        .rigs
+        .iter()
+        .map(|r| {
+            format!(
+                "COLMAP rig model: {} rig(s) ({} sensors), {} frame(s); each image posed as cam_from_rig * \
+                 rig_from_world, as COLMAP reads it (images file's own poses differ by up to {:.2e} degree and {:.2e} \
+                 model units)",
+                r.rigs.len(),
+                r.rigs.iter().map(|g| g.sensors.len().to_string()).collect::<Vec<_>>().join("+"),
+                r.frames.len(),
+                r.max_rotation_diff_deg,
+                r.max_centre_diff
+            )
+        })
+        .collect();
+    Ok(PoseModel { tool: "colmap", images, points, crs: None, notes })
 }

@@ -8,6 +8,12 @@
 //!   user typed in): f in pixels, cx/cy as offsets from the image centre, k1-k4, p1-p2, b1 (affinity: fx = f + b1)
 //!   and b2 (skew, refused when non-zero); note Metashape's p1/p2 are OpenCV's p2/p1;
 //! - disabled cameras (`enabled="false"` or `"0"`) and cameras without a transform (not aligned) are not posed;
+//! - multi-camera systems (a multispectral rig loaded as one): a slave `<sensor master_id=...>` carries its offset
+//!   (`<rotation>` slave-to-master, row-major; `<location>` the slave's centre in the master camera frame), and a
+//!   slave `<camera master_id=...>` has no transform: it is posed as its master camera's transform times that
+//!   offset. The location is taken in the chunk's internal units, like camera transforms, as the one open-source
+//!   reader that handles rigs does (facebookresearch/EyefulTower `metashape_to_krt.py`); not checked against a
+//!   real export;
 //! - a georeferenced chunk (`<reference>` holding a geographic CRS) has its chunk transform map to ECEF (EPSG:4978):
 //!   poses are projected into a projected CRS (`--crs`, default the cameras' WGS 84 UTM zone): centres exactly
 //!   through [`crate::geo::Projector`], rotations turned with the grid at the cameras' mean position (meridian
@@ -62,6 +68,32 @@ fn similarity(t: roxmltree::Node, path: &Path, at: &str) -> Result<DMat4, PoseEr
     };
     let m = r * s;
     Ok(DMat4::from_cols(m.x_axis.extend(0.0), m.y_axis.extend(0.0), m.z_axis.extend(0.0), tr.extend(1.0)))
+}
+
+/// A slave sensor's offset in a multi-camera system: `<rotation>` (9 numbers, row-major, slave camera axes to the
+/// master's) and `<location>` (the slave's centre in the master camera's frame) as the slave-to-master 4x4.
+fn slave_offset(s: roxmltree::Node, path: &Path, at: &str) -> Result<DMat4, PoseError> {
+    let r = match child(s, "rotation") {
+        Some(n) => {
+            let v = numbers(n, path, at)?;
+            if v.len() != 9 {
+                return Err(PoseError::parse(path, at, "slave rotation needs 9 numbers"));
+            }
+            DMat3::from_cols_array(&[v[0], v[3], v[6], v[1], v[4], v[7], v[2], v[5], v[8]])
+        }
+        None => DMat3::IDENTITY,
+    };
+    let l = match child(s, "location") {
+        Some(n) => {
+            let v = numbers(n, path, at)?;
+            if v.len() != 3 {
+                return Err(PoseError::parse(path, at, "slave location needs 3 numbers"));
+            }
+            DVec3::new(v[0], v[1], v[2])
+        }
+        None => DVec3::ZERO,
+    };
+    Ok(DMat4::from_cols(r.x_axis.extend(0.0), r.y_axis.extend(0.0), r.z_axis.extend(0.0), l.extend(1.0)))
 }
 
 fn sensor_camera(s: roxmltree::Node, path: &Path) -> Result<(String, PoseCamera), PoseError> {
@@ -132,8 +164,12 @@ pub fn read_cameras_xml(path: &Path, crs: Option<&Crs>) -> Result<PoseModel, Pos
         .find(|n| n.is_element() && n.tag_name().name() == "chunk")
         .ok_or_else(|| PoseError::parse(path, "document", "no <chunk>"))?;
     let mut sensors = HashMap::new();
+    let mut slave_offsets: HashMap<String, DMat4> = HashMap::new();
     for s in chunk.descendants().filter(|n| n.is_element() && n.tag_name().name() == "sensor") {
         let (id, cam) = sensor_camera(s, path)?;
+        if s.attribute("master_id").is_some_and(|m| m != id) {
+            slave_offsets.insert(id.clone(), slave_offset(s, path, &format!("sensor {id}"))?);
+        }
         sensors.insert(id, cam);
     }
     let mut components = HashMap::new();
@@ -163,31 +199,59 @@ pub fn read_cameras_xml(path: &Path, crs: Option<&Crs>) -> Result<PoseModel, Pos
     }
     let mut images = Vec::new();
     let mut raw: Vec<(String, DMat4, PoseCamera)> = Vec::new();
-    for (k, cam) in chunk.descendants().filter(|n| n.is_element() && n.tag_name().name() == "camera").enumerate() {
+    let cameras: Vec<_> = chunk.descendants().filter(|n| n.is_element() && n.tag_name().name() == "camera").collect();
+    // Camera-to-chunk of every camera with a transform (masters of multi-camera systems among them).
+    let mut local_of: HashMap<String, DMat4> = HashMap::new();
+    for cam in &cameras {
+        let at = format!("camera {}", cam.attribute("label").unwrap_or(""));
+        if let Some(t) = child(*cam, "transform") {
+            let v = numbers(t, path, &at)?;
+            if v.len() != 16 {
+                return Err(PoseError::parse(path, &at, "camera transform needs 16 numbers"));
+            }
+            local_of.insert(cam.attribute("id").unwrap_or("").to_string(), DMat4::from_cols_slice(&v).transpose());
+        }
+    }
+    let mut slaves = 0usize;
+    for (k, cam) in cameras.iter().enumerate() {
+        let cam = *cam;
         let label = cam.attribute("label").unwrap_or("").to_string();
         let at = format!("camera {label}");
         if matches!(cam.attribute("enabled"), Some("false") | Some("0")) {
             continue;
         }
-        let Some(t) = child(cam, "transform") else { continue };
-        let v = numbers(t, path, &at)?;
-        if v.len() != 16 {
-            return Err(PoseError::parse(path, &at, "camera transform needs 16 numbers"));
-        }
-        let local = DMat4::from_cols_slice(&v).transpose(); // row-major in the file
+        let sid = cam.attribute("sensor_id").unwrap_or("");
+        let own = local_of.get(cam.attribute("id").unwrap_or("")).copied();
+        // A slave camera of a multi-camera system has no transform: its master's, times its sensor's offset.
+        let local = match (own, cam.attribute("master_id"), slave_offsets.get(sid)) {
+            (Some(l), _, _) => l,
+            (None, Some(master), Some(offset)) => match local_of.get(master) {
+                Some(m) => {
+                    slaves += 1;
+                    *m * *offset
+                }
+                None => continue,
+            },
+            _ => continue,
+        };
         let comp = match cam.attribute("component_id") {
             Some(c) => *components
                 .get(c)
                 .ok_or_else(|| PoseError::parse(path, &at, format!("component {c} is not in <components>")))?,
             None => DMat4::IDENTITY,
         };
-        let sid = cam.attribute("sensor_id").unwrap_or("");
         let sensor = sensors
             .get(sid)
             .cloned()
             .ok_or_else(|| PoseError::parse(path, &at, format!("sensor {sid:?} is not in <sensors>")))?;
         let _ = k;
         raw.push((label, chunk_m * comp * local, sensor));
+    }
+    if slaves > 0 {
+        notes.push(format!(
+            "multi-camera system: {slaves} slave camera(s) posed from their master camera and their sensor's offset \
+             (<rotation> slave-to-master, <location> in the chunk's units like camera transforms)"
+        ));
     }
     // Georeferenced: ECEF -> the projected CRS asked for, or the cameras' UTM zone. Positions are projected
     // exactly; rotations turn with the grid at the cameras' mean position (its Jacobian, made orthonormal).

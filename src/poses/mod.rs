@@ -8,6 +8,7 @@
 
 pub mod apply;
 pub mod colmap;
+pub mod colmap_rigs;
 pub mod error;
 pub mod metashape;
 pub mod model;

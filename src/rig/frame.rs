@@ -14,7 +14,7 @@ use super::plane::Plane;
 use super::radiometry::to_radiance;
 use super::register::{align, rig_homography, AlignStats, Homography};
 use super::warp::{ShiftField, Warp};
-use crate::sim::writer::{write_tiff, TiffData};
+use crate::util::tiff::{write_tiff, TiffData};
 
 /// Registration of one band of one capture.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -138,14 +138,8 @@ pub fn rig_only_warps(cap: &Capture, ref_idx: usize, undistort: bool) -> Vec<Ban
         .collect()
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+fn median(v: Vec<f64>) -> f64 {
+    crate::util::stats::median(&v)
 }
 
 /// The rig's warps from several captures: per band the element-wise median of the homographies and fields

@@ -27,7 +27,7 @@ use super::geo::nadir_pose;
 use super::panel::Quad;
 use super::radiometry::radiance_units;
 use crate::geo::Projector;
-use crate::sim::writer::StagingDir;
+use crate::util::staging::StagingDir;
 
 /// What the output holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]

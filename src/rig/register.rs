@@ -469,12 +469,12 @@ pub fn local_shift(
 }
 
 /// Median of a list (NaN-free).
-fn median(mut v: Vec<f64>) -> f64 {
+/// The upper median, 0 for no values (no shift).
+fn median(v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    crate::util::stats::upper_median(&v)
 }
 
 /// Node spacing of the residual shift field, in target pixels.

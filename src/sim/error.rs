@@ -18,6 +18,17 @@ pub enum SimError {
     Output(#[from] crate::output::OutputError),
 }
 
+impl From<crate::util::staging::StagingError> for SimError {
+    fn from(e: crate::util::staging::StagingError) -> Self {
+        match e {
+            crate::util::staging::StagingError::Exists(_) => {
+                SimError::Option { key: "out".into(), reason: e.to_string() }
+            }
+            crate::util::staging::StagingError::Io { path, source } => SimError::Io { path, source },
+        }
+    }
+}
+
 impl SimError {
     pub(crate) fn io(path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> SimError {
         let path = path.into();

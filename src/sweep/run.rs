@@ -264,7 +264,7 @@ fn evaluate_point(
 ) -> Result<(TimePoint, Vec<String>, u64), String> {
     let mut run = LoadedRun::load(ctx, dir)?;
     let has_depth = run.ds.split_indices(Split::Eval).iter().all(|&f| run.ds.frames[f].depth.is_some());
-    let rep = crate::cli::eval::evaluate(&mut run, Split::Eval, Some(views), None, has_depth)
+    let rep = crate::nerf::evaluate::evaluate(&mut run, Split::Eval, Some(views), None, has_depth)
         .map_err(|e| format!("evaluating: {e}"))?;
     let bands =
         rep.bands.iter().map(|b| BandScore { name: b.name.clone(), psnr: b.psnr, ssim: b.ssim }).collect::<Vec<_>>();

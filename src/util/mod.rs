@@ -1,3 +1,6 @@
 //! Small generic helpers shared across layers.
 
 pub mod atomic;
+pub mod staging;
+pub mod stats;
+pub mod tiff;

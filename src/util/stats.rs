@@ -1,0 +1,31 @@
+//! Order statistics shared across layers, in the two conventions the code uses: [`median`] (the mean of the two
+//! middle values for an even count, as numpy and CloudCompare report it) and [`upper_median`] (the upper middle
+//! value: an element of the data, for robust estimators that must return one of their inputs' values). Both sort a
+//! copy by `total_cmp` and return NaN for no values.
+
+/// Median: the middle value, or the mean of the two middle values for an even count; NaN when empty.
+pub fn median(values: &[f64]) -> f64 {
+    let mut s = values.to_vec();
+    s.sort_by(f64::total_cmp);
+    median_of_sorted(&s)
+}
+
+/// [`median`] of values already sorted ascending.
+pub fn median_of_sorted(s: &[f64]) -> f64 {
+    if s.is_empty() {
+        return f64::NAN;
+    }
+    let m = s.len() / 2;
+    if s.len() % 2 == 1 {
+        s[m]
+    } else {
+        (s[m - 1] + s[m]) / 2.0
+    }
+}
+
+/// The upper middle value (`sorted[n / 2]`); NaN when empty.
+pub fn upper_median(values: &[f64]) -> f64 {
+    let mut s = values.to_vec();
+    s.sort_by(f64::total_cmp);
+    s.get(s.len() / 2).copied().unwrap_or(f64::NAN)
+}
