@@ -31,6 +31,7 @@ pub mod scene;
 pub mod sparse;
 pub mod spectra;
 pub mod texture;
+pub mod truth;
 pub mod writer;
 
 pub use error::SimError;

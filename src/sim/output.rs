@@ -130,6 +130,7 @@ pub fn simulate(desc: &SceneDesc, opts: &SimOptions, out: &Path) -> Result<SimRe
     }
     write_transforms(&prep, opts, &root, sparse)?;
     write_points(&prep, &root, &points)?;
+    super::truth::write_truth(&prep, &root, &points.iter().map(|(p, _)| *p).collect::<Vec<_>>())?;
     write_meta(&prep, desc, opts, &root)?;
     stage.commit()?;
     Ok(SimReport {

@@ -1,0 +1,119 @@
+//! Ground truth for the survey products of issue 21, written beside every simulated dataset in `truth/`:
+//! - `dsm.tif`: per grid cell, the height (world z, `world_offset` included) of the first surface straight down at
+//!   the cell centre: float32, nodata NaN where the vertical ray meets no surface (outside the ground disc);
+//! - `ortho.tif`: the same cells' band reflectance seen from straight above (the surface's band-integrated
+//!   Lambertian reflectance times its texture factor, as the images show it without light or sensor effects):
+//!   a true orthophoto, no leaning buildings.
+//!
+//! Both are north-up GeoTIFFs on one grid, in the scene's `crs` when it has one.
+//!
+//! The grid covers what the cameras saw (the bounding box of the ground-truth surface points, snapped outward to
+//! whole cells) at the cameras' median ground footprint (height above the ground / focal length), so a DSM exported
+//! at the same GSD can be compared cell by cell.
+
+use std::path::Path;
+
+use super::geometry::HitKind;
+use super::render::Prepared;
+use super::SimError;
+use crate::output::raster::{write_geotiff, GeoReference, GeoTiffOptions};
+use crate::output::SpectralImage;
+
+/// A north-up grid in the scene's local frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TruthGrid {
+    /// Local x, y of the top-left corner of the top-left cell.
+    pub origin: [f64; 2],
+    pub gsd: f64,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl TruthGrid {
+    /// Local x, y of the centre of cell (row, col).
+    pub fn centre(&self, row: usize, col: usize) -> [f64; 2] {
+        [self.origin[0] + (col as f64 + 0.5) * self.gsd, self.origin[1] - (row as f64 + 0.5) * self.gsd]
+    }
+}
+
+/// The grid over `points` (local surface points) at `gsd`; None without points.
+pub fn grid_over(points: &[[f64; 3]], gsd: f64) -> Option<TruthGrid> {
+    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+    for p in points {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    if points.is_empty() || gsd.is_nan() || gsd <= 0.0 {
+        return None;
+    }
+    let x0 = (lo[0] / gsd).floor() * gsd;
+    let y1 = (hi[1] / gsd).ceil() * gsd;
+    let width = (((hi[0] - x0) / gsd).ceil() as usize).max(1);
+    let height = (((y1 - lo[1]) / gsd).ceil() as usize).max(1);
+    Some(TruthGrid { origin: [x0, y1], gsd, width, height })
+}
+
+/// The cameras' median ground footprint: height above the ground (z = 0) over the focal length in pixels.
+pub fn median_footprint(prep: &Prepared) -> f64 {
+    let f = 0.5 * (prep.camera.fx + prep.camera.fy);
+    let v: Vec<f64> = prep.poses.iter().map(|m| m[2][3].max(0.0) / f).collect();
+    crate::util::stats::median(&v)
+}
+
+/// Heights (local z; NaN: no surface) and band-planar reflectance of every cell, tracing straight down.
+pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>) {
+    let nb = prep.bands.len();
+    let n = g.width * g.height;
+    let top = prep.world.extent * 0.5;
+    let mut dsm = vec![f32::NAN; n];
+    let mut refl = vec![f32::NAN; n * nb];
+    for row in 0..g.height {
+        for col in 0..g.width {
+            let [x, y] = g.centre(row, col);
+            let o = [x, y, top];
+            if !prep.world.contains(o) {
+                continue;
+            }
+            let hit = prep.world.trace(o, [0.0, 0.0, -1.0]);
+            if hit.kind == HitKind::Horizon {
+                continue;
+            }
+            let q = [x, y, top - hit.t];
+            let c = row * g.width + col;
+            dsm[c] = q[2] as f32;
+            let m = &prep.materials[hit.material];
+            let tex = m.texture.map_or(1.0, |t| t.factor(prep.seed, hit.material, q));
+            for (b, r) in m.refl.iter().enumerate() {
+                refl[b * n + c] = (r * tex) as f32;
+            }
+        }
+    }
+    (dsm, refl)
+}
+
+/// Writes `truth/dsm.tif` and `truth/ortho.tif` under `root` for the surface points the cameras saw.
+pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<Option<TruthGrid>, SimError> {
+    let Some(g) = grid_over(points, median_footprint(prep)) else { return Ok(None) };
+    let (mut dsm, refl) = trace_grid(prep, &g);
+    let o = prep.world_offset;
+    dsm.iter_mut().for_each(|z| *z += o[2] as f32);
+    let dir = root.join("truth");
+    std::fs::create_dir_all(&dir).map_err(SimError::io(&dir))?;
+    let georef = GeoReference::in_crs([g.origin[0] + o[0], g.origin[1] + o[1]], [g.gsd, g.gsd], prep.crs.as_ref())?;
+    let opts = |what: &str| GeoTiffOptions {
+        nodata: Some(f64::NAN),
+        georef: Some(georef),
+        metadata: vec![("msnerf_truth".into(), what.into()), ("scene".into(), prep.name.clone())],
+        ..Default::default()
+    };
+    let height_band = vec![crate::output::image::band("height", None, None)];
+    let img = SpectralImage::from_planar(g.width, g.height, height_band, dsm)?;
+    write_geotiff(&dir.join("dsm.tif"), &img, &opts("first-surface height (world z, metres), straight down"))?;
+    let bands: Vec<crate::data::Band> =
+        prep.bands.iter().map(|b| crate::output::image::band(&b.name, Some(b.center_nm), Some(b.fwhm_nm))).collect();
+    let img = SpectralImage::from_planar(g.width, g.height, bands, refl)?;
+    write_geotiff(&dir.join("ortho.tif"), &img, &opts("true orthophoto: band reflectance x texture, straight down"))?;
+    Ok(Some(g))
+}
