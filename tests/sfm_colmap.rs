@@ -103,6 +103,15 @@ fn errors(truth: &Value, got: &Value, align: bool) -> (f64, f64, f64, usize) {
     (median(c), median(r), size, gf.len())
 }
 
+/// Writes to `dst` an image of `src`'s size and band count with every sample `value` (nothing for SIFT to find).
+fn flat_copy(src: &Path, dst: &Path, value: f32) {
+    let img = msnerf::data::reader::read_image_file(src, 1 << 30).unwrap().raster;
+    let n = img.width as usize * img.height as usize * img.bands;
+    let data = vec![value; n];
+    msnerf::util::tiff::write_tiff(dst, img.width, img.height, img.bands, msnerf::util::tiff::TiffData::F32(&data))
+        .unwrap();
+}
+
 fn run_sfm(data: &Path, extra: &[&str]) -> std::process::Output {
     std::process::Command::new(BIN).args([&["sfm", data.to_str().unwrap()], extra].concat()).output().unwrap()
 }
@@ -120,18 +129,7 @@ fn colmap_finds_the_true_poses_and_lists_the_frame_it_cannot_register() {
     for f in frames.iter_mut() {
         f.as_object_mut().unwrap().remove("transform_matrix");
     }
-    let src = data.join(blank["file_path"].as_str().unwrap());
-    let flat = data.join("images/blank.tif");
-    let img = msnerf::data::reader::read_image_file(&src, 1 << 30).unwrap().raster;
-    let n = img.width as usize * img.height as usize * img.bands;
-    msnerf::sim::writer::write_tiff(
-        &flat,
-        img.width,
-        img.height,
-        img.bands,
-        msnerf::sim::writer::TiffData::F32(&vec![0.3f32; n]),
-    )
-    .unwrap();
+    flat_copy(&data.join(blank["file_path"].as_str().unwrap()), &data.join("images/blank.tif"), 0.3);
     blank["file_path"] = json!("images/blank.tif");
     blank.as_object_mut().unwrap().remove("transform_matrix");
     blank.as_object_mut().unwrap().remove("depth_file_path");
@@ -238,16 +236,7 @@ fn colmap_missing_or_failing_is_named_and_the_dataset_is_left_alone() {
     let t = read(&data.join("transforms.json"));
     for f in t["frames"].as_array().unwrap() {
         let p = data.join(f["file_path"].as_str().unwrap());
-        let img = msnerf::data::reader::read_image_file(&p, 1 << 30).unwrap().raster;
-        let n = img.width as usize * img.height as usize * img.bands;
-        msnerf::sim::writer::write_tiff(
-            &p,
-            img.width,
-            img.height,
-            img.bands,
-            msnerf::sim::writer::TiffData::F32(&vec![0.2f32; n]),
-        )
-        .unwrap();
+        flat_copy(&p, &p, 0.2);
     }
     let out = run_sfm(&data, &[]);
     let e = String::from_utf8_lossy(&out.stderr);

@@ -229,7 +229,7 @@ fn parse_crs(cx: &mut Ctx, top: &Map<String, Value>) -> Option<crate::geo::Crs> 
                 format!(
                     "{} is a {} CRS; poses need a projected CRS in metres (e.g. the flight's UTM zone, EPSG:326zz)",
                     c.describe(),
-                    serde_json::to_value(c.kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
+                    c.kind.name()
                 ),
             );
             None

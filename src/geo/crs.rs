@@ -21,6 +21,16 @@ pub enum CrsKind {
     Geocentric,
 }
 
+impl CrsKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            CrsKind::Projected => "projected",
+            CrsKind::Geographic => "geographic",
+            CrsKind::Geocentric => "geocentric",
+        }
+    }
+}
+
 /// A coordinate reference system.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Crs {

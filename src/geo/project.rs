@@ -27,7 +27,7 @@ impl Projector {
     pub fn new(crs: &Crs) -> Result<Projector, CrsError> {
         let err = |reason: String| CrsError::Projection { crs: crs.describe(), reason };
         if crs.kind != CrsKind::Projected {
-            return Err(err(format!("is {:?}, not a projected CRS in metres", crs.kind).to_lowercase()));
+            return Err(err(format!("is {}, not a projected CRS in metres", crs.kind.name())));
         }
         let def = crs.proj4.as_deref().ok_or_else(|| {
             err("has no EPSG code msnerf knows, so it cannot project into it; give an EPSG code".into())

@@ -40,60 +40,54 @@ fn child<'a>(node: roxmltree::Node<'a, 'a>, name: &str) -> Option<roxmltree::Nod
     node.children().find(|c| c.is_element() && c.tag_name().name() == name)
 }
 
-/// `s R x + t` as a 4x4, from a `<transform>` with `<rotation>`, `<translation>`, `<scale>` (each optional).
-fn similarity(t: roxmltree::Node, path: &Path, at: &str) -> Result<DMat4, PoseError> {
-    let r = match child(t, "rotation") {
-        Some(n) => {
-            let v = numbers(n, path, at)?;
+/// The row-major 3x3 of a `<rotation>` child of `n` (identity when absent).
+fn rotation_child(n: roxmltree::Node, path: &Path, at: &str) -> Result<DMat3, PoseError> {
+    match child(n, "rotation") {
+        Some(r) => {
+            let v = numbers(r, path, at)?;
             if v.len() != 9 {
                 return Err(PoseError::parse(path, at, "rotation needs 9 numbers"));
             }
-            DMat3::from_cols_array(&[v[0], v[3], v[6], v[1], v[4], v[7], v[2], v[5], v[8]])
+            Ok(DMat3::from_cols_array(&[v[0], v[3], v[6], v[1], v[4], v[7], v[2], v[5], v[8]]))
         }
-        None => DMat3::IDENTITY,
-    };
-    let tr = match child(t, "translation") {
-        Some(n) => {
-            let v = numbers(n, path, at)?;
+        None => Ok(DMat3::IDENTITY),
+    }
+}
+
+/// The 3-vector of a `name` child of `n` (zero when absent).
+fn vector_child(n: roxmltree::Node, name: &str, path: &Path, at: &str) -> Result<DVec3, PoseError> {
+    match child(n, name) {
+        Some(c) => {
+            let v = numbers(c, path, at)?;
             if v.len() != 3 {
-                return Err(PoseError::parse(path, at, "translation needs 3 numbers"));
+                return Err(PoseError::parse(path, at, format!("{name} needs 3 numbers")));
             }
-            DVec3::new(v[0], v[1], v[2])
+            Ok(DVec3::new(v[0], v[1], v[2]))
         }
-        None => DVec3::ZERO,
-    };
+        None => Ok(DVec3::ZERO),
+    }
+}
+
+/// The 4x4 `[m | t]`.
+fn affine(m: DMat3, t: DVec3) -> DMat4 {
+    DMat4::from_cols(m.x_axis.extend(0.0), m.y_axis.extend(0.0), m.z_axis.extend(0.0), t.extend(1.0))
+}
+
+/// `s R x + t` as a 4x4, from a `<transform>` with `<rotation>`, `<translation>`, `<scale>` (each optional).
+fn similarity(t: roxmltree::Node, path: &Path, at: &str) -> Result<DMat4, PoseError> {
+    let r = rotation_child(t, path, at)?;
+    let tr = vector_child(t, "translation", path, at)?;
     let s = match child(t, "scale") {
         Some(n) => *numbers(n, path, at)?.first().ok_or_else(|| PoseError::parse(path, at, "empty scale"))?,
         None => 1.0,
     };
-    let m = r * s;
-    Ok(DMat4::from_cols(m.x_axis.extend(0.0), m.y_axis.extend(0.0), m.z_axis.extend(0.0), tr.extend(1.0)))
+    Ok(affine(r * s, tr))
 }
 
 /// A slave sensor's offset in a multi-camera system: `<rotation>` (9 numbers, row-major, slave camera axes to the
 /// master's) and `<location>` (the slave's centre in the master camera's frame) as the slave-to-master 4x4.
 fn slave_offset(s: roxmltree::Node, path: &Path, at: &str) -> Result<DMat4, PoseError> {
-    let r = match child(s, "rotation") {
-        Some(n) => {
-            let v = numbers(n, path, at)?;
-            if v.len() != 9 {
-                return Err(PoseError::parse(path, at, "slave rotation needs 9 numbers"));
-            }
-            DMat3::from_cols_array(&[v[0], v[3], v[6], v[1], v[4], v[7], v[2], v[5], v[8]])
-        }
-        None => DMat3::IDENTITY,
-    };
-    let l = match child(s, "location") {
-        Some(n) => {
-            let v = numbers(n, path, at)?;
-            if v.len() != 3 {
-                return Err(PoseError::parse(path, at, "slave location needs 3 numbers"));
-            }
-            DVec3::new(v[0], v[1], v[2])
-        }
-        None => DVec3::ZERO,
-    };
-    Ok(DMat4::from_cols(r.x_axis.extend(0.0), r.y_axis.extend(0.0), r.z_axis.extend(0.0), l.extend(1.0)))
+    Ok(affine(rotation_child(s, path, at)?, vector_child(s, "location", path, at)?))
 }
 
 fn sensor_camera(s: roxmltree::Node, path: &Path) -> Result<(String, PoseCamera), PoseError> {

@@ -40,13 +40,12 @@ pub fn robust_fit(names: &[String], model: &[[f64; 3]], gps: &[[f64; 3]], min_er
                 if keep.len() >= 3 { ", on one line" } else { "" }
             )
         })?;
-        let mut res: Vec<f64> = (0..names.len()).map(|i| dist(s.apply(model[i]), gps[i])).collect();
+        let res: Vec<f64> = (0..names.len()).map(|i| dist(s.apply(model[i]), gps[i])).collect();
         sim = Some(s);
         let mut sorted: Vec<f64> = keep.iter().map(|&i| res[i]).collect();
         sorted.sort_by(f64::total_cmp);
         let limit = (3.0 * sorted[sorted.len() / 2]).max(3.0 * min_error_m);
         let next: Vec<usize> = (0..names.len()).filter(|&i| res[i] <= limit).collect();
-        res.clear();
         if next == keep {
             break;
         }

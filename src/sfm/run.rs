@@ -256,7 +256,8 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
             .collect(),
         None => (0..images::band_count(&frames[0].images)?).map(|i| i.to_string()).collect(),
     };
-    let band = images::choose_band(&frames.iter().map(|f| f.images.clone()).collect::<Vec<_>>(), &names, &o.band)?;
+    let frame_images: Vec<FrameImages> = frames.iter().map(|f| f.images.clone()).collect();
+    let band = images::choose_band(&frame_images, &names, &o.band)?;
     let band_desc = band.map_or("pan (mean of all bands)".to_string(), |b| names[b].clone());
     let (w, h) = {
         let c = &frames[0].camera;
@@ -286,13 +287,7 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
     }
     std::fs::create_dir_all(ws.join("sparse")).map_err(|e| dataset_err(&ws, e.to_string()))?;
     let t0 = std::time::Instant::now();
-    images::write_images(
-        &frames.iter().map(|f| f.images.clone()).collect::<Vec<_>>(),
-        &stems,
-        band,
-        factor,
-        &ws.join("images"),
-    )?;
+    images::write_images(&frame_images, &stems, band, factor, &ws.join("images"))?;
     let mut seconds = HashMap::new();
     seconds.insert("images".to_string(), t0.elapsed().as_secs_f64());
 
