@@ -3,7 +3,7 @@ CARGO ?= cargo
 # The suite runs with the Khronos validation layer and fails on any message it prints.
 export MSNERF_REQUIRE_VALIDATION ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep import-bench
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep survey-report import-bench
 
 setup:
 	@bash tools/setup-debian.sh
@@ -48,6 +48,10 @@ geometry-sweep: build
 # docs/geometry/: the raw numbers behind docs/geometry.md's ten-minute table (campus, demo profile, 600 s, images only and with SfM points; ~26 min).
 geometry-report: build
 	bash tools/geometry-report.sh geometry-report-output 600
+
+# docs/geometry.md's survey products (DSM, true ortho) from geometry-report's two campus runs (~2 min).
+survey-report: build
+	bash tools/survey-report.sh geometry-report-output
 
 clean:
 	$(CARGO) clean

@@ -237,6 +237,7 @@ fn projection_inverts_ray_generation() {
         (CameraModel::Pinhole, Distortion::default()),
         (CameraModel::OpenCv, dist),
         (CameraModel::OpenCvFisheye, fisheye),
+        (CameraModel::Orthographic, Distortion::default()),
     ] {
         let c = cam(model, d);
         for (row, col) in [(0u32, 0u32), (5, 17), (c.height / 2, c.width / 2), (c.height - 1, c.width - 1)] {
@@ -249,8 +250,8 @@ fn projection_inverts_ray_generation() {
                 assert!((d2 - t).abs() < 1e-9 * t.max(1.0), "{model:?}: distance {d2} want {t}");
             }
         }
-        // Behind a pinhole camera: nothing.
-        if model == CameraModel::Pinhole {
+        // Behind a pinhole or orthographic camera: nothing.
+        if matches!(model, CameraModel::Pinhole | CameraModel::Orthographic) {
             let ray = c.ray_f64(&c2w, 3, 3);
             let p = [0, 1, 2].map(|k| ray.origin[k] - 5.0 * ray.direction[k]);
             assert!(project_point(&c, [c2w[0][3], c2w[1][3], c2w[2][3]], &rows, p).is_none());

@@ -106,13 +106,25 @@ fn ray_gen_matches_the_camera_model() {
             height: 240,
             distortion: Distortion { k1: 0.05, ..Default::default() },
         },
+        // Parallel rays (the survey exports' camera): 0.01 units per pixel.
+        Camera {
+            model: CameraModel::Orthographic,
+            fx: 100.0,
+            fy: 100.0,
+            cx: 160.0,
+            cy: 120.0,
+            width: 320,
+            height: 240,
+            distortion: Distortion::default(),
+        },
     ];
+    let nc = cams.len();
     let c2w: [[f32; 4]; 3] = [[0.0, -0.6, 0.8, 0.3], [1.0, 0.0, 0.0, -0.2], [0.0, 0.8, 0.6, 0.5]];
     let table: Vec<GpuCamera> = cams.iter().map(|c| GpuCamera::new(c, &c2w)).collect();
     let mut r = rng(1);
     let n = 301;
     let pixels: Vec<u32> =
-        (0..n).flat_map(|i| [(i % 3) as u32, r.random_range(0..240), r.random_range(0..320)]).collect();
+        (0..n).flat_map(|i| [(i % nc) as u32, r.random_range(0..240), r.random_range(0..320)]).collect();
     let cam_buf = GpuBuffer::from_slice(&g, "cams", MemoryCategory::Rays, &table).expect("cams");
     let pix = GpuBuffer::from_slice(&g, "pixels", MemoryCategory::Rays, &pixels).expect("pixels");
     let (o, d, norms) = (zeros(&g, "o", 3 * n), zeros(&g, "d", 3 * n), zeros(&g, "norms", n));
@@ -122,9 +134,30 @@ fn ray_gen_matches_the_camera_model() {
     rec.submit_and_wait().expect("submit");
     let (go, gd, gn) = (g.download(&o).expect("o"), g.download(&d).expect("d"), g.download(&norms).expect("n"));
     for i in 0..n {
-        let want = cams[i % 3].ray_f32(&c2w, pixels[3 * i + 1], pixels[3 * i + 2]);
+        let want = cams[i % nc].ray_f32(&c2w, pixels[3 * i + 1], pixels[3 * i + 2]);
+        if cams[i % nc].model == CameraModel::Orthographic {
+            // Independently, in f64 from the definition: origin = t + R (x, -y, 0), direction = R (0, 0, -1).
+            let (v, u) = (pixels[3 * i + 1] as f64 + 0.5, pixels[3 * i + 2] as f64 + 0.5);
+            let (x, y) = ((u - 160.0) / 100.0, -(v - 120.0) / 100.0);
+            for a in 0..3 {
+                let m = c2w[a].map(|e| e as f64);
+                let o = m[3] + m[0] * x + m[1] * y;
+                assert!(
+                    (go[3 * i + a] as f64 - o).abs() < 1e-5,
+                    "ortho ray {i} origin axis {a}: {} vs {o}",
+                    go[3 * i + a]
+                );
+                assert!((gd[3 * i + a] as f64 + m[2]).abs() < 1e-6, "ortho ray {i} direction axis {a}");
+            }
+        }
         for a in 0..3 {
-            assert_eq!(go[3 * i + a], want.origin[a]);
+            // One rounding apart at most (the orthographic origin is a sum the GPU may fuse).
+            assert!(
+                (go[3 * i + a] - want.origin[a]).abs() <= 2e-6 * (1.0 + want.origin[a].abs()),
+                "ray {i} origin axis {a}: {} vs {}",
+                go[3 * i + a],
+                want.origin[a]
+            );
             assert!(
                 (gd[3 * i + a] - want.direction[a]).abs() < 2e-5,
                 "ray {i} axis {a}: {} vs {}",

@@ -3,7 +3,8 @@
 #   - Vulkan loader, Mesa lavapipe (the CPU Vulkan driver CI uses), Khronos validation layers, vulkaninfo
 #   - Debian's shaderc / glslang / SPIRV-Tools static libraries, merged into .shaderc/libshaderc_combined.a
 #   - gdal-bin: `gdalinfo`, `gdalsrsinfo`, `gdaltransform`, which the tests run to check msnerf's GeoTIFFs, LAS CRS
-#     records and projections against GDAL/PROJ
+#     records and projections against GDAL/PROJ; python3-gdal: GDAL's Cloud-Optimized GeoTIFF validator, which
+#     the survey-export tests run on the DSM and orthomosaic
 #   - colmap (3.8, no CUDA): `msnerf sfm` runs it, and tests/sfm_colmap.rs runs that
 # Runs apt-get as root or through sudo; otherwise prints the command to run. Idempotent: a second run does nothing.
 set -euo pipefail
@@ -26,7 +27,7 @@ for comp in rustfmt clippy; do
 done
 
 # --- System packages -------------------------------------------------------------------------------
-PKGS=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers vulkan-tools libshaderc-dev glslang-dev spirv-tools binutils g++ gdal-bin colmap)
+PKGS=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers vulkan-tools libshaderc-dev glslang-dev spirv-tools binutils g++ gdal-bin python3-gdal colmap)
 if command -v dpkg-query >/dev/null 2>&1; then
   missing=()
   for p in "${PKGS[@]}"; do

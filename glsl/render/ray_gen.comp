@@ -1,6 +1,7 @@
 // ray_gen: world rays through pixel centres (spec/nerfacto.md §2.3; twin: src/data/camera.rs `generate_ray`):
 // normalised image coordinates, OPENCV undistortion by Newton's method (10 iterations, steps only where |det J| > 1e-3),
-// OpenGL flip (y up, looking along -z), fisheye mapping, rotation to world, unit direction.
+// OpenGL flip (y up, looking along -z), fisheye mapping, rotation to world, unit direction. Model 3 (orthographic,
+// nerfstudio's ORTHOPHOTO): parallel rays along the camera's -z from the centre moved by R (x, -y, 0).
 // Bindings: 0 cameras (GpuCamera[]), 1 pixels (uint[3R]: camera, row, col), 2 origins (float[3R], written),
 //           3 directions (float[3R], written), 4 direction norms (float[R], written: |(x, y, -1)| before normalising).
 // Push:     n_rays.
@@ -13,7 +14,7 @@ layout(local_size_x = WG_SIZE) in;
 struct GpuCamera {
     float fx, fy, cx, cy;
     float k1, k2, k3, k4, p1, p2;
-    uint model;     // 0 pinhole, 1 OPENCV, 2 OPENCV_FISHEYE
+    uint model;     // 0 pinhole, 1 OPENCV, 2 OPENCV_FISHEYE, 3 orthographic
     uint distorted; // 1 when any distortion coefficient is non-zero (and the model is not pinhole)
     float c2w[12];  // 3x4 row-major camera-to-world (normalised frame)
 };
@@ -58,6 +59,11 @@ void main() {
     if (c.distorted != 0u) p = undistort(p, c);
     p.y = -p.y;
     vec3 d = vec3(p, -1.0);
+    vec3 o = vec3(c.c2w[3], c.c2w[7], c.c2w[11]);
+    if (c.model == 3u) {
+        o += vec3(c.c2w[0] * p.x + c.c2w[1] * p.y, c.c2w[4] * p.x + c.c2w[5] * p.y, c.c2w[8] * p.x + c.c2w[9] * p.y);
+        d = vec3(0.0, 0.0, -1.0);
+    }
     if (c.model == 2u) {
         float theta = min(length(p), 3.14159265358979);
         float s = theta > 1e-12 ? sin(theta) / theta : 1.0;
@@ -67,9 +73,9 @@ void main() {
                   c.c2w[4] * d.x + c.c2w[5] * d.y + c.c2w[6] * d.z,
                   c.c2w[8] * d.x + c.c2w[9] * d.y + c.c2w[10] * d.z);
     float n = length(w);
-    origins[3u * r] = c.c2w[3];
-    origins[3u * r + 1u] = c.c2w[7];
-    origins[3u * r + 2u] = c.c2w[11];
+    origins[3u * r] = o.x;
+    origins[3u * r + 1u] = o.y;
+    origins[3u * r + 2u] = o.z;
     dirs[3u * r] = w.x / n;
     dirs[3u * r + 1u] = w.y / n;
     dirs[3u * r + 2u] = w.z / n;

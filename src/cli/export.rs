@@ -4,7 +4,8 @@
 //! other bands as Extra Bytes. `--normals` adds each point's surface normal from the density field (PLY `nx ny nz`,
 //! LAS Extra Bytes `NormalX/Y/Z`). By default the export is the careful one of `msnerf::nerf::export` (exact median
 //! crossing, spread filter, multi-view consistency, confidence scalar fields, optional `--gsd` thinning); `--legacy`
-//! is the accumulation-threshold export that came before it.
+//! is the accumulation-threshold export that came before it. `export dsm` and `export ortho` are in
+//! [`super::export_survey`].
 
 use super::Cli;
 use crate::geo::Crs;
@@ -24,6 +25,10 @@ pub struct ExportArgs {
 pub enum ExportWhat {
     /// Multispectral point cloud (.ply or .las)
     Pointcloud(PointcloudArgs),
+    /// Digital surface model: first-surface heights on a grid, a Cloud-Optimized GeoTIFF in the dataset's CRS
+    Dsm(super::export_survey::DsmArgs),
+    /// Multispectral true orthomosaic: every band seen straight down, a Cloud-Optimized GeoTIFF on the DSM's grid
+    Ortho(super::export_survey::OrthoArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -163,7 +168,11 @@ pub fn write_cloud(cloud: &PointCloud, out: &std::path::Path, crs: Option<&Crs>)
 }
 
 pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
-    let ExportWhat::Pointcloud(a) = &a.what;
+    let a = match &a.what {
+        ExportWhat::Pointcloud(a) => a,
+        ExportWhat::Dsm(a) => return super::export_survey::run_dsm(cli, a),
+        ExportWhat::Ortho(a) => return super::export_survey::run_ortho(cli, a),
+    };
     let ext_ok = matches!(a.out.extension().and_then(|e| e.to_str()), Some("ply" | "las" | "PLY" | "LAS"));
     anyhow::ensure!(ext_ok, "--out {}: the file must end in .ply or .las", a.out.display());
     let opts = a.export_options()?;

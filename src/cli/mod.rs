@@ -2,13 +2,16 @@
 
 pub mod bench;
 pub mod compare_cloud;
+pub mod compare_raster;
 pub mod dataset;
 pub mod demo;
 pub mod devices;
 pub mod eval;
 pub mod export;
+pub mod export_survey;
 pub mod import;
 pub mod plan;
+pub mod preview;
 pub mod render;
 pub mod sfm;
 pub mod simulate;
@@ -61,6 +64,10 @@ pub enum Command {
     Plan(plan::PlanArgs),
     /// Compare a point cloud against a reference (accuracy, completeness, F-score, per-band error)
     CompareCloud(compare_cloud::CompareCloudArgs),
+    /// PNG previews of a GeoTIFF: hillshade and height colours for one band, natural colour, CIR and NDVI for many
+    Preview(preview::PreviewArgs),
+    /// Compare a DSM or orthomosaic GeoTIFF against a reference raster (per band, per class)
+    CompareRaster(compare_raster::CompareRasterArgs),
     /// Train a grid of configurations under one budget: accuracy against time, CSV, plots and a report
     Sweep(sweep::SweepArgs),
 }
@@ -93,6 +100,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),
+        Command::CompareRaster(a) => compare_raster::run(a),
+        Command::Preview(a) => preview::run(a),
         Command::Plan(a) => plan::run(&cli, a),
         Command::Sweep(a) => sweep::run(&cli, a),
     }

@@ -7,6 +7,9 @@
 //! 3. flip to OpenGL (y ← −y), camera direction (x, y, −1) (fisheye: (x sinθ/θ, y sinθ/θ, −cosθ), θ = |(x,y)|
 //!    clipped to [0, π]);
 //! 4. world direction = R_c2w · dir, normalised; its norm before normalising is kept in `direction_norm`.
+//!
+//! `Orthographic` (parallel rays, nerfstudio's ORTHOPHOTO) skips 2-3: origin = centre + R_c2w · (x, −y, 0) with
+//! x, y of step 1, direction R_c2w · (0, 0, −1).
 
 use serde::{Deserialize, Serialize};
 
@@ -16,6 +19,10 @@ pub enum CameraModel {
     Pinhole,
     OpenCv,
     OpenCvFisheye,
+    /// Parallel rays (nerfstudio's `CameraType.ORTHOPHOTO`): pixel (u, v) starts at the camera centre plus
+    /// ((u - cx) / fx, -(v - cy) / fy, 0) in camera axes and looks along the camera's -z. fx, fy are pixels per
+    /// unit of the frame the pose is in. Not a dataset `camera_model`: the survey exports (DSM, true ortho) use it.
+    Orthographic,
 }
 
 /// Distortion coefficients; missing ones are 0.
@@ -175,7 +182,8 @@ impl Camera {
             cx: T::from_f64(self.cx),
             cy: T::from_f64(self.cy),
             dist: self.distortion.params(),
-            distorted: self.model != CameraModel::Pinhole && !self.distortion.is_zero(),
+            distorted: !matches!(self.model, CameraModel::Pinhole | CameraModel::Orthographic)
+                && !self.distortion.is_zero(),
         }
     }
 
@@ -237,6 +245,12 @@ pub fn project_point_subpixel(
     let d = DVec3::from(p) - DVec3::from(origin);
     // Camera-frame coordinates R^T d: read as columns, the rotation's rows give R^T.
     let xc = DMat3::from_cols_array_2d(rot) * d;
+    if cam.model == CameraModel::Orthographic {
+        // Parallel projection: the image position is the offset in the camera plane, the distance the depth.
+        let (u, v) = (cam.cx + cam.fx * xc.x, cam.cy - cam.fy * xc.y);
+        let inside = u >= 0.0 && v >= 0.0 && u < cam.width as f64 && v < cam.height as f64;
+        return (xc.z < 0.0 && inside).then_some((u, v, -xc.z));
+    }
     let (mut x, mut y) = if cam.model == CameraModel::OpenCvFisheye {
         let r = xc.truncate().length();
         let theta = r.atan2(-xc.z);
@@ -265,11 +279,17 @@ pub fn project_point_subpixel(
 /// +0.5) to a world ray with camera-to-world `c2w` (3x4, rows).
 #[inline]
 pub fn generate_ray<T: Real>(k: &Intrinsics<T>, c2w: &[[T; 4]; 3], v: T, u: T) -> Ray<T> {
-    let d = camera_direction(k, v, u);
-    let mut w = [T::from_f64(0.0); 3];
-    for (i, wi) in w.iter_mut().enumerate() {
-        *wi = c2w[i][0] * d[0] + c2w[i][1] * d[1] + c2w[i][2] * d[2];
-    }
+    let rotate = |d: [T; 3]| [0, 1, 2].map(|i| c2w[i][0] * d[0] + c2w[i][1] * d[1] + c2w[i][2] * d[2]);
+    let mut origin = [c2w[0][3], c2w[1][3], c2w[2][3]];
+    let zero = T::from_f64(0.0);
+    let w = if k.model == CameraModel::Orthographic {
+        // The pixel's offset in the camera plane moves the origin; every ray looks along -z.
+        let off = rotate([(u - k.cx) / k.fx, -((v - k.cy) / k.fy), zero]);
+        origin = [0, 1, 2].map(|i| origin[i] + off[i]);
+        rotate([zero, zero, T::from_f64(-1.0)])
+    } else {
+        rotate(camera_direction(k, v, u))
+    };
     let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
-    Ray { origin: [c2w[0][3], c2w[1][3], c2w[2][3]], direction: [w[0] / n, w[1] / n, w[2] / n], direction_norm: n }
+    Ray { origin, direction: [w[0] / n, w[1] / n, w[2] / n], direction_norm: n }
 }

@@ -189,7 +189,8 @@ pub fn export_points_with_stats(
     }
     let (agree, checked) = match &opts.consistency {
         Some(c) => {
-            let (a, k, n) = consistency(run, &frames, &cands, c)?;
+            let points: Vec<([f64; 3], usize)> = cands.iter().map(|c| (c.p, c.frame)).collect();
+            let (a, k, n) = consistency(run, &frames, &points, c)?;
             stats.check_rays = n;
             (a, k)
         }
@@ -258,11 +259,13 @@ impl View {
     }
 }
 
-/// Per candidate: agreeing views, checked views; and the number of rays rendered.
-fn consistency(
+/// Multi-view consistency votes for normalised-frame points, each with the frame that produced it (left out of its
+/// check; `usize::MAX` for none): per point the agreeing and the checked views among `frames`, and the number of rays
+/// rendered. See [`Consistency`].
+pub fn consistency(
     run: &mut LoadedRun,
     frames: &[usize],
-    cands: &[Candidate],
+    cands: &[([f64; 3], usize)],
     c: &Consistency,
 ) -> Result<(Vec<u32>, Vec<u32>, usize), String> {
     let views: Vec<View> = frames
@@ -282,9 +285,9 @@ fn consistency(
     let mut checks: Vec<(u32, f64, f64)> = Vec::new();
     let mut checked = vec![0u32; cands.len()];
     let mut seen = Vec::new();
-    for (k, cand) in cands.iter().enumerate() {
+    for (k, &(p, own)) in cands.iter().enumerate() {
         seen.clear();
-        seen.extend(views.iter().filter(|v| v.frame != cand.frame).filter_map(|v| v.project(cand.p).map(|x| (v, x))));
+        seen.extend(views.iter().filter(|v| v.frame != own).filter_map(|v| v.project(p).map(|x| (v, x))));
         let n = seen.len().min(c.views);
         for j in 0..n {
             // Evenly spread over the candidates (wide baselines test the surface hardest).

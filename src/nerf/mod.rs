@@ -16,5 +16,7 @@ pub mod pose;
 pub mod rays;
 pub mod run;
 pub mod schedule;
+pub mod survey;
+pub mod survey_products;
 pub mod trainer;
 pub mod views;

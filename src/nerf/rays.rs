@@ -32,6 +32,7 @@ impl GpuCamera {
                 CameraModel::Pinhole => 0,
                 CameraModel::OpenCv => 1,
                 CameraModel::OpenCvFisheye => 2,
+                CameraModel::Orthographic => 3,
             },
             distorted: u32::from(k.distorted),
             c2w: [

@@ -7,12 +7,14 @@
 //! - [`pointcloud`]: [`PointCloud`] with per-band reflectance; PLY and LAS 1.4 (PDRF 8 + Extra Bytes) writers
 //!   and readers; statistical outlier removal, crop boxes, deterministic subsampling.
 //! - [`compare`]: cloud-to-cloud accuracy/completeness/F-score and per-band reflectance error (`msnerf compare-cloud`).
+//! - [`compare_raster`]: DSM / orthomosaic against a reference raster, per band and per class (`msnerf compare-raster`).
 //!
 //! Every file is written atomically ([`atomic`]): a temporary file in the same folder, renamed on success.
 //! Bad input is an [`OutputError`] naming the file or the parameter, never a panic.
 
 pub use crate::util::atomic;
 pub mod compare;
+pub mod compare_raster;
 pub mod error;
 pub mod image;
 pub mod metrics;

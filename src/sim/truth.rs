@@ -3,7 +3,10 @@
 //!   the cell centre: float32, nodata NaN where the vertical ray meets no surface (outside the ground disc);
 //! - `ortho.tif`: the same cells' band reflectance seen from straight above (the surface's band-integrated
 //!   Lambertian reflectance times its texture factor, as the images show it without light or sensor effects):
-//!   a true orthophoto, no leaning buildings.
+//!   a true orthophoto, no leaning buildings;
+//! - `classes.tif`: what the vertical ray hit: 1 ground, 2 roof (a flat top: an object hit with a normal within 8
+//!   degrees of vertical), 3 other object (walls seen edge-on, crowns, domes), NaN nothing; the band is named
+//!   `classes 1=ground 2=roof 3=object`, which `msnerf compare-raster --classes` reads.
 //!
 //! Both are north-up GeoTIFFs on one grid, in the scene's `crs` when it has one.
 //!
@@ -62,13 +65,18 @@ pub fn median_footprint(prep: &Prepared) -> f64 {
     crate::util::stats::median(&v)
 }
 
-/// Heights (local z; NaN: no surface) and band-planar reflectance of every cell, tracing straight down.
-pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>) {
+/// The class band's name: codes of [`trace_grid`]'s classes.
+pub const CLASS_BAND: &str = "classes 1=ground 2=roof 3=object";
+
+/// Heights (local z; NaN: no surface), band-planar reflectance and the class (see the module doc) of every cell,
+/// tracing straight down.
+pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let nb = prep.bands.len();
     let n = g.width * g.height;
     let top = prep.world.extent * 0.5;
     let mut dsm = vec![f32::NAN; n];
     let mut refl = vec![f32::NAN; n * nb];
+    let mut class = vec![f32::NAN; n];
     for row in 0..g.height {
         for col in 0..g.width {
             let [x, y] = g.centre(row, col);
@@ -83,6 +91,11 @@ pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>) {
             let q = [x, y, top - hit.t];
             let c = row * g.width + col;
             dsm[c] = q[2] as f32;
+            class[c] = match hit.kind {
+                HitKind::Ground => 1.0,
+                _ if hit.normal[2] > 0.99 => 2.0,
+                _ => 3.0,
+            };
             let m = &prep.materials[hit.material];
             let tex = m.texture.map_or(1.0, |t| t.factor(prep.seed, hit.material, q));
             for (b, r) in m.refl.iter().enumerate() {
@@ -90,13 +103,13 @@ pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>) {
             }
         }
     }
-    (dsm, refl)
+    (dsm, refl, class)
 }
 
 /// Writes `truth/dsm.tif` and `truth/ortho.tif` under `root` for the surface points the cameras saw.
 pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<Option<TruthGrid>, SimError> {
     let Some(g) = grid_over(points, median_footprint(prep)) else { return Ok(None) };
-    let (mut dsm, refl) = trace_grid(prep, &g);
+    let (mut dsm, refl, class) = trace_grid(prep, &g);
     let o = prep.world_offset;
     dsm.iter_mut().for_each(|z| *z += o[2] as f32);
     let dir = root.join("truth");
@@ -115,5 +128,8 @@ pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<
         prep.bands.iter().map(|b| crate::output::image::band(&b.name, Some(b.center_nm), Some(b.fwhm_nm))).collect();
     let img = SpectralImage::from_planar(g.width, g.height, bands, refl)?;
     write_geotiff(&dir.join("ortho.tif"), &img, &opts("true orthophoto: band reflectance x texture, straight down"))?;
+    let img =
+        SpectralImage::from_planar(g.width, g.height, vec![crate::output::image::band(CLASS_BAND, None, None)], class)?;
+    write_geotiff(&dir.join("classes.tif"), &img, &opts("what the vertical ray hit"))?;
     Ok(Some(g))
 }

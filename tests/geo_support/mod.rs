@@ -103,3 +103,44 @@ pub fn las_wkt(path: &std::path::Path) -> (Option<String>, bool) {
     }
     (wkt, global_encoding & 0x10 != 0)
 }
+
+/// `gdalinfo -json FILE`, parsed.
+pub fn gdalinfo_json(path: &std::path::Path) -> serde_json::Value {
+    let out = tool("gdalinfo").arg("-json").arg(path).output().expect("gdalinfo");
+    assert!(out.status.success(), "gdalinfo: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("gdalinfo -json output")
+}
+
+/// The band values GDAL reads at pixel (x, y) of the full resolution (`overview` None) or of overview `k` (x, y in
+/// that overview's pixels).
+pub fn gdallocationinfo(path: &std::path::Path, overview: Option<usize>, x: usize, y: usize) -> Vec<f64> {
+    let mut cmd = tool("gdallocationinfo");
+    cmd.arg("-valonly");
+    let (mut x, mut y) = (x, y);
+    if let Some(k) = overview {
+        // gdallocationinfo (GDAL 3.6) takes the location in full-resolution pixels and rounds it to the overview's:
+        // the overview pixel's top-left corner maps back exactly.
+        cmd.args(["-overview", &(k + 1).to_string()]);
+        let f = 2usize.pow(k as u32 + 1);
+        (x, y) = (x * f, y * f);
+    }
+    let out = cmd.arg(path).arg(x.to_string()).arg(y.to_string()).output().expect("gdallocationinfo");
+    assert!(out.status.success(), "gdallocationinfo: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).lines().map(|l| l.trim().parse().expect("a number")).collect()
+}
+
+/// GDAL's own COG validator (`validate_cloud_optimized_geotiff.py --full-check=yes`, from python3-gdal): its output,
+/// asserting that it calls the file valid.
+pub fn validate_cog(path: &std::path::Path) -> String {
+    let script = "/usr/lib/python3/dist-packages/osgeo_utils/samples/validate_cloud_optimized_geotiff.py";
+    assert!(
+        std::path::Path::new(script).is_file() && std::path::Path::new("/usr/bin/python3").is_file(),
+        "{script} not found: the COG tests run GDAL's validator. Install it with `apt-get install python3-gdal` \
+         (tools/setup-debian.sh does)"
+    );
+    let out =
+        Command::new("/usr/bin/python3").arg(script).arg("--full-check=yes").arg(path).output().expect("validator");
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success() && text.contains("is a valid cloud optimized GeoTIFF"), "COG validator: {text}");
+    text
+}

@@ -112,75 +112,65 @@ const ASCII: u16 = 2;
 const DOUBLE: u16 = 12;
 const LONG8: u16 = 16;
 
-struct Entry {
+/// One IFD entry: tag, TIFF type, value count and the little-endian value bytes.
+pub(crate) struct Entry {
     tag: u16,
     typ: u16,
     count: u64,
     bytes: Vec<u8>,
 }
 
-fn shorts(tag: u16, v: &[u16]) -> Entry {
+pub(crate) fn shorts(tag: u16, v: &[u16]) -> Entry {
     Entry { tag, typ: SHORT, count: v.len() as u64, bytes: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
-fn longs(tag: u16, v: &[u32]) -> Entry {
+pub(crate) fn longs(tag: u16, v: &[u32]) -> Entry {
     Entry { tag, typ: LONG, count: v.len() as u64, bytes: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
-fn long8s(tag: u16, v: &[u64]) -> Entry {
+pub(crate) fn long8s(tag: u16, v: &[u64]) -> Entry {
     Entry { tag, typ: LONG8, count: v.len() as u64, bytes: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
 fn doubles(tag: u16, v: &[f64]) -> Entry {
     Entry { tag, typ: DOUBLE, count: v.len() as u64, bytes: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
-fn ascii(tag: u16, s: &str) -> Entry {
+pub(crate) fn ascii(tag: u16, s: &str) -> Entry {
     let mut bytes = s.as_bytes().to_vec();
     bytes.push(0);
     Entry { tag, typ: ASCII, count: bytes.len() as u64, bytes }
 }
 
-/// Writes `img` as a float32 GeoTIFF at `path` (atomically).
-pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) -> Result<()> {
-    img.validate()?;
-    let nb = img.n_bands();
-    if nb > u16::MAX as usize {
-        return Err(OutputError::invalid("image", format!("{nb} bands do not fit a TIFF")));
+/// File offsets as LONG (classic) or LONG8 (BigTIFF).
+pub(crate) fn offsets(tag: u16, v: &[u64], big: bool) -> Entry {
+    if big {
+        long8s(tag, v)
+    } else {
+        longs(tag, &v.iter().map(|&o| o as u32).collect::<Vec<_>>())
     }
-    let (w, h) = (img.width, img.height);
-    if w > u32::MAX as usize || h > u32::MAX as usize {
-        return Err(OutputError::invalid("image", format!("{w}x{h} is too large for TIFF")));
-    }
-    let row_bytes = (w * nb * 4) as u64;
-    let rows_per_strip = ((256 * 1024) / row_bytes).clamp(1, h as u64) as usize;
-    let n_strips = h.div_ceil(rows_per_strip);
-    let data_bytes = row_bytes * h as u64;
-    let big = opts.bigtiff.unwrap_or(data_bytes + (1 << 20) + 64 * n_strips as u64 > u32::MAX as u64);
-    let header_len: u64 = if big { 16 } else { 8 };
+}
 
-    // Strip table.
-    let mut offsets = Vec::with_capacity(n_strips);
-    let mut counts = Vec::with_capacity(n_strips);
-    for s in 0..n_strips {
-        let rows = rows_per_strip.min(h - s * rows_per_strip) as u64;
-        offsets.push(header_len + s as u64 * rows_per_strip as u64 * row_bytes);
-        counts.push(rows * row_bytes);
-    }
-
-    let mut entries = vec![
-        longs(256, &[w as u32]),
-        longs(257, &[h as u32]),
+/// The float32 sample layout tags for `nb` pixel-interleaved bands: BitsPerSample, Compression none,
+/// MinIsBlack, SamplesPerPixel, PlanarConfiguration chunky, Software, SampleFormat float, ExtraSamples.
+pub(crate) fn float_layout_entries(width: usize, height: usize, nb: usize) -> Vec<Entry> {
+    let mut e = vec![
+        longs(256, &[width as u32]),
+        longs(257, &[height as u32]),
         shorts(258, &vec![32; nb]),
         shorts(259, &[1]),
         shorts(262, &[1]),
-        if big { long8s(273, &offsets) } else { longs(273, &offsets.iter().map(|&o| o as u32).collect::<Vec<_>>()) },
         shorts(277, &[nb as u16]),
-        longs(278, &[rows_per_strip as u32]),
-        if big { long8s(279, &counts) } else { longs(279, &counts.iter().map(|&o| o as u32).collect::<Vec<_>>()) },
         shorts(284, &[1]),
         ascii(305, "msnerf"),
         shorts(339, &vec![3; nb]),
     ];
     if nb > 1 {
-        entries.push(shorts(338, &vec![0; nb - 1]));
+        e.push(shorts(338, &vec![0; nb - 1]));
     }
+    e
+}
+
+/// The georeferencing (`ModelPixelScale`, `ModelTiepoint`, `GeoKeyDirectory`), `GDAL_METADATA` and `GDAL_NODATA`
+/// entries of the full-resolution image.
+pub(crate) fn geo_entries(bands: &[Band], opts: &GeoTiffOptions) -> Result<Vec<Entry>> {
+    let mut entries = Vec::new();
     if let Some(g) = &opts.georef {
         if !(g.pixel_size[0] > 0.0 && g.pixel_size[1] > 0.0) {
             return Err(OutputError::invalid("georef.pixel_size", format!("must be positive, got {:?}", g.pixel_size)));
@@ -205,19 +195,32 @@ pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) ->
         keys.iter().for_each(|k| dir.extend_from_slice(k));
         entries.push(shorts(34735, &dir));
     }
-    entries.push(ascii(TAG_GDAL_METADATA, &gdal_metadata_xml(&img.bands, &opts.metadata)));
+    entries.push(ascii(TAG_GDAL_METADATA, &gdal_metadata_xml(bands, &opts.metadata)));
     if let Some(nd) = opts.nodata {
         entries.push(ascii(TAG_GDAL_NODATA, &nodata_string(nd)));
     }
-    entries.sort_by_key(|e| e.tag);
+    Ok(entries)
+}
 
-    // IFD after the pixel data, then the out-of-line values.
-    let ifd_off = header_len + data_bytes + (data_bytes & 1);
+/// Encodes an IFD (entries sorted by tag) that will sit at file offset `ifd_off`, followed directly by its
+/// out-of-line values; `next` is the offset of the next IFD (0: the last). The length does not depend on the
+/// offsets, so a layout can be sized first with zeros.
+pub(crate) fn encode_ifd(mut entries: Vec<Entry>, ifd_off: u64, next: u64, big: bool, path: &Path) -> Result<Vec<u8>> {
+    entries.sort_by_key(|e| e.tag);
     let (inline_max, entry_len, count_len): (usize, u64, u64) = if big { (8, 20, 8) } else { (4, 12, 2) };
     let ifd_len = count_len + entry_len * entries.len() as u64 + if big { 8 } else { 4 };
     let mut ext_off = ifd_off + ifd_len;
     let mut ifd = Vec::with_capacity(ifd_len as usize);
     let mut ext = Vec::new();
+    let offset_bytes = |o: u64| -> Result<Vec<u8>> {
+        if big {
+            Ok(o.to_le_bytes().to_vec())
+        } else {
+            let o =
+                u32::try_from(o).map_err(|_| OutputError::write(path, "classic TIFF offset overflow: use BigTIFF"))?;
+            Ok(o.to_le_bytes().to_vec())
+        }
+    };
     if big {
         ifd.extend_from_slice(&(entries.len() as u64).to_le_bytes());
     } else {
@@ -236,12 +239,7 @@ pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) ->
             v.resize(inline_max, 0);
             ifd.extend_from_slice(&v);
         } else {
-            if big {
-                ifd.extend_from_slice(&ext_off.to_le_bytes());
-            } else {
-                let o = u32::try_from(ext_off).map_err(|_| OutputError::write(path, "classic TIFF offset overflow"))?;
-                ifd.extend_from_slice(&o.to_le_bytes());
-            }
+            ifd.extend_from_slice(&offset_bytes(ext_off)?);
             ext.extend_from_slice(&e.bytes);
             ext_off += e.bytes.len() as u64;
             if e.bytes.len() % 2 == 1 {
@@ -250,8 +248,48 @@ pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) ->
             }
         }
     }
-    ifd.extend_from_slice(&if big { vec![0u8; 8] } else { vec![0u8; 4] });
-    if !big && ext_off > u32::MAX as u64 {
+    ifd.extend_from_slice(&offset_bytes(next)?);
+    ifd.extend_from_slice(&ext);
+    Ok(ifd)
+}
+
+/// Writes `img` as a float32 GeoTIFF at `path` (atomically).
+pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) -> Result<()> {
+    img.validate()?;
+    let nb = img.n_bands();
+    if nb > u16::MAX as usize {
+        return Err(OutputError::invalid("image", format!("{nb} bands do not fit a TIFF")));
+    }
+    let (w, h) = (img.width, img.height);
+    if w > u32::MAX as usize || h > u32::MAX as usize {
+        return Err(OutputError::invalid("image", format!("{w}x{h} is too large for TIFF")));
+    }
+    let row_bytes = (w * nb * 4) as u64;
+    let rows_per_strip = ((256 * 1024) / row_bytes).clamp(1, h as u64) as usize;
+    let n_strips = h.div_ceil(rows_per_strip);
+    let data_bytes = row_bytes * h as u64;
+    let big = opts.bigtiff.unwrap_or(data_bytes + (1 << 20) + 64 * n_strips as u64 > u32::MAX as u64);
+    let header_len: u64 = if big { 16 } else { 8 };
+
+    // Strip table.
+    let mut offsets_tab = Vec::with_capacity(n_strips);
+    let mut counts = Vec::with_capacity(n_strips);
+    for s in 0..n_strips {
+        let rows = rows_per_strip.min(h - s * rows_per_strip) as u64;
+        offsets_tab.push(header_len + s as u64 * rows_per_strip as u64 * row_bytes);
+        counts.push(rows * row_bytes);
+    }
+
+    let mut entries = float_layout_entries(w, h, nb);
+    entries.push(offsets(273, &offsets_tab, big));
+    entries.push(longs(278, &[rows_per_strip as u32]));
+    entries.push(offsets(279, &counts, big));
+    entries.extend(geo_entries(&img.bands, opts)?);
+
+    // IFD after the pixel data, then the out-of-line values.
+    let ifd_off = header_len + data_bytes + (data_bytes & 1);
+    let ifd = encode_ifd(entries, ifd_off, 0, big, path)?;
+    if !big && ifd_off + ifd.len() as u64 > u32::MAX as u64 {
         return Err(OutputError::write(path, "file exceeds 4 GiB: use bigtiff"));
     }
 
@@ -277,7 +315,6 @@ pub fn write_geotiff(path: &Path, img: &SpectralImage, opts: &GeoTiffOptions) ->
         if data_bytes & 1 == 1 {
             f.write_all(&[0])?;
         }
-        f.write_all(&ifd)?;
-        f.write_all(&ext)
+        f.write_all(&ifd)
     })?)
 }

@@ -1,0 +1,57 @@
+//! `msnerf compare-raster --pred dsm.tif --ref reference.tif [--classes classes.tif] [--within LIST] [--peak P]
+//! [--json]`: a DSM or orthomosaic against a reference raster in the same CRS (a LiDAR DSM, the simulator's truth),
+//! per band and per class of interior cells (see `msnerf::output::compare_raster`). Needs no GPU.
+
+use std::path::PathBuf;
+
+use crate::output::compare::parse_within;
+use crate::output::compare_raster::{compare_rasters, RasterCompareOptions};
+use crate::output::raster::geotiff_read::read_geotiff;
+
+#[derive(clap::Args, Debug)]
+pub struct CompareRasterArgs {
+    /// The raster to evaluate (GeoTIFF)
+    #[arg(long)]
+    pub pred: PathBuf,
+    /// The reference raster (GeoTIFF, same CRS and band count; any north-up grid)
+    #[arg(long = "ref")]
+    pub reference: PathBuf,
+    /// A class raster (integer codes; band named `classes 1=ground 2=roof ...`) for per-class statistics over
+    /// interior cells
+    #[arg(long)]
+    pub classes: Option<PathBuf>,
+    /// Tolerances (raster units, comma-separated) for the fractions of cells within each
+    #[arg(long, default_value = "0.1,0.25,0.5,1.0")]
+    pub within: String,
+    /// Peak value for PSNR (1 for reflectance); no PSNR without it
+    #[arg(long)]
+    pub peak: Option<f64>,
+    /// Print JSON instead of a table
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the JSON report to this file
+    #[arg(long)]
+    pub output: Option<PathBuf>,
+}
+
+pub fn run(args: &CompareRasterArgs) -> anyhow::Result<()> {
+    let within = parse_within(&args.within)?;
+    if let Some(p) = args.peak {
+        anyhow::ensure!(p.is_finite() && p > 0.0, "--peak must be > 0, got {p}");
+    }
+    let pred = read_geotiff(&args.pred)?;
+    let reference = read_geotiff(&args.reference)?;
+    let classes = args.classes.as_ref().map(|c| read_geotiff(c)).transpose()?;
+    let report =
+        compare_rasters(&pred, &reference, classes.as_ref(), &RasterCompareOptions { within, peak: args.peak })?;
+    let json = report.to_json();
+    if let Some(out) = &args.output {
+        crate::output::atomic::write_bytes(out, format!("{json}\n").as_bytes())?;
+    }
+    if args.json {
+        println!("{json}");
+    } else {
+        print!("{}", report.table());
+    }
+    Ok(())
+}

@@ -1,0 +1,245 @@
+//! `msnerf export dsm RUN --gsd M --out dsm.tif` and `msnerf export ortho RUN --gsd M --out ortho.tif`: the digital
+//! surface model and the multispectral true orthomosaic of a trained run, Cloud-Optimized GeoTIFFs on one grid in
+//! the dataset's CRS, with PNG previews (see `msnerf::nerf::survey` and `survey_products`). Either command can write
+//! the other product from the same rendering (`--ortho`, `--dsm`).
+
+use std::path::PathBuf;
+
+use super::Cli;
+use crate::gpu::Context;
+use crate::nerf::export::Consistency;
+use crate::nerf::run::LoadedRun;
+use crate::nerf::survey::{seen_bounds, SurveyGrid, SurveyOptions};
+use crate::nerf::survey_products::{export_survey, SurveyOutputs};
+use crate::output::raster::geotiff_read::read_grid;
+use crate::output::raster::indices::VegetationIndex;
+
+#[derive(clap::Args, Debug)]
+pub struct SurveyArgs {
+    /// Run folder written by `msnerf train`
+    pub run: PathBuf,
+    /// Output GeoTIFF (.tif)
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Cell size in world units (metres in a projected CRS)
+    #[arg(long)]
+    pub gsd: Option<f64>,
+    /// Area in world units: xmin,ymin,xmax,ymax (default: the ground the training cameras saw); snapped outward to
+    /// whole cells
+    #[arg(long, allow_hyphen_values = true)]
+    pub bounds: Option<String>,
+    /// Use the grid (origin, cell size, size) of this GeoTIFF instead of --gsd/--bounds, e.g. a LiDAR DSM or an
+    /// earlier flight's export, so the rasters align cell for cell
+    #[arg(long)]
+    pub align_to: Option<PathBuf>,
+    /// Refuse grids with more cells than this
+    #[arg(long, default_value_t = 200_000_000)]
+    pub max_cells: usize,
+    /// World z the vertical rays start from (default: the training cameras' median height)
+    #[arg(long, allow_hyphen_values = true)]
+    pub top: Option<f64>,
+    /// Minimum accumulation (opacity) of a cell's ray (at least 0.5)
+    #[arg(long, default_value_t = 0.5)]
+    pub min_accumulation: f32,
+    /// DSM: nodata where the ray's weights spread over more than this many finest-grid cells (0: off)
+    #[arg(long, default_value_t = 8.0)]
+    pub max_spread_cells: f64,
+    /// DSM: training views that check each cell's surface point (0: no check)
+    #[arg(long, default_value_t = 6)]
+    pub check_views: usize,
+    /// DSM: agreeing views a cell needs
+    #[arg(long, default_value_t = 2)]
+    pub min_agree: usize,
+    /// DSM: largest depth disagreement of a checking view, in its pixel footprints
+    #[arg(long, default_value_t = 2.0)]
+    pub agree_tolerance: f64,
+    /// DSM: keep surfaces outside the scene box (the aerial normalisation's unit cube), which are otherwise nodata
+    #[arg(long)]
+    pub keep_outside_box: bool,
+    /// Rays rendered per block (bounds host memory: about 100 bytes per ray)
+    #[arg(long, default_value_t = 1 << 20)]
+    pub block_rays: usize,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct DsmArgs {
+    #[command(flatten)]
+    pub common: SurveyArgs,
+    /// Also write the true orthomosaic on the same grid from the same rendering
+    #[arg(long)]
+    pub ortho: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct OrthoArgs {
+    #[command(flatten)]
+    pub common: SurveyArgs,
+    /// Also write the DSM on the same grid from the same rendering
+    #[arg(long)]
+    pub dsm: Option<PathBuf>,
+    /// Vegetation indices written beside the ortho as <stem>_<index>.tif (comma-separated, e.g. ndvi,ndre720)
+    #[arg(long, value_delimiter = ',')]
+    pub indices: Vec<String>,
+}
+
+impl SurveyArgs {
+    /// The library options these flags ask for; errors name the flag.
+    pub fn options(&self) -> anyhow::Result<SurveyOptions> {
+        anyhow::ensure!(
+            self.max_spread_cells.is_finite() && self.max_spread_cells >= 0.0,
+            "--max-spread-cells must be >= 0, got {}",
+            self.max_spread_cells
+        );
+        anyhow::ensure!(
+            self.agree_tolerance.is_finite() && self.agree_tolerance > 0.0,
+            "--agree-tolerance must be > 0, got {}",
+            self.agree_tolerance
+        );
+        anyhow::ensure!(
+            self.check_views == 0 || (1..=self.check_views).contains(&self.min_agree),
+            "--min-agree must be between 1 and --check-views ({}), got {}",
+            self.check_views,
+            self.min_agree
+        );
+        anyhow::ensure!(self.block_rays > 0, "--block-rays must be > 0");
+        if let Some(t) = self.top {
+            anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
+        }
+        Ok(SurveyOptions {
+            min_accumulation: self.min_accumulation,
+            max_spread_cells: (self.max_spread_cells > 0.0).then_some(self.max_spread_cells),
+            consistency: (self.check_views > 0).then_some(Consistency {
+                views: self.check_views,
+                min_agree: self.min_agree,
+                tolerance: self.agree_tolerance,
+            }),
+            scene_box: !self.keep_outside_box,
+            top: self.top,
+            block_rays: self.block_rays,
+        })
+    }
+
+    /// The grid: --align-to's, or --gsd over --bounds (default: what the training cameras saw).
+    fn grid(&self, run: &mut LoadedRun) -> anyhow::Result<SurveyGrid> {
+        if let Some(path) = &self.align_to {
+            anyhow::ensure!(
+                self.gsd.is_none() && self.bounds.is_none(),
+                "--align-to takes the place of --gsd and --bounds"
+            );
+            let g = read_grid(path)?;
+            anyhow::ensure!(
+                (g.pixel_size[0] - g.pixel_size[1]).abs() <= 1e-9 * g.pixel_size[0],
+                "--align-to {}: cells of {} x {} are not square",
+                path.display(),
+                g.pixel_size[0],
+                g.pixel_size[1]
+            );
+            if let (Some(a), Some(c)) = (g.epsg, run.ds.crs.as_ref().and_then(|c| c.epsg)) {
+                anyhow::ensure!(
+                    a as u32 == c,
+                    "--align-to {}: EPSG:{a}, but the dataset is in EPSG:{c}",
+                    path.display()
+                );
+            }
+            anyhow::ensure!(
+                g.width * g.height <= self.max_cells,
+                "--align-to {}: {} x {} cells, more than --max-cells {}",
+                path.display(),
+                g.width,
+                g.height,
+                self.max_cells
+            );
+            return Ok(SurveyGrid { origin: g.origin, gsd: g.pixel_size[0], width: g.width, height: g.height });
+        }
+        let gsd = self.gsd.ok_or_else(|| anyhow::anyhow!("give --gsd (the cell size) or --align-to"))?;
+        anyhow::ensure!(gsd.is_finite() && gsd > 0.0, "--gsd must be > 0, got {gsd}");
+        let seen = seen_bounds(run)?;
+        let bounds = match &self.bounds {
+            Some(text) => {
+                let v: Vec<f64> = text
+                    .split(',')
+                    .map(|x| x.trim().parse::<f64>())
+                    .collect::<Result<_, _>>()
+                    .map_err(|_| anyhow::anyhow!("--bounds `{text}`: expected four numbers xmin,ymin,xmax,ymax"))?;
+                anyhow::ensure!(v.len() == 4, "--bounds `{text}`: expected four numbers xmin,ymin,xmax,ymax");
+                let b = [v[0], v[1], v[2], v[3]];
+                let overlap = b[0] < seen[2] && b[2] > seen[0] && b[1] < seen[3] && b[3] > seen[1];
+                anyhow::ensure!(
+                    overlap,
+                    "--bounds {},{},{},{} lie outside the ground the training cameras saw ({:.2},{:.2},{:.2},{:.2})",
+                    b[0],
+                    b[1],
+                    b[2],
+                    b[3],
+                    seen[0],
+                    seen[1],
+                    seen[2],
+                    seen[3]
+                );
+                b
+            }
+            None => seen,
+        };
+        Ok(SurveyGrid::covering(bounds, gsd, self.max_cells)?)
+    }
+}
+
+/// Renders and writes `outputs`; prints what each filter did and the files.
+pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyhow::Result<()> {
+    let opts = a.options()?;
+    // Paths first: a typo in a folder should not wait for a model to load.
+    for p in [&outputs.dsm, &outputs.ortho].into_iter().flatten() {
+        let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+        anyhow::ensure!(dir.is_dir(), "{}: the folder {} does not exist", p.display(), dir.display());
+    }
+    outputs.indices.dedup();
+    let ctx = Context::new(&cli.context_desc())?;
+    let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
+    let grid = a.grid(&mut run)?;
+    let bar = indicatif::ProgressBar::new(grid.height as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("rendering {bar:30} {pos}/{len} rows, ETA {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let report = export_survey(&mut run, &grid, &opts, &outputs, |rows| bar.set_position(rows as u64))?;
+    bar.finish_and_clear();
+    let s = &report.stats;
+    let b = grid.bounds();
+    println!(
+        "grid {} x {} cells of {} over {:.3},{:.3},{:.3},{:.3}; vertical rays from z = {:.3}",
+        grid.width, grid.height, grid.gsd, b[0], b[1], b[2], b[3], s.top
+    );
+    println!(
+        "{} cells: {} with a height, {} without a surface, {} outside the scene box, {} with spread weights, {} \
+         inconsistent across views; {} rays in {:.1} s",
+        s.cells, s.valid, s.no_surface, s.outside_box, s.spread, s.inconsistent, s.rays, s.seconds
+    );
+    for n in &report.notes {
+        println!("note: {n}");
+    }
+    if let Some(b) = crate::util::mem::peak_rss_bytes() {
+        println!("peak host memory {:.0} MiB", b as f64 / 1048576.0);
+    }
+    let crs = run
+        .ds
+        .crs
+        .as_ref()
+        .map_or("the dataset's local frame: no crs".to_string(), |c| format!("crs {}", c.describe()));
+    for f in &report.files {
+        println!("-> {} ({crs})", f.display());
+    }
+    Ok(())
+}
+
+pub fn run_dsm(cli: &Cli, a: &DsmArgs) -> anyhow::Result<()> {
+    run_survey(
+        cli,
+        &a.common,
+        SurveyOutputs { dsm: Some(a.common.out.clone()), ortho: a.ortho.clone(), indices: vec![] },
+    )
+}
+
+pub fn run_ortho(cli: &Cli, a: &OrthoArgs) -> anyhow::Result<()> {
+    let indices = a.indices.iter().map(|s| VegetationIndex::parse(s)).collect::<Result<Vec<_>, _>>()?;
+    run_survey(cli, &a.common, SurveyOutputs { dsm: a.dsm.clone(), ortho: Some(a.common.out.clone()), indices })
+}

@@ -1,0 +1,360 @@
+//! Survey products from a trained run (issue 21): a digital surface model and a multispectral true orthomosaic on
+//! one north-up grid in the dataset's world frame (so in its `crs`).
+//!
+//! Every grid cell is one **vertical ray**: an orthographic camera (`CameraModel::Orthographic`, parallel rays along
+//! world -z) looks straight down from `top` (default: the training cameras' median height, so the rays start in air
+//! the training rays crossed), one pixel per cell centre. Per ray:
+//! - **height**: the careful depth of the point-cloud export ([`super::export`]): the exact crossing of
+//!   accumulation 0.5, mapped back to world z. The cell is nodata when the field is not confident there: accumulation
+//!   below `min_accumulation` (at least 0.5), a surface outside the aerial normalisation's unit cube (the region of
+//!   interest, as the point-cloud export crops), weights spread over more than `max_spread_cells` finest-grid cells,
+//!   or (with [`Consistency`]) fewer than `min_agree` training views whose own depth agrees with the point;
+//! - **band values**: the composited colour of the same ray, so seen from straight above: the colour head is
+//!   evaluated with the nadir view direction and the training cameras' mean appearance embedding (nerfstudio's
+//!   evaluation convention). View dependence is not averaged away: a nadir flight's images see most surfaces from
+//!   near-nadir, which is what the ortho shows. Nodata only where accumulation is below the floor (the colour of an
+//!   empty ray is the background's, not the surface's).
+//!
+//! The grid is rendered in blocks of whole rows (at most [`SurveyOptions::block_rays`] rays each, consistency rays
+//! included in the bound); each block goes to a sink (the GeoTIFF writers), so host memory stays bounded whatever the
+//! raster size.
+
+use super::export::{consistency, field_cell_size, Consistency};
+use super::run::LoadedRun;
+use super::views::NovelView;
+use crate::data::{Camera, CameraModel, Distortion, Split};
+
+/// A failed survey export, naming the option or the stage.
+#[derive(Debug, thiserror::Error)]
+pub enum SurveyError {
+    /// An option is out of range; `what` names it.
+    #[error("{what}: {reason}")]
+    Invalid { what: String, reason: String },
+    /// Rendering failed.
+    #[error("rendering the survey grid: {0}")]
+    Render(String),
+    /// Writing a product failed.
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
+}
+
+impl SurveyError {
+    fn invalid(what: &str, reason: impl std::fmt::Display) -> Self {
+        SurveyError::Invalid { what: what.into(), reason: reason.to_string() }
+    }
+}
+
+/// A north-up grid in the dataset's world frame: `origin` is (x, y) of the top-left corner of the top-left cell.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurveyGrid {
+    pub origin: [f64; 2],
+    pub gsd: f64,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl SurveyGrid {
+    /// World x, y of the centre of cell (row, col).
+    pub fn centre(&self, row: usize, col: usize) -> [f64; 2] {
+        [self.origin[0] + (col as f64 + 0.5) * self.gsd, self.origin[1] - (row as f64 + 0.5) * self.gsd]
+    }
+
+    /// `[xmin, ymin, xmax, ymax]` of the cells' outer edges.
+    pub fn bounds(&self) -> [f64; 4] {
+        [
+            self.origin[0],
+            self.origin[1] - self.height as f64 * self.gsd,
+            self.origin[0] + self.width as f64 * self.gsd,
+            self.origin[1],
+        ]
+    }
+
+    pub fn cells(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// The grid of `gsd` cells covering `bounds` (`[xmin, ymin, xmax, ymax]`), its edges snapped outward to whole
+    /// multiples of `gsd` (so exports of one area at one GSD share their grid); refused when empty or larger than
+    /// `max_cells`, with the numbers.
+    pub fn covering(bounds: [f64; 4], gsd: f64, max_cells: usize) -> Result<SurveyGrid, SurveyError> {
+        if !(gsd.is_finite() && gsd > 0.0) {
+            return Err(SurveyError::invalid("gsd", format!("must be a positive number of metres, got {gsd}")));
+        }
+        let [x0, y0, x1, y1] = bounds;
+        if !bounds.iter().all(|v| v.is_finite()) || x1 <= x0 || y1 <= y0 {
+            return Err(SurveyError::invalid(
+                "bounds",
+                format!("xmin,ymin,xmax,ymax = {x0},{y0},{x1},{y1} is empty (it needs xmax > xmin and ymax > ymin)"),
+            ));
+        }
+        let left = (x0 / gsd).floor() * gsd;
+        let top = (y1 / gsd).ceil() * gsd;
+        let width = ((x1 - left) / gsd - 1e-9).ceil().max(1.0);
+        let height = ((top - y0) / gsd - 1e-9).ceil().max(1.0);
+        let cells = width * height;
+        if cells > max_cells as f64 {
+            return Err(SurveyError::invalid(
+                "gsd",
+                format!(
+                    "{gsd} m over {:.1} x {:.1} m makes {width} x {height} = {cells:.3e} cells, more than the limit of \
+                     {max_cells} (give a larger --gsd, smaller --bounds, or raise --max-cells)",
+                    x1 - x0,
+                    y1 - y0
+                ),
+            ));
+        }
+        Ok(SurveyGrid { origin: [left, top], gsd, width: width as usize, height: height as usize })
+    }
+}
+
+/// What to render and how to judge it.
+#[derive(Debug, Clone)]
+pub struct SurveyOptions {
+    /// Minimum accumulation of a cell's ray (raised to 0.5: below it there is no median crossing).
+    pub min_accumulation: f32,
+    /// Drop cells whose weights' interquartile spread exceeds this many finest-grid cells (None: off).
+    pub max_spread_cells: Option<f64>,
+    /// Multi-view consistency of the DSM's points (None: off).
+    pub consistency: Option<Consistency>,
+    /// Drop DSM points outside the unit cube when the run used the aerial normalisation. No effect with `poses`.
+    pub scene_box: bool,
+    /// World z the vertical rays start from (None: the training cameras' median height).
+    pub top: Option<f64>,
+    /// Rays rendered per block, consistency rays included (bounds host memory).
+    pub block_rays: usize,
+}
+
+impl Default for SurveyOptions {
+    fn default() -> Self {
+        Self {
+            min_accumulation: 0.5,
+            max_spread_cells: Some(8.0),
+            consistency: Some(Consistency::default()),
+            scene_box: true,
+            top: None,
+            block_rays: 1 << 20,
+        }
+    }
+}
+
+/// What the filters did, over the whole grid.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct SurveyStats {
+    pub cells: usize,
+    /// Cells with a height.
+    pub valid: usize,
+    /// Cells whose ray stayed below the accumulation floor (nodata in both products).
+    pub no_surface: usize,
+    /// Cells whose surface lies outside the region of interest (DSM only).
+    pub outside_box: usize,
+    /// Cells dropped by the spread filter (DSM only).
+    pub spread: usize,
+    /// Cells dropped by the consistency check (DSM only).
+    pub inconsistent: usize,
+    /// Rays rendered, consistency rays included.
+    pub rays: usize,
+    /// World z the vertical rays started from.
+    pub top: f64,
+    pub seconds: f64,
+}
+
+/// One block of whole grid rows, as the sinks receive it.
+pub struct RowBlock {
+    /// First grid row of the block.
+    pub row0: usize,
+    pub rows: usize,
+    /// rows x width heights (world z), NaN where nodata.
+    pub height: Vec<f32>,
+    /// rows x width x B band values (pixel-interleaved), NaN where nodata.
+    pub values: Vec<f32>,
+}
+
+/// The ground the training cameras saw, `[xmin, ymin, xmax, ymax]` in world units. The ground height is the median
+/// height of the surface under the training images' centre pixels; a ring of rays along every training image's
+/// border is cut with that plane (hits farther than 10 flight heights from their camera are pulled in to that
+/// distance, as the aerial normalisation does), and the bounds are the 2nd-98th percentile box of the hits. With the
+/// aerial normalisation the box is then clipped to the footprint of its unit cube (the region of interest).
+pub fn seen_bounds(run: &mut LoadedRun) -> Result<[f64; 4], SurveyError> {
+    let frames = run.ds.split_indices(Split::Train);
+    let (w, h) = (run.ds.width, run.ds.height);
+    // 1. Ground height from the centre pixels.
+    let pixels: Vec<u32> = frames.iter().flat_map(|&f| [f as u32, h / 2, w / 2]).collect();
+    let out = run.pipe.render(&pixels).map_err(|e| SurveyError::Render(e.to_string()))?;
+    let mut zs = Vec::new();
+    for (k, &f) in frames.iter().enumerate() {
+        if out.accumulation[k] < 0.5 || !out.median_depth[k].is_finite() {
+            continue;
+        }
+        let c2w = run.transform.pose_to_normalized(&run.ds.frames[f].c2w);
+        let ray = run.ds.frames[f].camera.ray_f64(&c2w, h / 2, w / 2);
+        let p = [0, 1, 2].map(|i| ray.origin[i] + ray.direction[i] * out.median_depth[k] as f64);
+        zs.push(run.transform.to_world(p)[2]);
+    }
+    if zs.is_empty() {
+        return Err(SurveyError::invalid(
+            "bounds",
+            "no training image's centre ray reaches a surface: the field has no ground to map (give --bounds)",
+        ));
+    }
+    let ground = crate::util::stats::median(&zs);
+    // 2. Border rays cut with the ground plane.
+    let steps = 8u32;
+    let mut ring: Vec<(u32, u32)> = Vec::new();
+    for k in 0..=steps {
+        let (c, r) = ((w - 1) * k / steps, (h - 1) * k / steps);
+        ring.extend([(0, c), (h - 1, c), (r, 0), (r, w - 1)]);
+    }
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    for &f in &frames {
+        let frame = &run.ds.frames[f];
+        for &(r, c) in &ring {
+            let ray = frame.camera.ray_f64(&frame.c2w, r, c);
+            let above = ray.origin[2] - ground;
+            if above <= 0.0 {
+                continue;
+            }
+            let reach = 10.0 * above;
+            let t = if ray.direction[2] < -1e-6 { (-above / ray.direction[2]).min(reach) } else { reach };
+            let horizontal = (ray.direction[0].powi(2) + ray.direction[1].powi(2)).sqrt().max(1e-12);
+            let t = t.min(reach / horizontal);
+            xs.push(ray.origin[0] + t * ray.direction[0]);
+            ys.push(ray.origin[1] + t * ray.direction[1]);
+        }
+    }
+    if xs.len() < 4 {
+        return Err(SurveyError::invalid("bounds", "the training cameras are not above the ground (give --bounds)"));
+    }
+    let pct = |v: &mut Vec<f64>, p: f64| {
+        v.sort_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * p).round() as usize]
+    };
+    let mut b = [pct(&mut xs, 0.02), pct(&mut ys, 0.02), pct(&mut xs, 0.98), pct(&mut ys, 0.98)];
+    // 3. The aerial normalisation's region of interest.
+    if run.ds.aerial_normalization() {
+        let corners: Vec<[f64; 3]> = (0..8)
+            .map(|k| run.transform.to_world([0, 1, 2].map(|a| if k >> a & 1 == 1 { 1.0 } else { -1.0 })))
+            .collect();
+        let lo = |a: usize| corners.iter().map(|c| c[a]).fold(f64::MAX, f64::min);
+        let hi = |a: usize| corners.iter().map(|c| c[a]).fold(f64::MIN, f64::max);
+        b = [b[0].max(lo(0)), b[1].max(lo(1)), b[2].min(hi(0)), b[3].min(hi(1))];
+    }
+    Ok(b)
+}
+
+/// The training cameras' median height (world z).
+pub fn median_camera_height(run: &LoadedRun) -> f64 {
+    let z: Vec<f64> = run.ds.split_indices(Split::Train).iter().map(|&f| run.ds.frames[f].c2w[2][3]).collect();
+    crate::util::stats::median(&z)
+}
+
+/// The orthographic camera over `grid` looking straight down from world height `top`, in the normalised frame.
+fn ortho_view(run: &LoadedRun, grid: &SurveyGrid, top: f64) -> NovelView {
+    let s = run.transform.scale;
+    let (w, h) = (grid.width as f64, grid.height as f64);
+    let centre = [grid.origin[0] + 0.5 * w * grid.gsd, grid.origin[1] - 0.5 * h * grid.gsd, top];
+    let pose =
+        [[1.0, 0.0, 0.0, centre[0]], [0.0, 1.0, 0.0, centre[1]], [0.0, 0.0, 1.0, centre[2]], [0.0, 0.0, 0.0, 1.0]];
+    let f = 1.0 / (grid.gsd * s);
+    NovelView {
+        name: "survey".into(),
+        camera: Camera {
+            model: CameraModel::Orthographic,
+            fx: f,
+            fy: f,
+            cx: 0.5 * w,
+            cy: 0.5 * h,
+            width: grid.width as u32,
+            height: grid.height as u32,
+            distortion: Distortion::default(),
+        },
+        c2w: run.transform.pose_to_normalized(&pose),
+    }
+}
+
+/// Renders `grid` block by block and hands each block to `sink`; `progress` gets the rows done so far.
+pub fn render_survey(
+    run: &mut LoadedRun,
+    grid: &SurveyGrid,
+    opts: &SurveyOptions,
+    mut sink: impl FnMut(&RowBlock) -> Result<(), SurveyError>,
+    mut progress: impl FnMut(usize),
+) -> Result<SurveyStats, SurveyError> {
+    let t0 = std::time::Instant::now();
+    if grid.width > u32::MAX as usize || grid.height > u32::MAX as usize || grid.cells() == 0 {
+        return Err(SurveyError::invalid("grid", format!("{} x {} cells", grid.width, grid.height)));
+    }
+    let top = opts.top.unwrap_or_else(|| median_camera_height(run));
+    if !top.is_finite() {
+        return Err(SurveyError::invalid("top", format!("{top} is not a height")));
+    }
+    let view = ortho_view(run, grid, top);
+    run.set_novel_views(std::slice::from_ref(&view)).map_err(SurveyError::Render)?;
+    let cam = run.ds.frames.len() as u32;
+    let frames = run.ds.split_indices(Split::Train);
+    let nb = run.ds.n_bands();
+    let floor = opts.min_accumulation.max(0.5);
+    let max_res = run.cfg.field.grid.max_resolution;
+    let contraction = run.cfg.sampling.scene_contraction;
+    let crop_to_box = opts.scene_box && run.ds.aerial_normalization();
+    let rays_per_cell = 1 + opts.consistency.as_ref().map_or(0, |c| c.views);
+    let block_rows = (opts.block_rays / (grid.width * rays_per_cell)).clamp(1, grid.height);
+    let c2w = view.c2w;
+    let mut stats = SurveyStats { cells: grid.cells(), top, ..Default::default() };
+    let mut row0 = 0;
+    while row0 < grid.height {
+        let rows = block_rows.min(grid.height - row0);
+        let n = rows * grid.width;
+        let pixels: Vec<u32> =
+            (row0..row0 + rows).flat_map(|r| (0..grid.width).flat_map(move |c| [cam, r as u32, c as u32])).collect();
+        let out = run.pipe.render(&pixels).map_err(|e| SurveyError::Render(e.to_string()))?;
+        stats.rays += n;
+        let mut height = vec![f32::NAN; n];
+        let mut values = vec![f32::NAN; n * nb];
+        // Cells that pass the accumulation and spread filters: (cell, normalised point, world z).
+        let mut kept: Vec<(usize, [f64; 3], f64)> = Vec::new();
+        for i in 0..n {
+            if out.accumulation[i] < floor || !out.median_depth[i].is_finite() {
+                stats.no_surface += 1;
+                continue;
+            }
+            values[i * nb..(i + 1) * nb].copy_from_slice(&out.colour[i * nb..(i + 1) * nb]);
+            let (r, c) = ((row0 + i / grid.width) as u32, (i % grid.width) as u32);
+            let ray = view.camera.ray_f64(&c2w, r, c);
+            let p = [0, 1, 2].map(|k| ray.origin[k] + ray.direction[k] * out.median_depth[i] as f64);
+            if crop_to_box && p.iter().any(|v| v.abs() > 1.0) {
+                stats.outside_box += 1;
+                continue;
+            }
+            if let Some(max_cells) = opts.max_spread_cells {
+                let spread = (out.depth_q75[i] - out.depth_q25[i]) as f64;
+                if spread.is_nan() || spread > max_cells * field_cell_size(p, max_res, contraction) {
+                    stats.spread += 1;
+                    continue;
+                }
+            }
+            kept.push((i, p, run.transform.to_world(p)[2]));
+        }
+        let agree = match &opts.consistency {
+            Some(c) => {
+                let points: Vec<([f64; 3], usize)> = kept.iter().map(|&(_, p, _)| (p, usize::MAX)).collect();
+                let (agree, _, rendered) = consistency(run, &frames, &points, c).map_err(SurveyError::Render)?;
+                stats.rays += rendered;
+                agree.iter().map(|&a| a as usize >= c.min_agree).collect()
+            }
+            None => vec![true; kept.len()],
+        };
+        for (&(i, _, z), ok) in kept.iter().zip(agree) {
+            if ok {
+                height[i] = z as f32;
+                stats.valid += 1;
+            } else {
+                stats.inconsistent += 1;
+            }
+        }
+        sink(&RowBlock { row0, rows, height, values })?;
+        row0 += rows;
+        progress(row0);
+    }
+    stats.seconds = t0.elapsed().as_secs_f64();
+    Ok(stats)
+}

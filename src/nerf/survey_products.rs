@@ -1,0 +1,279 @@
+//! Writes the survey products of [`super::survey`] as files: the DSM (one float32 band, world z), the true
+//! orthomosaic (B float32 bands with names and wavelengths) and vegetation indices, each a Cloud-Optimized GeoTIFF
+//! on the same grid (`output::raster::cog`, streamed block by block), in the dataset's `crs` when it has one, nodata
+//! -9999 (OpenDroneMap's and PDAL's DSM convention); and PNG previews from the coarsest overview that fits
+//! [`PREVIEW_MAX`]: `<stem>_hillshade.png` and `<stem>_height.png` for the DSM, `<stem>_rgb.png`, `<stem>_cir.png`
+//! and `<stem>_ndvi.png` for the ortho (where its bands allow), `<stem>_<index>.png` for each index.
+//!
+//! Every path is checked before rendering starts (extension, existing folder, bands for each index); a failure
+//! while rendering leaves no product behind (the writers' temporary files are removed).
+
+use std::path::{Path, PathBuf};
+
+use super::run::LoadedRun;
+use super::survey::{median_camera_height, render_survey, SurveyError, SurveyGrid, SurveyOptions, SurveyStats};
+use crate::output::image::{band, band_description};
+use crate::output::raster::cog::{CogOptions, CogPreview, CogWriter};
+use crate::output::raster::hillshade::{hillshade, Sun};
+use crate::output::raster::indices::{index_bands, VegetationIndex, DEFAULT_TOLERANCE_NM};
+use crate::output::raster::preview::{self, Rgb8, Stretch};
+use crate::output::raster::{Colormap, GeoReference, GeoTiffOptions};
+use crate::output::SpectralImage;
+
+/// Nodata of every survey product.
+pub const NODATA: f64 = -9999.0;
+/// Largest side of the preview PNGs (the coarsest COG level that fits).
+pub const PREVIEW_MAX: usize = 2048;
+
+/// Which products to write.
+#[derive(Debug, Clone, Default)]
+pub struct SurveyOutputs {
+    pub dsm: Option<PathBuf>,
+    pub ortho: Option<PathBuf>,
+    /// Index GeoTIFFs written beside the ortho as `<stem>_<index>.tif` (needs `ortho`).
+    pub indices: Vec<VegetationIndex>,
+}
+
+/// What was written.
+#[derive(Debug, Clone)]
+pub struct SurveyReport {
+    pub grid: SurveyGrid,
+    pub stats: SurveyStats,
+    pub files: Vec<PathBuf>,
+    /// Previews that the bands did not allow, with the reason.
+    pub notes: Vec<String>,
+}
+
+/// `dir/<stem><suffix>` of `path`.
+pub fn sibling(path: &Path, suffix: &str) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!("{stem}{suffix}"))
+}
+
+fn check_path(path: &Path, what: &str) -> Result<(), SurveyError> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+    if !matches!(ext.as_deref(), Some("tif" | "tiff")) {
+        return Err(SurveyError::Invalid {
+            what: what.into(),
+            reason: format!("{}: the file must end in .tif", path.display()),
+        });
+    }
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        return Err(SurveyError::Invalid {
+            what: what.into(),
+            reason: format!("{}: the folder {} does not exist", path.display(), dir.display()),
+        });
+    }
+    Ok(())
+}
+
+/// Renders `grid` once and writes every product `outputs` asks for.
+pub fn export_survey(
+    run: &mut LoadedRun,
+    grid: &SurveyGrid,
+    opts: &SurveyOptions,
+    outputs: &SurveyOutputs,
+    progress: impl FnMut(usize),
+) -> Result<SurveyReport, SurveyError> {
+    if let Some(p) = &outputs.dsm {
+        check_path(p, "--out (dsm)")?;
+    }
+    if let Some(p) = &outputs.ortho {
+        check_path(p, "--out (ortho)")?;
+    }
+    if outputs.dsm.is_none() && outputs.ortho.is_none() {
+        return Err(SurveyError::Invalid {
+            what: "outputs".into(),
+            reason: "neither a DSM nor an ortho asked for".into(),
+        });
+    }
+    let bands = run.ds.bands.clone();
+    let probe = SpectralImage { width: 0, height: 0, bands: bands.clone(), data: Vec::new() };
+    let mut index_inputs = Vec::new();
+    for &ix in &outputs.indices {
+        if outputs.ortho.is_none() {
+            return Err(SurveyError::Invalid { what: "--indices".into(), reason: "indices need the ortho".into() });
+        }
+        index_inputs.push((ix, index_bands(&probe, ix, DEFAULT_TOLERANCE_NM)?));
+    }
+    let mut opts = opts.clone();
+    let top = opts.top.unwrap_or_else(|| median_camera_height(run));
+    opts.top = Some(top);
+    let georef = GeoReference::in_crs(grid.origin, [grid.gsd, grid.gsd], run.ds.crs.as_ref())?;
+    let cog = |product: String| CogOptions {
+        geotiff: GeoTiffOptions {
+            nodata: Some(NODATA),
+            georef: Some(georef),
+            bigtiff: None,
+            metadata: vec![
+                ("msnerf_product".into(), product),
+                ("msnerf_run".into(), run.dir.display().to_string()),
+                ("vertical_rays_from_z".into(), format!("{top}")),
+                ("min_accumulation".into(), format!("{}", opts.min_accumulation.max(0.5))),
+            ],
+        },
+        preview_max: PREVIEW_MAX,
+    };
+    let (w, h) = (grid.width, grid.height);
+    let mut dsm = match &outputs.dsm {
+        Some(p) => Some(CogWriter::create(
+            p,
+            w,
+            h,
+            vec![band("height", None, None)],
+            &cog("DSM: first-surface height (world z) seen straight down".into()),
+        )?),
+        None => None,
+    };
+    let mut ortho = match &outputs.ortho {
+        Some(p) => Some(CogWriter::create(
+            p,
+            w,
+            h,
+            bands.clone(),
+            &cog("true orthomosaic: band values seen straight down".into()),
+        )?),
+        None => None,
+    };
+    let mut index_writers = Vec::new();
+    if let Some(o) = &outputs.ortho {
+        for (ix, inputs) in &index_inputs {
+            let used: Vec<String> = inputs.iter().map(|&b| band_description(&bands[b])).collect();
+            let mut c = cog(format!("vegetation index {} of the true orthomosaic", ix.name()));
+            c.geotiff.metadata.push(("INDEX".into(), ix.name().into()));
+            c.geotiff.metadata.push(("INDEX_BANDS".into(), used.join(", ")));
+            let path = sibling(o, &format!("_{}.tif", ix.name().to_lowercase()));
+            index_writers.push((
+                *ix,
+                inputs.clone(),
+                path.clone(),
+                CogWriter::create(&path, w, h, vec![band(ix.name(), None, None)], &c)?,
+            ));
+        }
+    }
+    let nb = bands.len();
+    let nd = NODATA as f32;
+    let stats = render_survey(
+        run,
+        grid,
+        &opts,
+        |block| {
+            if let Some(wr) = dsm.as_mut() {
+                let rows: Vec<f32> = block.height.iter().map(|&z| if z.is_finite() { z } else { nd }).collect();
+                wr.push_rows(&rows)?;
+            }
+            if let Some(wr) = ortho.as_mut() {
+                let rows: Vec<f32> = block.values.iter().map(|&v| if v.is_finite() { v } else { nd }).collect();
+                wr.push_rows(&rows)?;
+            }
+            for (ix, inputs, _, wr) in index_writers.iter_mut() {
+                let mut v = vec![0.0f64; inputs.len()];
+                let rows: Vec<f32> = block
+                    .values
+                    .chunks_exact(nb)
+                    .map(|px| {
+                        for (k, &b) in inputs.iter().enumerate() {
+                            v[k] = px[b] as f64;
+                        }
+                        let x = ix.formula(&v);
+                        if x.is_finite() {
+                            x as f32
+                        } else {
+                            nd
+                        }
+                    })
+                    .collect();
+                wr.push_rows(&rows)?;
+            }
+            Ok(())
+        },
+        progress,
+    )?;
+    let mut files = Vec::new();
+    let mut notes = Vec::new();
+    if let (Some(wr), Some(path)) = (dsm, &outputs.dsm) {
+        let pv = wr.finish()?;
+        files.push(path.clone());
+        if let Some(pv) = pv {
+            files.extend(dsm_previews(path, &pv, grid.gsd)?);
+        }
+    }
+    if let (Some(wr), Some(path)) = (ortho, &outputs.ortho) {
+        let pv = wr.finish()?;
+        files.push(path.clone());
+        if let Some(pv) = pv {
+            let (f, n) = ortho_previews(path, &pv)?;
+            files.extend(f);
+            notes.extend(n);
+        }
+    }
+    for (ix, _, path, wr) in index_writers {
+        let pv = wr.finish()?;
+        files.push(path.clone());
+        if let Some(pv) = pv {
+            let img = without_nodata(pv.image);
+            let png = path.with_extension("png");
+            preview::index_preview(&img.data, img.width, img.height, ix.preview_range())?.write_png(&png)?;
+            files.push(png);
+        }
+    }
+    Ok(SurveyReport { grid: *grid, stats, files, notes })
+}
+
+/// The preview image with nodata as NaN (the preview functions paint NaN black).
+pub fn without_nodata(mut img: SpectralImage) -> SpectralImage {
+    img.data.iter_mut().filter(|v| **v == NODATA as f32).for_each(|v| *v = f32::NAN);
+    img
+}
+
+fn dsm_previews(path: &Path, pv: &CogPreview, gsd: f64) -> Result<Vec<PathBuf>, SurveyError> {
+    height_previews(path, &without_nodata(pv.image.clone()), gsd * pv.factor as f64)
+}
+
+/// `<stem>_hillshade.png` and `<stem>_height.png` (turbo over the 2nd-98th percentile, with a colour bar) of a
+/// height image (NaN = nodata) with cells of `gsd`.
+pub fn height_previews(path: &Path, img: &SpectralImage, gsd: f64) -> Result<Vec<PathBuf>, SurveyError> {
+    let (w, h) = (img.width, img.height);
+    let grey = hillshade(&img.data, w, h, gsd, Sun::default());
+    let shade = Rgb8 { width: w, height: h, data: grey.iter().flat_map(|&g| [g, g, g]).collect() };
+    let shade_path = sibling(path, "_hillshade.png");
+    shade.write_png(&shade_path)?;
+    let range = (preview::percentile(&img.data, 2.0), preview::percentile(&img.data, 98.0));
+    let height =
+        preview::with_colorbar(&preview::colormapped(&img.data, w, h, Colormap::Turbo, range)?, Colormap::Turbo);
+    let height_path = sibling(path, "_height.png");
+    height.write_png(&height_path)?;
+    Ok(vec![shade_path, height_path])
+}
+
+fn ortho_previews(path: &Path, pv: &CogPreview) -> Result<(Vec<PathBuf>, Vec<String>), SurveyError> {
+    band_previews(path, &without_nodata(pv.image.clone()))
+}
+
+/// `<stem>_rgb.png`, `<stem>_cir.png` and `<stem>_ndvi.png` of a multi-band image (NaN = nodata), where its bands'
+/// wavelengths allow; the others are returned as notes.
+pub fn band_previews(path: &Path, img: &SpectralImage) -> Result<(Vec<PathBuf>, Vec<String>), SurveyError> {
+    let img = img.clone();
+    let (mut files, mut notes) = (Vec::new(), Vec::new());
+    let stretch = Stretch::default();
+    for (suffix, made) in [
+        ("_rgb.png", preview::natural_colour(&img, stretch)),
+        ("_cir.png", preview::cir(&img, stretch)),
+        (
+            "_ndvi.png",
+            crate::output::raster::compute_index(&img, VegetationIndex::Ndvi, DEFAULT_TOLERANCE_NM)
+                .and_then(|v| preview::index_preview(&v, img.width, img.height, VegetationIndex::Ndvi.preview_range())),
+        ),
+    ] {
+        match made {
+            Ok(rgb) => {
+                let p = sibling(path, suffix);
+                rgb.write_png(&p)?;
+                files.push(p);
+            }
+            Err(e) => notes.push(format!("{}: not written: {e}", sibling(path, suffix).display())),
+        }
+    }
+    Ok((files, notes))
+}

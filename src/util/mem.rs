@@ -1,0 +1,10 @@
+//! The process's peak resident memory (Linux `/proc/self/status` `VmHWM`), which the survey exports print so that
+//! their host-memory bound can be checked on any run.
+
+/// Peak resident set size in bytes; None where `/proc` does not say.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
