@@ -67,7 +67,7 @@ fn bench_train_takes_the_batch_and_chunk_sizes() {
         "--rays-per-chunk",
         "32",
         "--steps",
-        "1",
+        "12",
         "--json",
     ]);
     let rows = v.as_array().expect("one row per model and band count");
@@ -76,6 +76,41 @@ fn bench_train_takes_the_batch_and_chunk_sizes() {
     assert_eq!((r["model"].as_str(), r["bands"].as_u64()), (Some("tiny"), Some(3)));
     assert_eq!((r["rays_per_batch"].as_u64(), r["rays_per_chunk"].as_u64()), (Some(48), Some(32)));
     assert!(r["ms_per_step"].as_f64().is_some_and(|t| t > 0.0) && r["gpu_ms_per_step"].as_f64().is_some());
+    // Steady state by default: past tiny's proposal warm-up (200 steps), one step in 5 updates the proposals.
+    assert_eq!(r["first_step"].as_u64(), Some(201 + 2), "two untimed steps first: {r}");
+    let updates = r["proposal_update_steps"].as_u64().unwrap();
+    assert!((2..=3).contains(&updates), "12 steady steps update the proposals 2 or 3 times, got {updates}");
+    // The host-time split: every step records, submits and waits at least once and reads its losses back.
+    let h = &r["host"];
+    assert!(h["submits"].as_u64().unwrap() >= 1 && h["waits"].as_u64().unwrap() >= 1, "{h}");
+    for k in ["record_ms", "submit_wait_ms", "upload_ms", "readback_ms"] {
+        assert!(h[k].as_f64().is_some_and(|t| t > 0.0), "{k}: {h}");
+    }
+    assert!(r["sampling_ms_per_step"].as_f64().is_some_and(|t| t > 0.0), "{r}");
+    let wall = r["ms_per_step"].as_f64().unwrap();
+    let overhead = r["host_overhead_ms_per_step"].as_f64().unwrap();
+    assert!((overhead - (wall - r["gpu_ms_per_step"].as_f64().unwrap())).abs() < 1e-9 && overhead < wall);
+    let validation = std::env::var("MSNERF_REQUIRE_VALIDATION").is_ok_and(|v| v == "1");
+    if validation {
+        assert_eq!(r["validation"].as_bool(), Some(true), "the JSON says the layer was on");
+    }
+    // From step 0 every step updates the proposals (nerfstudio's first ten steps).
+    let v = json(&[
+        "bench",
+        "train",
+        "--models",
+        "tiny",
+        "--bands",
+        "3",
+        "--rays-per-batch",
+        "48",
+        "--steps",
+        "4",
+        "--at-step",
+        "0",
+        "--json",
+    ]);
+    assert_eq!(v[0]["proposal_update_steps"].as_u64(), Some(4), "{}", v[0]);
     let out = msnerf().args(["bench", "train", "--models", "tiny", "--rays-per-chunk", "0"]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--rays-per-chunk"), "the error names the flag");

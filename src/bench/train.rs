@@ -1,10 +1,17 @@
 //! `msnerf bench train`: milliseconds per training step, rays/s and the per-kernel time breakdown, for a model
 //! profile at a given number of bands, on synthetic rays (a ring of cameras around the origin and random targets), so
 //! the numbers depend only on the model, the batch and the device.
+//!
+//! The timed steps are steady-state steps by default: the pipeline's step counter starts past the proposal warm-up
+//! and the weight annealing, so one step in `proposal_update_every` updates the proposal networks, as in most of a
+//! run (`at_step` chooses another point). Each step draws a fresh batch (random pixels and targets, the trainer's
+//! sampling work) and the report splits the wall time: GPU time (the kernels' timestamps), and on the host the
+//! recording of command buffers, submission-to-signal waits, uploads, readbacks and the batch sampling
+//! ([`crate::gpu::HostTimes`]); host overhead = wall - GPU time.
 
 use crate::data::camera::{Camera, CameraModel, Distortion};
 use crate::gpu::TimingReport;
-use crate::gpu::{Context, KernelTime};
+use crate::gpu::{Context, HostTimes, KernelTime};
 use crate::nerf::config::ModelConfig;
 use crate::nerf::model::Model;
 use crate::nerf::pipeline::{Batch, Pipeline};
@@ -24,6 +31,34 @@ pub struct TrainBench {
     pub rays_per_s: f64,
     pub kernels: Vec<KernelTime>,
     pub gpu_ms_per_step: f64,
+    /// Wall minus GPU time per step.
+    pub host_overhead_ms_per_step: f64,
+    /// Host time per step by kind (recording, submit-to-signal, uploads, readbacks; submissions and waits).
+    pub host: HostTimes,
+    /// Batch sampling per step (milliseconds).
+    pub sampling_ms_per_step: f64,
+    /// Pipeline step counter of the first timed step.
+    pub first_step: u64,
+    /// Timed steps that updated the proposal networks.
+    pub proposal_update_steps: usize,
+    /// Whether the Vulkan validation layer was on (it slows recording).
+    pub validation: bool,
+}
+
+/// The first step past the proposal warm-up and the weight annealing (the steady state of a run).
+pub fn steady_step(cfg: &ModelConfig) -> u64 {
+    let s = &cfg.sampling;
+    s.proposal_warmup.max(s.proposal_weights_anneal_max_num_iters).max(10) + 1
+}
+
+fn random_batch(rng: &mut rand_chacha::ChaCha8Rng, rays: usize, cameras: usize, bands: usize) -> Batch {
+    let mut batch = Batch::default();
+    for _ in 0..rays {
+        batch.pixels.extend([rng.random_range(0..cameras as u32), rng.random_range(0..192), rng.random_range(0..256)]);
+        batch.targets.extend((0..bands).map(|_| rng.random_range(0.0f32..1.0)));
+        batch.targets.push(1.0);
+    }
+    batch
 }
 
 fn ring_cameras(n: usize) -> Vec<GpuCamera> {
@@ -51,36 +86,46 @@ fn ring_cameras(n: usize) -> Vec<GpuCamera> {
         .collect()
 }
 
-/// Runs `steps` timed training steps after `warmup` untimed ones.
-pub fn run(ctx: &Context, cfg: &ModelConfig, bands: usize, steps: usize, warmup: usize) -> Result<TrainBench, String> {
+/// Runs `steps` timed training steps after `warmup` untimed ones, starting at pipeline step `at_step` (None: the
+/// steady state, [`steady_step`]).
+pub fn run(
+    ctx: &Context,
+    cfg: &ModelConfig,
+    bands: usize,
+    steps: usize,
+    warmup: usize,
+    at_step: Option<u64>,
+) -> Result<TrainBench, String> {
     let cams = ring_cameras(16);
     let model = Model::new(ctx, cfg, bands, cams.len()).map_err(|e| e.to_string())?;
     let mut pipe = Pipeline::new(ctx, model, &cams).map_err(|e| e.to_string())?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let r = cfg.trainer.rays_per_batch;
-    let mut batch = Batch::default();
-    for _ in 0..r {
-        batch.pixels.extend([
-            rng.random_range(0..cams.len() as u32),
-            rng.random_range(0..192),
-            rng.random_range(0..256),
-        ]);
-        batch.targets.extend((0..bands).map(|_| rng.random_range(0.0f32..1.0)));
-        batch.targets.push(1.0);
-    }
+    pipe.step = at_step.unwrap_or_else(|| steady_step(cfg));
     for _ in 0..warmup {
+        let batch = random_batch(&mut rng, r, cams.len(), bands);
         pipe.train_step(&batch).map_err(|e| e.to_string())?;
     }
+    let first_step = pipe.step;
     let mut timing = TimingReport::default();
+    let (mut sampling_s, mut updates) = (0.0, 0);
+    let host0 = ctx.host_times();
     let t = Instant::now();
     for _ in 0..steps {
-        timing.accumulate(&pipe.train_step(&batch).map_err(|e| e.to_string())?.timing);
+        let ts = Instant::now();
+        let batch = random_batch(&mut rng, r, cams.len(), bands);
+        sampling_s += ts.elapsed().as_secs_f64();
+        let st = pipe.train_step(&batch).map_err(|e| e.to_string())?;
+        updates += usize::from(st.proposals_updated);
+        timing.accumulate(&st.timing);
     }
     let ms = t.elapsed().as_secs_f64() * 1e3 / steps as f64;
+    let host = ctx.host_times().since(&host0).per(steps);
     let mut kernels = timing.by_kernel();
     for k in &mut kernels {
         k.total_ms /= steps as f64;
     }
+    let gpu = timing.gpu_ms / steps as f64;
     Ok(TrainBench {
         model: cfg.name.clone(),
         bands,
@@ -90,7 +135,13 @@ pub fn run(ctx: &Context, cfg: &ModelConfig, bands: usize, steps: usize, warmup:
         ms_per_step: ms,
         rays_per_s: r as f64 / (ms / 1e3),
         kernels,
-        gpu_ms_per_step: timing.gpu_ms / steps as f64,
+        gpu_ms_per_step: gpu,
+        host_overhead_ms_per_step: ms - gpu,
+        host,
+        sampling_ms_per_step: sampling_s * 1e3 / steps as f64,
+        first_step,
+        proposal_update_steps: updates,
+        validation: ctx.validation_enabled(),
     })
 }
 
@@ -105,6 +156,25 @@ impl TrainBench {
             self.ms_per_step,
             self.rays_per_s,
             self.gpu_ms_per_step
+        );
+        let h = &self.host;
+        s += &format!(
+            "  {} steps from step {} ({} updated the proposals); validation layer {}\n  host overhead {:.2} ms/step \
+             ({:.1}% of the wall time): recording {:.2}, submit-to-signal {:.2} (GPU work included), uploads {:.2}, \
+             readbacks {:.2}, batch sampling {:.2} ms; {} submissions and {} waits per step\n",
+            self.steps,
+            self.first_step,
+            self.proposal_update_steps,
+            if self.validation { "on" } else { "off" },
+            self.host_overhead_ms_per_step,
+            100.0 * self.host_overhead_ms_per_step / self.ms_per_step.max(1e-9),
+            h.record_ms,
+            h.submit_wait_ms,
+            h.upload_ms,
+            h.readback_ms,
+            self.sampling_ms_per_step,
+            h.submits,
+            h.waits
         );
         for k in &self.kernels {
             s += &format!(

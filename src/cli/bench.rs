@@ -25,8 +25,13 @@ pub enum BenchWhat {
         /// Rays per GPU pass within a batch (overrides the profile; at most the batch)
         #[arg(long)]
         rays_per_chunk: Option<usize>,
-        #[arg(long, default_value_t = 3)]
+        /// Timed steps (after 2 untimed ones)
+        #[arg(long, default_value_t = 20)]
         steps: usize,
+        /// Pipeline step to start at (default: the steady state past the proposal warm-up and annealing; 0 times the
+        /// first steps of a run, where every step updates the proposals)
+        #[arg(long)]
+        at_step: Option<u64>,
         #[arg(long)]
         json: bool,
     },
@@ -76,7 +81,8 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
     }
     let ctx = Context::new(&cli.context_desc())?;
     match args.what {
-        BenchWhat::Train { ref models, ref bands, rays_per_batch, rays_per_chunk, steps, json } => {
+        BenchWhat::Train { ref models, ref bands, rays_per_batch, rays_per_chunk, steps, at_step, json } => {
+            anyhow::ensure!(steps > 0, "--steps must be > 0");
             let mut all = Vec::new();
             for m in models {
                 let mut cfg = crate::nerf::config::ModelConfig::resolve(m).map_err(anyhow::Error::msg)?;
@@ -91,7 +97,7 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
                     cfg.trainer.rays_per_chunk = c.min(cfg.trainer.rays_per_batch);
                 }
                 for &b in bands {
-                    let r = crate::bench::train::run(&ctx, &cfg, b, steps, 1).map_err(anyhow::Error::msg)?;
+                    let r = crate::bench::train::run(&ctx, &cfg, b, steps, 2, at_step).map_err(anyhow::Error::msg)?;
                     if !json {
                         print!("{}", r.table());
                     }

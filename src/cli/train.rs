@@ -166,7 +166,8 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
     };
     let s = train(&ctx, &opts).map_err(anyhow::Error::msg)?;
     println!(
-        "trained {} steps in {:.1} s ({:.0} rays/s, {:.0} ms/step); train PSNR {:.2} dB; held-out PSNR {} -> best {}{}{}",
+        "trained {} steps in {:.1} s ({:.0} rays/s, {:.0} ms/step); train PSNR {:.2} dB; held-out PSNR {} at the first \
+         evaluation, best {}{}{}",
         s.steps,
         s.elapsed_s,
         s.rays_per_s,

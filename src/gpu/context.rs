@@ -73,6 +73,7 @@ pub(crate) struct DeviceShared {
     /// Last value signalled on the timeline (guarded with the queue).
     pub timeline_value: Mutex<u64>,
     pub staging: Mutex<StagingBuffers>,
+    pub host_clock: super::host_clock::HostClock,
     // Declared last: dropped after the device (see Drop).
     pub instance: ManuallyDrop<InstanceShared>,
 }
@@ -301,6 +302,7 @@ impl Context {
                 timeline,
                 timeline_value: Mutex::new(0),
                 staging: Mutex::new(StagingBuffers::default()),
+                host_clock: Default::default(),
                 instance: ManuallyDrop::new(instance),
             }),
         })
@@ -386,6 +388,7 @@ impl Context {
             .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)];
         let submit = vk::SubmitInfo2::default().command_buffer_infos(&cmds).signal_semaphore_infos(&signals);
         unsafe { d.queue_submit2(*queue, &[submit], vk::Fence::null()) }.vk("vkQueueSubmit2")?;
+        self.shared.host_clock.count_submit();
         *value = next;
         Ok(next)
     }
@@ -395,7 +398,17 @@ impl Context {
         let sems = [self.shared.timeline];
         let values = [ticket];
         let info = vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values);
+        self.shared.host_clock.count_wait();
         unsafe { self.shared.device.wait_semaphores(&info, u64::MAX) }.vk("vkWaitSemaphores")
+    }
+
+    /// The host-time totals so far ([`super::host_clock`]).
+    pub fn host_times(&self) -> super::HostTimes {
+        self.shared.host_clock.snapshot()
+    }
+
+    pub(crate) fn add_host_time(&self, work: super::host_clock::HostWork, since: std::time::Instant) {
+        self.shared.host_clock.add(work, since.elapsed());
     }
 
     /// Records `f` into a one-time command buffer, submits it and waits (uploads, readbacks).

@@ -5,6 +5,7 @@
 //! - [`GpuBuffer`] and [`LargeArray`]: named, categorised allocations tracked by the [`MemoryLedger`].
 //! - [`Kernel`]: a SPIR-V blob plus its push-constant type, with the dispatch asserts ([`kernel`]).
 //! - [`Recorder`]: records dispatches with automatic barriers and per-dispatch GPU timestamps ([`recorder`]).
+//! - [`HostTimes`]: host time spent recording, waiting on submissions and in transfers ([`host_clock`]).
 //!
 //! Uploads and readbacks go only through staging buffers ([`staging`]): lavapipe can map device memory,
 //! NVIDIA cannot, and the API makes no difference between them.
@@ -13,6 +14,7 @@ pub mod buffer;
 pub mod caps;
 pub mod context;
 pub mod error;
+pub mod host_clock;
 pub mod instance;
 pub mod kernel;
 pub mod large_array;
@@ -26,6 +28,7 @@ pub use buffer::{Binding, BufferDesc, GpuBuffer};
 pub use caps::DeviceCaps;
 pub use context::{Context, ContextDesc, Validation};
 pub use error::{GpuError, GpuResult};
+pub use host_clock::HostTimes;
 pub use kernel::{Kernel, ShaderBlob};
 pub use large_array::LargeArray;
 pub use memory::{MemoryCategory, MemoryLedger, MemoryReport};

@@ -10,6 +10,7 @@
 use super::buffer::Binding;
 use super::context::{Context, MAX_BINDINGS};
 use super::error::{GpuError, GpuResult, VkCheck};
+use super::host_clock::HostWork;
 use super::kernel::{fold_groups, Kernel};
 use super::timing::{DispatchTime, TimingReport};
 use ash::vk;
@@ -34,6 +35,7 @@ pub struct Recorder<'a> {
     keep: Vec<Box<dyn Any>>,
     timing: bool,
     finished: bool,
+    created: Instant,
 }
 
 impl Context {
@@ -54,6 +56,7 @@ impl Context {
             keep: Vec::new(),
             timing,
             finished: false,
+            created: Instant::now(),
         };
         // Earlier submissions (uploads, other sequences) finish their writes before this one reads.
         rec.global_barrier(vk::PipelineStageFlags2::ALL_COMMANDS, vk::AccessFlags2::MEMORY_WRITE, false);
@@ -187,9 +190,11 @@ impl<'a> Recorder<'a> {
     /// Submits, waits for completion and returns the timing report.
     pub fn submit_and_wait(mut self) -> GpuResult<TimingReport> {
         self.finished = true;
+        self.ctx.add_host_time(HostWork::Record, self.created);
         let start = Instant::now();
         let ticket = self.ctx.submit(self.cmd)?;
         self.ctx.wait(ticket)?;
+        self.ctx.add_host_time(HostWork::SubmitWait, start);
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
         let mut report =
             TimingReport { label: self.label.clone(), wall_ms, barriers: self.barriers, ..Default::default() };

@@ -7,6 +7,7 @@
 use super::buffer::{GpuBuffer, RawBuffer};
 use super::context::{lock, Context};
 use super::error::{GpuError, GpuResult};
+use super::host_clock::HostWork;
 use super::memory::{MemoryCategory, MemoryLedger};
 use ash::vk;
 use bytemuck::Pod;
@@ -63,7 +64,10 @@ impl Context {
 
     /// Writes `data` into `dst` starting at element `offset`.
     pub fn upload<T: Pod>(&self, dst: &GpuBuffer<T>, offset: usize, data: &[T]) -> GpuResult<()> {
-        self.upload_raw(&Part::upload(dst, offset, data)?)
+        let t = std::time::Instant::now();
+        let r = self.upload_raw(&Part::upload(dst, offset, data)?);
+        self.add_host_time(HostWork::Upload, t);
+        r
     }
 
     /// Reads the whole buffer back.
@@ -73,7 +77,10 @@ impl Context {
 
     /// Reads elements `[start, end)` back.
     pub fn download_range<T: Pod>(&self, src: &GpuBuffer<T>, start: usize, end: usize) -> GpuResult<Vec<T>> {
-        Ok(bytemuck::pod_collect_to_vec(&self.download_raw(&Part::download(src, start, end)?)?))
+        let t = std::time::Instant::now();
+        let r = self.download_raw(&Part::download(src, start, end)?);
+        self.add_host_time(HostWork::Readback, t);
+        Ok(bytemuck::pod_collect_to_vec(&r?))
     }
 }
 
@@ -129,6 +136,13 @@ impl Context {
     /// Every part's data written into its buffer, in one submission (larger batches than the biggest staging
     /// buffer go part by part).
     pub fn upload_parts(&self, parts: &[Part]) -> GpuResult<()> {
+        let t = std::time::Instant::now();
+        let r = self.upload_parts_inner(parts);
+        self.add_host_time(HostWork::Upload, t);
+        r
+    }
+
+    fn upload_parts_inner(&self, parts: &[Part]) -> GpuResult<()> {
         let (at, total) = pack(parts);
         if total > MAX_STAGING_BYTES {
             for p in parts {
@@ -161,6 +175,13 @@ impl Context {
     /// Every part's range read back, in one submission: one byte vector per part (`bytemuck::pod_collect_to_vec`
     /// turns it into elements).
     pub fn download_parts(&self, parts: &[Part]) -> GpuResult<Vec<Vec<u8>>> {
+        let t = std::time::Instant::now();
+        let r = self.download_parts_inner(parts);
+        self.add_host_time(HostWork::Readback, t);
+        r
+    }
+
+    fn download_parts_inner(&self, parts: &[Part]) -> GpuResult<Vec<Vec<u8>>> {
         let (at, total) = pack(parts);
         if total > MAX_STAGING_BYTES {
             return parts.iter().map(|p| self.download_raw(p)).collect();
