@@ -1,5 +1,5 @@
 //! The runtime itself: device caps, the kernel checks, the pipeline cache, the memory ledger, barrier
-//! insertion, the descriptor-pool fallback and the per-dispatch timestamp breakdown.
+//! insertion, the descriptor-pool fallback, the per-dispatch timestamp breakdown and NaN-poisoned fresh buffers.
 
 mod common;
 
@@ -218,4 +218,19 @@ fn batched_parts_move_several_ranges_in_one_submission() {
     assert!(got[2].is_empty());
     assert!(Part::upload(&b, 4, &[1.0f32, 2.0]).is_err(), "a part past the end is refused");
     assert!(Part::download(&a, 5, 11).is_err(), "a range past the end is refused");
+}
+
+/// `MSNERF_POISON_BUFFERS` (which `make test` sets): a fresh buffer reads back as quiet-NaN bits, so a kernel that
+/// reads memory nobody wrote sees NaN, on lavapipe as on NVIDIA; without it nothing is written.
+#[test]
+fn poisoned_buffers_start_as_nan() {
+    let g = common::gpu_with(|d| d.poison_buffers = true);
+    let b: GpuBuffer<f32> =
+        GpuBuffer::new(&g, &BufferDesc { name: "poisoned", len: 1000, category: MemoryCategory::Rays })
+            .expect("buffer");
+    let v = g.download(&b).expect("download");
+    assert!(v.iter().all(|x| x.is_nan() && x.to_bits() == 0x7FC0_0000), "every element is the quiet NaN");
+    let u: GpuBuffer<u32> =
+        GpuBuffer::new(&g, &BufferDesc { name: "poisoned u32", len: 7, category: MemoryCategory::Rays }).expect("u32");
+    assert_eq!(g.download(&u).expect("download"), vec![0x7FC0_0000; 7]);
 }

@@ -29,7 +29,7 @@ if [ ! -d "$checkout/target/release/.fingerprint" ]; then
 fi
 export LD_LIBRARY_PATH="$pkg/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 export VK_LAYER_PATH="$pkg/layers"
-export MSNERF_REQUIRE_VALIDATION=1
+export MSNERF_REQUIRE_VALIDATION=1 MSNERF_POISON_BUFFERS=1
 nv=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
 [ -f "$nv" ] && [ -z "${VK_DRIVER_FILES:-}" ] && export VK_DRIVER_FILES="$nv"
 "$checkout/target/release/msnerf" devices || { echo "no Vulkan device: install the GPU's Vulkan driver" >&2; exit 1; }

@@ -23,6 +23,9 @@ pub struct BufferDesc<'a> {
     pub category: MemoryCategory,
 }
 
+/// The bit pattern of [`super::ContextDesc::poison_buffers`]: a quiet NaN as f32.
+pub const POISON: u32 = 0x7FC0_0000;
+
 /// A raw allocation shared by typed buffers and staging buffers.
 pub(crate) struct RawBuffer {
     pub raw: vk::Buffer,
@@ -113,6 +116,18 @@ impl<T: Pod> GpuBuffer<T> {
         let s = &ctx.shared;
         let inner =
             RawBuffer::new(s, Some(ctx), desc.name, bytes, desc.category, s.buffer_usage(), MemoryLocation::GpuOnly)?;
+        if s.poison_buffers {
+            let raw = inner.raw;
+            ctx.one_shot(|d, cmd| unsafe {
+                d.cmd_fill_buffer(cmd, raw, 0, vk::WHOLE_SIZE, POISON);
+                let b = [vk::MemoryBarrier2::default()
+                    .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+                    .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                    .dst_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+                    .dst_access_mask(vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE)];
+                d.cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&b));
+            })?;
+        }
         Ok(Self { shared: s.clone(), inner, len: desc.len, category: desc.category, _t: PhantomData })
     }
 

@@ -36,6 +36,10 @@ pub struct ContextDesc {
     /// Bind descriptors through pools even when VK_KHR_push_descriptor exists (tests the fallback path;
     /// also `MSNERF_DISABLE_PUSH_DESCRIPTOR=1`).
     pub force_descriptor_pools: bool,
+    /// Fill every new device buffer with quiet-NaN bits (0x7FC00000) before first use, so a kernel that reads memory
+    /// nobody wrote gets NaN (or a huge index) instead of the zeros lavapipe tends to hand out; `make test` sets it
+    /// (`MSNERF_POISON_BUFFERS=1`). NVIDIA memory is not zeroed either, so such a read is a real bug there.
+    pub poison_buffers: bool,
 }
 
 impl ContextDesc {
@@ -53,6 +57,7 @@ impl ContextDesc {
             device: std::env::var("MSNERF_DEVICE").ok().filter(|s| !s.is_empty()),
             validation,
             force_descriptor_pools: flag("MSNERF_DISABLE_PUSH_DESCRIPTOR"),
+            poison_buffers: flag("MSNERF_POISON_BUFFERS"),
         }
     }
 }
@@ -74,6 +79,8 @@ pub(crate) struct DeviceShared {
     pub timeline_value: Mutex<u64>,
     pub staging: Mutex<StagingBuffers>,
     pub host_clock: super::host_clock::HostClock,
+    /// [`ContextDesc::poison_buffers`].
+    pub poison_buffers: bool,
     // Declared last: dropped after the device (see Drop).
     pub instance: ManuallyDrop<InstanceShared>,
 }
@@ -184,6 +191,9 @@ impl Context {
             log::warn!("using CPU Vulkan device {} (no GPU found or selected): expect it to be slow", caps.name);
         }
         log::info!("device: {}", caps.summary_line());
+        if desc.poison_buffers {
+            log::info!("new device buffers are filled with NaN bits before use (MSNERF_POISON_BUFFERS)");
+        }
         if !caps.synchronization2 || !caps.timeline_semaphore {
             return Err(GpuError::MissingCapability("Vulkan 1.3 synchronization2 and timeline semaphores"));
         }
@@ -303,6 +313,7 @@ impl Context {
                 timeline_value: Mutex::new(0),
                 staging: Mutex::new(StagingBuffers::default()),
                 host_clock: Default::default(),
+                poison_buffers: desc.poison_buffers,
                 instance: ManuallyDrop::new(instance),
             }),
         })
