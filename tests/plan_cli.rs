@@ -27,13 +27,13 @@ fn profile_errors_name_the_file_and_the_key() {
     let good = include_str!("../configs/hardware/lavapipe.yaml");
     let typo = dir.join("typo.yaml");
     std::fs::write(&typo, good.replace("headroom_gib: 0.5", "headroom_gb: 0.5")).unwrap();
-    let e = HardwareProfile::resolve(typo.to_str().unwrap()).unwrap_err();
+    let e = HardwareProfile::resolve(typo.to_str().unwrap()).unwrap_err().to_string();
     assert!(e.contains("typo.yaml") && e.contains("headroom_gb"), "{e}");
     let bad = dir.join("bad.yaml");
     std::fs::write(&bad, good.replace("rays_per_chunk: 512", "rays_per_chunk: 0")).unwrap();
-    let e = HardwareProfile::resolve(bad.to_str().unwrap()).unwrap_err();
+    let e = HardwareProfile::resolve(bad.to_str().unwrap()).unwrap_err().to_string();
     assert!(e.contains("bad.yaml") && e.contains("trainer.rays_per_chunk"), "{e}");
-    let e = HardwareProfile::resolve("rtx9090").unwrap_err();
+    let e = HardwareProfile::resolve("rtx9090").unwrap_err().to_string();
     assert!(e.contains("rtx9090") && e.contains("rtx2080ti-11gb"), "{e}");
     let p = HardwareProfile::resolve("rtx2080ti-11gb").unwrap();
     assert_eq!((p.trainer.rays_per_batch, p.trainer.eval_rays_per_chunk), (16384, 8192));

@@ -2,6 +2,7 @@
 //! against its host budget, and the largest training and evaluation chunks that fit.
 
 use super::device::DeviceRule;
+use super::error::PlanError;
 use super::hardware::HardwareProfile;
 use super::host::{plan_host, DatasetShape, HostPlan};
 use super::vram::{plan_vram, RayCounts, VramPlan};
@@ -80,8 +81,8 @@ pub fn profile_rays(p: &HardwareProfile) -> RayCounts {
 pub fn largest_fitting(
     step: usize,
     max: usize,
-    mut fits: impl FnMut(usize) -> Result<bool, String>,
-) -> Result<Option<usize>, String> {
+    mut fits: impl FnMut(usize) -> Result<bool, PlanError>,
+) -> Result<Option<usize>, PlanError> {
     if !fits(step)? {
         return Ok(None);
     }
@@ -99,7 +100,12 @@ pub fn largest_fitting(
 }
 
 /// Largest training and evaluation chunks that fit `budget`.
-pub fn fit_chunks(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule, budget: u64) -> Result<FitResult, String> {
+pub fn fit_chunks(
+    shapes: &ModelShapes,
+    rays: &RayCounts,
+    dev: &DeviceRule,
+    budget: u64,
+) -> Result<FitResult, PlanError> {
     let train = largest_fitting(FIT_STEP, FIT_MAX, |r| {
         Ok(plan_vram(shapes, &RayCounts { rays_per_chunk: r, ..*rays }, dev)?.fits(budget))
     })?;
@@ -114,7 +120,7 @@ pub fn fit_chunks(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule, budg
 }
 
 /// Plans VRAM and host memory for `req` on `dev`.
-pub fn plan(req: &PlanRequest, dev: &DeviceRule) -> Result<Plan, String> {
+pub fn plan(req: &PlanRequest, dev: &DeviceRule) -> Result<Plan, PlanError> {
     let p = req.profile;
     let shapes = ModelShapes::new(req.model, req.data.bands, req.data.n_frames);
     let rays = req.rays.unwrap_or_else(|| profile_rays(p));

@@ -3,6 +3,7 @@
 //! evaluation ray counts, and the host image cache's N and M (paper §6.1-6.2, Tables 8 and 9). Unknown keys are
 //! errors; every error names the file (or built-in profile) and the key.
 
+use super::error::PlanError;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -97,7 +98,7 @@ impl HardwareProfile {
     pub const BUILTIN: [&'static str; 3] = ["rtx2080ti-11gb", "a100-80gb", "lavapipe"];
 
     /// A built-in profile by name, or a path to a YAML file.
-    pub fn resolve(name_or_path: &str) -> Result<Self, String> {
+    pub fn resolve(name_or_path: &str) -> Result<Self, PlanError> {
         let text = match name_or_path {
             "rtx2080ti-11gb" => Some(include_str!("../../configs/hardware/rtx2080ti-11gb.yaml")),
             "a100-80gb" => Some(include_str!("../../configs/hardware/a100-80gb.yaml")),
@@ -105,39 +106,40 @@ impl HardwareProfile {
             _ => None,
         };
         match text {
-            Some(t) => Self::parse(t).map_err(|e| format!("built-in hardware profile {name_or_path}: {e}")),
+            Some(t) => Self::parse(t).map_err(|e| e.in_profile(format!("built-in hardware profile {name_or_path}"))),
             None => {
                 let p = Path::new(name_or_path);
                 if !p.exists() && !name_or_path.contains(['/', '.']) {
-                    return Err(format!(
-                        "{name_or_path}: no such hardware profile (built-in: {}, or a YAML file)",
-                        Self::BUILTIN.join(", ")
-                    ));
+                    return Err(PlanError::UnknownProfile {
+                        name: name_or_path.to_string(),
+                        builtin: Self::BUILTIN.join(", "),
+                    });
                 }
                 Self::load(p)
             }
         }
     }
 
-    pub fn load(path: &Path) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        Self::parse(&text).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn load(path: &Path) -> Result<Self, PlanError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PlanError::Read { path: path.to_path_buf(), reason: e.to_string() })?;
+        Self::parse(&text).map_err(|e| e.in_profile(path.display().to_string()))
     }
 
     /// Parses and validates; YAML errors name the key and line, validation errors the key.
-    pub fn parse(text: &str) -> Result<Self, String> {
-        let p: Self = serde_yaml::from_str(text).map_err(|e| e.to_string())?;
+    pub fn parse(text: &str) -> Result<Self, PlanError> {
+        let p: Self = serde_yaml::from_str(text).map_err(|e| PlanError::key(e.to_string()))?;
         p.validate()?;
         Ok(p)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), PlanError> {
         let g = &self.gpu;
         let pos = |v: f64, key: &str| {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
             } else {
-                Err(format!("{key}: must be a finite number >= 0, got {v}"))
+                Err(PlanError::key(format!("{key}: must be a finite number >= 0, got {v}")))
             }
         };
         pos(g.vram_gib, "gpu.vram_gib")?;
@@ -145,25 +147,27 @@ impl HardwareProfile {
         pos(self.host.memory_gib, "host.memory_gib")?;
         pos(self.host.headroom_gib, "host.headroom_gib")?;
         if g.headroom_gib >= g.vram_gib {
-            return Err(format!(
+            return Err(PlanError::key(format!(
                 "gpu.headroom_gib ({}) must be less than gpu.vram_gib ({})",
                 g.headroom_gib, g.vram_gib
-            ));
+            )));
         }
         if self.host.headroom_gib >= self.host.memory_gib {
-            return Err(format!(
+            return Err(PlanError::key(format!(
                 "host.headroom_gib ({}) must be less than host.memory_gib ({})",
                 self.host.headroom_gib, self.host.memory_gib
-            ));
+            )));
         }
         if !g.alignment.is_power_of_two() {
-            return Err(format!("gpu.alignment: must be a power of two, got {}", g.alignment));
+            return Err(PlanError::key(format!("gpu.alignment: must be a power of two, got {}", g.alignment)));
         }
         if g.min_buffer_bytes == 0 {
-            return Err("gpu.min_buffer_bytes: must be > 0".into());
+            return Err(PlanError::key("gpu.min_buffer_bytes: must be > 0"));
         }
         if g.max_storage_buffer_range < 1 << 16 || g.max_memory_allocation_size < 1 << 16 {
-            return Err("gpu.max_storage_buffer_range and gpu.max_memory_allocation_size: must be >= 65536".into());
+            return Err(PlanError::key(
+                "gpu.max_storage_buffer_range and gpu.max_memory_allocation_size: must be >= 65536",
+            ));
         }
         let t = &self.trainer;
         for (v, key) in [
@@ -172,11 +176,11 @@ impl HardwareProfile {
             (t.eval_rays_per_chunk, "trainer.eval_rays_per_chunk"),
         ] {
             if v == 0 {
-                return Err(format!("{key}: must be > 0"));
+                return Err(PlanError::key(format!("{key}: must be > 0")));
             }
         }
         if self.host.cache.n_resident == Some(0) || self.host.cache.resample_every == Some(0) {
-            return Err("host.cache.n_resident and host.cache.resample_every: must be > 0 when given".into());
+            return Err(PlanError::key("host.cache.n_resident and host.cache.resample_every: must be > 0 when given"));
         }
         Ok(())
     }

@@ -6,8 +6,10 @@
 //! - [`host`]: the image cache's bytes, N and M (paper §6.1, Table 8).
 //! - [`fit`]: the largest training and evaluation chunks that fit a budget; the whole plan for a profile.
 //! - [`report`]: the text table `msnerf plan` prints.
+//! - [`error`]: [`PlanError`], naming the profile and key, the layout, or the budget exceeded.
 
 pub mod device;
+pub mod error;
 pub mod fit;
 pub mod hardware;
 pub mod host;
@@ -16,6 +18,7 @@ pub mod train;
 pub mod vram;
 
 pub use device::{DeviceRule, Footprint};
+pub use error::PlanError;
 pub use fit::{plan, FitResult, Plan, PlanRequest};
 pub use hardware::HardwareProfile;
 pub use host::{DatasetShape, HostPlan};

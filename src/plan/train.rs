@@ -3,6 +3,7 @@
 //! refused before anything is allocated when it does not fit, naming the largest chunk that would.
 
 use super::device::DeviceRule;
+use super::error::PlanError;
 use super::fit::{fit_chunks, plan, profile_rays, Plan, PlanRequest};
 use super::hardware::{HardwareProfile, TrainerProfile};
 use super::host::DatasetShape;
@@ -17,7 +18,7 @@ pub fn resolve_profile(
     hardware: &str,
     model: &ModelConfig,
     data: &DatasetShape,
-) -> Result<HardwareProfile, String> {
+) -> Result<HardwareProfile, PlanError> {
     if hardware != "auto" {
         return HardwareProfile::resolve(hardware);
     }
@@ -70,7 +71,7 @@ pub fn check_training(
     model: &ModelConfig,
     p: &HardwareProfile,
     data: DatasetShape,
-) -> Result<Plan, String> {
+) -> Result<Plan, PlanError> {
     let t = &model.trainer;
     let rays = RayCounts {
         rays_per_batch: t.rays_per_batch,
@@ -98,5 +99,5 @@ pub fn check_training(
         ),
     };
     pl.fit = Some(f);
-    Err(format!("training does not fit {}: {}{hint}", p.name, pl.problems().join("; ")))
+    Err(PlanError::DoesNotFit { profile: p.name.clone(), problems: pl.problems().join("; "), hint })
 }

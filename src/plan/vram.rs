@@ -17,6 +17,7 @@
 //! then grow to 64 MiB).
 
 use super::device::{DeviceRule, DeviceRuleInfo};
+use super::error::PlanError;
 use crate::gpu::large_array::chunk_lens;
 use crate::gpu::staging::staging_bytes;
 use crate::gpu::MemoryCategory;
@@ -105,7 +106,7 @@ fn staging(max_upload: u64, max_readback: u64) -> (u64, u64) {
 }
 
 /// Plans the trainer's device memory for `shapes` (model, bands, cameras) at `rays` on `dev`.
-pub fn plan_vram(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule) -> Result<VramPlan, String> {
+pub fn plan_vram(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule) -> Result<VramPlan, PlanError> {
     let mut entries: Vec<VramEntry> = Vec::new();
     let mut push = |name: String, category, part, size: u64, transient| {
         entries.push(VramEntry { name, category, part, size, bytes: dev.bytes(size), transient });
@@ -115,7 +116,8 @@ pub fn plan_vram(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule) -> Re
 
     // Parameter store.
     let shift = dev.param_chunk_shift();
-    let layout = ParamLayout::new(&shapes.param_groups(), &shapes.param_slots(), shift).map_err(|e| e.to_string())?;
+    let layout = ParamLayout::new(&shapes.param_groups(), &shapes.param_slots(), shift)
+        .map_err(|e| PlanError::Layout(e.to_string()))?;
     let chunks = chunk_lens(layout.len(), shift);
     let name = &shapes.cfg.name;
     for (what, cat) in [
@@ -145,7 +147,7 @@ pub fn plan_vram(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule) -> Re
         [(rays.rays_per_chunk, true, Part::TrainChunk), (rays.eval_rays_per_chunk, false, Part::EvalChunk)]
     {
         let mut a = PlanAlloc::default();
-        ChunkBuffers::with_shapes(&mut a, shapes, r, train).map_err(|e| e.to_string())?;
+        ChunkBuffers::with_shapes(&mut a, shapes, r, train).map_err(|e| PlanError::Layout(e.to_string()))?;
         for b in a.buffers {
             push(b.name, b.category, part, b.bytes, false);
         }
