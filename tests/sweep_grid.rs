@@ -9,7 +9,7 @@ use serde_yaml::Value;
 use std::path::Path;
 
 fn parse(text: &str) -> Result<Grid, String> {
-    Grid::parse(text, Path::new(""), "test.yaml")
+    Grid::parse(text, Path::new(""), "test.yaml").map_err(|e| e.to_string())
 }
 
 const HEAD: &str = "name: t\nmodel: tiny\nbudget: {time_s: 10}\neval_at_s: [5]\n";
@@ -151,7 +151,7 @@ fn grid_files_resolve_model_paths_next_to_them_and_errors_name_the_file() {
     assert_eq!(g.resolve(&g.cells[0]).unwrap().model.name, "tiny");
     assert_eq!(g.resolve(&g.cells[1]).unwrap().model.name, "mine");
     std::fs::write(&grid, "name: t\nmodel: tiny\nbudget: {steps: 3}\naxes:\n  field.nope: [1]\n").unwrap();
-    let e = Grid::load(&grid).expect_err("typo");
+    let e = Grid::load(&grid).expect_err("typo").to_string();
     assert!(e.starts_with(&grid.display().to_string()) && e.contains("field.nope"), "{e}");
 }
 
@@ -182,6 +182,6 @@ fn set_path_edits_only_the_named_value() {
     set_path(&mut v, "a.b", &Value::from(5)).unwrap();
     set_path(&mut v, "a.c.*.d", &Value::from(7)).unwrap();
     assert_eq!(v, serde_yaml::from_str::<Value>("a: {b: 5, c: [ {d: 7}, {d: 7} ]}").unwrap());
-    assert!(set_path(&mut v, "a..b", &Value::from(1)).unwrap_err().contains("empty segment"));
-    assert!(set_path(&mut v, "a.b.x", &Value::from(1)).unwrap_err().contains("is a value"));
+    assert!(set_path(&mut v, "a..b", &Value::from(1)).unwrap_err().to_string().contains("empty segment"));
+    assert!(set_path(&mut v, "a.b.x", &Value::from(1)).unwrap_err().to_string().contains("is a value"));
 }

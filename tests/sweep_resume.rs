@@ -123,7 +123,7 @@ fn a_step_budget_ends_cells_by_steps_and_bad_band_subsets_are_rejected_before_tr
             .expect("grid");
     let opts =
         SweepOptions { data: data.clone(), out: root.path().join("bad"), host_budget_bytes: 1 << 30, progress: false };
-    let e = run_sweep(&g, &bad, &opts).expect_err("band 9 does not exist");
+    let e = run_sweep(&g, &bad, &opts).expect_err("band 9 does not exist").to_string();
     assert!(e.contains("cell 1") && e.contains("band index 9"), "{e}");
     assert!(!root.path().join("bad/cells").exists(), "nothing trained");
 

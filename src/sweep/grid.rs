@@ -17,6 +17,7 @@
 //!   - {model: demo, trainer.rays_per_batch: 1024}
 //! ```
 
+use super::error::SweepError;
 use crate::nerf::config::ModelConfig;
 use serde::{Deserialize, Serialize};
 use serde_yaml::{Mapping, Value};
@@ -133,71 +134,80 @@ impl Cell {
         self.values.iter().find(|(k, _)| k == key).map(|(_, v)| v)
     }
 
-    fn error(&self, msg: impl std::fmt::Display) -> String {
-        format!("cell {} ({}): {msg}", self.index, self.describe())
+    fn error(&self, msg: impl std::fmt::Display) -> SweepError {
+        SweepError::Cell { index: self.index, describe: self.describe(), reason: msg.to_string() }
     }
 }
 
 impl Grid {
     /// Loads a grid file; errors name the file and the key or cell.
-    pub fn load(path: &Path) -> Result<Grid, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    pub fn load(path: &Path) -> Result<Grid, SweepError> {
+        let text = std::fs::read_to_string(path).map_err(|e| SweepError::file(path, e))?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Grid::parse(&text, &dir, &path.display().to_string()).map_err(|e| format!("{}: {e}", path.display()))
+        Grid::parse(&text, &dir, &path.display().to_string()).map_err(|e| SweepError::file(path, e))
     }
 
     /// Parses grid text; a relative `model:` path (base or axis value) is taken relative to `dir`.
-    pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Grid, String> {
-        let f: GridFile = serde_yaml::from_str(text).map_err(|e| e.to_string())?;
+    pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Grid, SweepError> {
+        let f: GridFile = serde_yaml::from_str(text).map_err(|e| SweepError::grid(e.to_string()))?;
         let b = &f.budget;
         if b.time_s.is_none() && b.steps.is_none() {
-            return Err("budget: give `time_s`, `steps` or both".into());
+            return Err(SweepError::grid("budget: give `time_s`, `steps` or both"));
         }
         if let Some(t) = b.time_s.filter(|t| !(t.is_finite() && *t > 0.0)) {
-            return Err(format!("budget.time_s must be a positive number of seconds, got {t}"));
+            return Err(SweepError::grid(format!("budget.time_s must be a positive number of seconds, got {t}")));
         }
         if b.steps == Some(0) {
-            return Err("budget.steps must be > 0".into());
+            return Err(SweepError::grid("budget.steps must be > 0"));
         }
         for (i, t) in f.eval_at_s.iter().enumerate() {
             if !(t.is_finite() && *t > 0.0) {
-                return Err(format!("eval_at_s[{i}]: must be a positive number of seconds, got {t}"));
+                return Err(SweepError::grid(format!("eval_at_s[{i}]: must be a positive number of seconds, got {t}")));
             }
             if i > 0 && *t <= f.eval_at_s[i - 1] {
-                return Err(format!("eval_at_s[{i}]: the points must increase ({} then {t})", f.eval_at_s[i - 1]));
+                return Err(SweepError::grid(format!(
+                    "eval_at_s[{i}]: the points must increase ({} then {t})",
+                    f.eval_at_s[i - 1]
+                )));
             }
             if b.time_s.is_some_and(|tb| *t > tb) {
-                return Err(format!("eval_at_s[{i}]: {t} s is past budget.time_s ({} s)", b.time_s.unwrap_or(0.0)));
+                return Err(SweepError::grid(format!(
+                    "eval_at_s[{i}]: {t} s is past budget.time_s ({} s)",
+                    b.time_s.unwrap_or(0.0)
+                )));
             }
         }
         if f.eval_views == 0 {
-            return Err("eval_views must be >= 1".into());
+            return Err(SweepError::grid("eval_views must be >= 1"));
         }
         let mut axes = Vec::new();
         for (k, v) in &f.axes {
-            let key = k.as_str().ok_or_else(|| format!("axes: key {k:?} is not a string"))?.to_string();
+            let key =
+                k.as_str().ok_or_else(|| SweepError::grid(format!("axes: key {k:?} is not a string")))?.to_string();
             let values = match v {
                 Value::Sequence(s) if !s.is_empty() => s.clone(),
-                _ => return Err(format!("axes.{key}: expected a non-empty list of values")),
+                _ => return Err(SweepError::grid(format!("axes.{key}: expected a non-empty list of values"))),
             };
             axes.push((key, values));
         }
         let explicit: Vec<Vec<(String, Value)>> = match &f.cells {
             None => vec![vec![]],
-            Some(list) if list.is_empty() => return Err("cells: the list is empty".into()),
+            Some(list) if list.is_empty() => return Err(SweepError::grid("cells: the list is empty")),
             Some(list) => list
                 .iter()
                 .enumerate()
                 .map(|(i, m)| {
                     m.iter()
                         .map(|(k, v)| {
-                            let key = k.as_str().ok_or_else(|| format!("cells[{i}]: key {k:?} is not a string"))?;
+                            let key = k
+                                .as_str()
+                                .ok_or_else(|| SweepError::grid(format!("cells[{i}]: key {k:?} is not a string")))?;
                             if axes.iter().any(|(a, _)| a == key) {
-                                return Err(format!("cells[{i}]: key `{key}` is also an axis"));
+                                return Err(SweepError::grid(format!("cells[{i}]: key `{key}` is also an axis")));
                             }
                             Ok((key.to_string(), v.clone()))
                         })
-                        .collect::<Result<Vec<_>, String>>()
+                        .collect::<Result<Vec<_>, SweepError>>()
                 })
                 .collect::<Result<_, _>>()?,
         };
@@ -235,7 +245,12 @@ impl Grid {
         for c in &grid.cells {
             grid.resolve(c)?;
             if let Some(d) = grid.cells[..c.index].iter().find(|d| d.describe() == c.describe()) {
-                return Err(format!("cells {} and {} are the same configuration ({})", d.index, c.index, c.describe()));
+                return Err(SweepError::grid(format!(
+                    "cells {} and {} are the same configuration ({})",
+                    d.index,
+                    c.index,
+                    c.describe()
+                )));
             }
         }
         Ok(grid)
@@ -243,7 +258,7 @@ impl Grid {
 
     /// The model config and band subset of a cell: the base (or the cell's `model`) with every other key set,
     /// then checked as a model file is.
-    pub fn resolve(&self, cell: &Cell) -> Result<CellConfig, String> {
+    pub fn resolve(&self, cell: &Cell) -> Result<CellConfig, SweepError> {
         let model_name = match cell.get(MODEL_KEY) {
             None => self.model.clone(),
             Some(Value::String(s)) => s.clone(),
@@ -252,7 +267,7 @@ impl Grid {
             }
         };
         let base = ModelConfig::resolve(&model_name).map_err(|e| cell.error(format!("key `model`: {e}")))?;
-        let mut tree = serde_yaml::to_value(&base).map_err(|e| e.to_string())?;
+        let mut tree = serde_yaml::to_value(&base).map_err(|e| cell.error(e))?;
         let mut bands = None;
         for (key, value) in &cell.values {
             match key.as_str() {
@@ -303,34 +318,39 @@ fn cartesian(axes: &[(String, Vec<Value>)]) -> Vec<Vec<(String, Value)>> {
     out
 }
 
-fn parse_bands(v: &Value) -> Result<Vec<usize>, String> {
+fn parse_bands(v: &Value) -> Result<Vec<usize>, SweepError> {
     let Value::Sequence(s) = v else {
-        return Err(format!("expected a list of band indices such as [0, 1, 2], got {}", show_value(v)));
+        return Err(SweepError::grid(format!(
+            "expected a list of band indices such as [0, 1, 2], got {}",
+            show_value(v)
+        )));
     };
     if s.is_empty() {
-        return Err("the band list is empty".into());
+        return Err(SweepError::grid("the band list is empty"));
     }
     s.iter()
         .map(|x| {
-            x.as_u64().map(|i| i as usize).ok_or_else(|| format!("`{}` is not a band index (0, 1, ...)", show_value(x)))
+            x.as_u64()
+                .map(|i| i as usize)
+                .ok_or_else(|| SweepError::grid(format!("`{}` is not a band index (0, 1, ...)", show_value(x))))
         })
         .collect()
 }
 
 /// Sets the value at a dotted path (`field.grid.log2_hashmap_size`, `proposals.0.samples`, `proposals.*.samples`).
 /// Every segment must already exist: a model config serialises every key it knows, so a missing one is a typo.
-pub fn set_path(tree: &mut Value, path: &str, value: &Value) -> Result<(), String> {
+pub fn set_path(tree: &mut Value, path: &str, value: &Value) -> Result<(), SweepError> {
     let segs: Vec<&str> = path.split('.').collect();
     if segs.iter().any(|s| s.is_empty()) {
-        return Err("empty segment in the dotted path".into());
+        return Err(SweepError::grid("empty segment in the dotted path"));
     }
     set_rec(tree, &segs, value, "")
 }
 
-fn set_rec(node: &mut Value, segs: &[&str], value: &Value, at: &str) -> Result<(), String> {
+fn set_rec(node: &mut Value, segs: &[&str], value: &Value, at: &str) -> Result<(), SweepError> {
     let Some((&seg, rest)) = segs.split_first() else {
         if node.is_mapping() || node.is_sequence() {
-            return Err(format!("`{at}` is a section, not a value: set one of its keys"));
+            return Err(SweepError::grid(format!("`{at}` is a section, not a value: set one of its keys")));
         }
         *node = value.clone();
         return Ok(());
@@ -341,7 +361,7 @@ fn set_rec(node: &mut Value, segs: &[&str], value: &Value, at: &str) -> Result<(
             let known: Vec<String> = m.keys().filter_map(|k| k.as_str().map(str::to_string)).collect();
             let child = m.get_mut(seg).ok_or_else(|| {
                 let where_ = if at.is_empty() { "the model config".to_string() } else { format!("`{at}`") };
-                format!("no key `{seg}` in {where_} (known: {})", known.join(", "))
+                SweepError::grid(format!("no key `{seg}` in {where_} (known: {})", known.join(", ")))
             })?;
             set_rec(child, rest, value, &here)
         }
@@ -353,11 +373,14 @@ fn set_rec(node: &mut Value, segs: &[&str], value: &Value, at: &str) -> Result<(
                 return Ok(());
             }
             let n = s.len();
-            let i: usize =
-                seg.parse().map_err(|_| format!("`{at}` is a list: use an index (0..{n}) or `*`, not `{seg}`"))?;
-            let item = s.get_mut(i).ok_or_else(|| format!("`{at}` has {n} entries, index {i} is out of range"))?;
+            let i: usize = seg.parse().map_err(|_| {
+                SweepError::grid(format!("`{at}` is a list: use an index (0..{n}) or `*`, not `{seg}`"))
+            })?;
+            let item = s
+                .get_mut(i)
+                .ok_or_else(|| SweepError::grid(format!("`{at}` has {n} entries, index {i} is out of range")))?;
             set_rec(item, rest, value, &here)
         }
-        _ => Err(format!("`{at}` is a value, it has no key `{seg}`")),
+        _ => Err(SweepError::grid(format!("`{at}` is a value, it has no key `{seg}`"))),
     }
 }

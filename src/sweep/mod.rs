@@ -9,7 +9,9 @@
 //! - [`table`]: CSV and JSON files.
 //! - [`plots`]: the plots.
 //! - [`report`]: the markdown report.
+//! - [`error`]: [`SweepError`], naming the file, grid key, cell or stage.
 
+pub mod error;
 pub mod grid;
 pub mod pareto;
 pub mod plots;
@@ -18,6 +20,7 @@ pub mod result;
 pub mod run;
 pub mod table;
 
+pub use error::SweepError;
 pub use grid::{Cell, CellConfig, Grid};
 pub use result::{BandScore, CellResult, KernelShare, TimePoint};
 pub use run::{run_sweep, SweepOptions, SweepOutcome};

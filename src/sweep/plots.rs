@@ -5,6 +5,7 @@
 //!
 //! Text is rasterised by ab_glyph from a font compiled into the binary (no system font libraries needed).
 
+use super::error::SweepError;
 use super::pareto::{memory_front, memory_points, time_front, time_points};
 use super::result::CellResult;
 use crate::util::atomic;
@@ -26,8 +27,8 @@ fn register_fonts() {
     });
 }
 
-fn err<E: std::fmt::Debug>(e: E) -> String {
-    format!("drawing a plot: {e:?}")
+fn err<E: std::fmt::Debug>(e: E) -> SweepError {
+    SweepError::Plot(format!("{e:?}"))
 }
 
 fn colour(i: usize) -> RGBColor {
@@ -66,7 +67,10 @@ fn span(values: impl Iterator<Item = f64>, pad: f64, fallback: (f64, f64)) -> (f
     (lo - p, hi + p)
 }
 
-fn draw_psnr_vs_time<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, results: &[CellResult]) -> Result<(), String> {
+fn draw_psnr_vs_time<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    results: &[CellResult],
+) -> Result<(), SweepError> {
     root.fill(&WHITE).map_err(err)?;
     let pts = time_points(results);
     let (_, x1) = span(pts.iter().map(|p| p.2), 0.05, (0.0, 1.0));
@@ -111,7 +115,7 @@ fn finish_with_front<'a, DB: DrawingBackend + 'a>(
     chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
     front: Vec<(f64, f64)>,
     radius: i32,
-) -> Result<(), String> {
+) -> Result<(), SweepError> {
     if !front.is_empty() {
         chart
             .draw_series(LineSeries::new(front.clone(), BLACK.stroke_width(1)))
@@ -146,7 +150,10 @@ fn top_kernels(results: &[CellResult], n: usize) -> Vec<String> {
     total.into_iter().take(n).map(|t| t.0).collect()
 }
 
-fn draw_kernel_times<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, results: &[CellResult]) -> Result<(), String> {
+fn draw_kernel_times<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    results: &[CellResult],
+) -> Result<(), SweepError> {
     root.fill(&WHITE).map_err(err)?;
     let names = top_kernels(results, 8);
     let n = results.len().max(1);
@@ -234,7 +241,7 @@ fn draw_kernel_times<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, results:
 fn draw_memory_vs_psnr<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     results: &[CellResult],
-) -> Result<(), String> {
+) -> Result<(), SweepError> {
     root.fill(&WHITE).map_err(err)?;
     let pts = memory_points(results);
     let (x0, x1) = span(pts.iter().map(|p| p.0), 0.1, (0.0, 1.0));
@@ -289,7 +296,7 @@ macro_rules! both {
             $draw(&root, $results)?;
         }
         let svg_path = $dir.join(format!("{}.svg", $stem));
-        atomic::write_bytes(&svg_path, svg.as_bytes()).map_err(|e| e.to_string())?;
+        atomic::write_bytes(&svg_path, svg.as_bytes())?;
         let png_path = $dir.join(format!("{}.png", $stem));
         write_png(&png_path, rgb)?;
         $out.push(svg_path);
@@ -297,18 +304,19 @@ macro_rules! both {
     }};
 }
 
-fn write_png(path: &Path, rgb: Vec<u8>) -> Result<(), String> {
-    let img = image::RgbImage::from_raw(SIZE.0, SIZE.1, rgb).ok_or("plot buffer has the wrong size")?;
+fn write_png(path: &Path, rgb: Vec<u8>) -> Result<(), SweepError> {
+    let img = image::RgbImage::from_raw(SIZE.0, SIZE.1, rgb)
+        .ok_or_else(|| SweepError::Plot("plot buffer has the wrong size".into()))?;
     let mut bytes = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    atomic::write_bytes(path, &bytes).map_err(|e| e.to_string())
+        .map_err(|e| SweepError::file(path, e))?;
+    Ok(atomic::write_bytes(path, &bytes)?)
 }
 
 /// Writes every plot into `dir` (created if needed); returns the files written.
-pub fn write_plots(results: &[CellResult], dir: &Path) -> Result<Vec<PathBuf>, String> {
+pub fn write_plots(results: &[CellResult], dir: &Path) -> Result<Vec<PathBuf>, SweepError> {
     register_fonts();
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(|e| SweepError::file(dir, e))?;
     let mut out = Vec::new();
     both!(dir, "psnr_vs_time", draw_psnr_vs_time, results, out);
     both!(dir, "kernel_times", draw_kernel_times, results, out);

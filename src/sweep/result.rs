@@ -2,6 +2,7 @@
 //! its per-kernel breakdown, peak GPU and host-cache bytes) and held-out PSNR/SSIM per band at each wall-clock point.
 //! A cell is done exactly when its result file exists and reads back with the same budget.
 
+use super::error::SweepError;
 use crate::util::atomic;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -107,13 +108,13 @@ impl CellResult {
             .max_by(|a, b| a.psnr.total_cmp(&b.psnr))
     }
 
-    pub fn write(&self, path: &Path) -> Result<(), String> {
-        let s = serde_json::to_string_pretty(self).map_err(|e| e.to_string())?;
-        atomic::write_bytes(path, s.as_bytes()).map_err(|e| e.to_string())
+    pub fn write(&self, path: &Path) -> Result<(), SweepError> {
+        let s = serde_json::to_string_pretty(self).map_err(|e| SweepError::file(path, e))?;
+        atomic::write_bytes(path, s.as_bytes()).map_err(|e| SweepError::file(&e.path, e.reason))
     }
 
-    pub fn read(path: &Path) -> Result<CellResult, String> {
-        let s = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        serde_json::from_str(&s).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn read(path: &Path) -> Result<CellResult, SweepError> {
+        let s = std::fs::read_to_string(path).map_err(|e| SweepError::file(path, e))?;
+        serde_json::from_str(&s).map_err(|e| SweepError::file(path, e))
     }
 }

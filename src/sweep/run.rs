@@ -4,6 +4,7 @@
 //! eats into a cell's budget. Resumable: a cell whose `result.json` exists is not redone; a cell without one (the
 //! sweep stopped inside it) is started again from scratch.
 
+use super::error::SweepError;
 use super::grid::{show_value, Cell, Grid};
 use super::result::{BandScore, CellResult, KernelShare, TimePoint};
 use crate::data::Split;
@@ -86,16 +87,19 @@ pub fn done_result(grid: &Grid, out: &Path, id: &str) -> Option<CellResult> {
 
 /// Runs every cell that is not done yet, in grid order. A failing cell is recorded (`error.txt` in its folder) and
 /// the others still run; the caller decides how to exit.
-pub fn run_sweep(ctx: &Context, grid: &Grid, opts: &SweepOptions) -> Result<SweepOutcome, String> {
+pub fn run_sweep(ctx: &Context, grid: &Grid, opts: &SweepOptions) -> Result<SweepOutcome, SweepError> {
     // Band subsets are checked against the dataset before any cell trains.
     for c in &grid.cells {
         let cc = grid.resolve(c)?;
         if let Some(b) = &cc.bands {
-            load_run_dataset(&opts.data, Some(b), &cc.model.sampling)
-                .map_err(|e| format!("cell {} ({}): {e}", c.index, c.describe()))?;
+            load_run_dataset(&opts.data, Some(b), &cc.model.sampling).map_err(|e| SweepError::Cell {
+                index: c.index,
+                describe: c.describe(),
+                reason: e,
+            })?;
         }
     }
-    std::fs::create_dir_all(opts.out.join("cells")).map_err(|e| format!("{}: {e}", opts.out.display()))?;
+    std::fs::create_dir_all(opts.out.join("cells")).map_err(|e| SweepError::file(&opts.out, e))?;
     let mut outcome = SweepOutcome::default();
     let n = grid.cells.len();
     for cell in &grid.cells {
@@ -149,14 +153,20 @@ fn segment_ends(grid: &Grid) -> Vec<Option<f64>> {
 }
 
 /// Trains and evaluates one cell from scratch, then writes its `result.json` (last, atomically).
-pub fn run_cell(ctx: &Context, grid: &Grid, cell: &Cell, id: &str, opts: &SweepOptions) -> Result<CellResult, String> {
+pub fn run_cell(
+    ctx: &Context,
+    grid: &Grid,
+    cell: &Cell,
+    id: &str,
+    opts: &SweepOptions,
+) -> Result<CellResult, SweepError> {
     let cc = grid.resolve(cell)?;
     let dir = cell_dir(&opts.out, id);
     if dir.exists() {
         // An unfinished cell: its partial timings would mix with new ones, so it starts again.
-        std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        std::fs::remove_dir_all(&dir).map_err(|e| SweepError::file(&dir, e))?;
     }
-    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::create_dir_all(&dir).map_err(|e| SweepError::file(&dir, e))?;
     let mut model = cc.model.clone();
     model.trainer.max_steps = grid.budget.steps.unwrap_or(u64::MAX / 2);
     // The trainer's own pixel check runs at step 1 and where each segment stops, not periodically.
@@ -186,7 +196,7 @@ pub fn run_cell(ctx: &Context, grid: &Grid, cell: &Cell, id: &str, opts: &SweepO
             stop: None,
             bands: cc.bands.clone(),
         };
-        let s = train(ctx, &t)?;
+        let s = train(ctx, &t).map_err(|e| SweepError::Stage { what: "training".into(), reason: e })?;
         let seg_steps = s.steps - steps;
         steps = s.steps;
         elapsed = s.elapsed_s;
@@ -261,11 +271,12 @@ fn evaluate_point(
     target_s: f64,
     elapsed_s: f64,
     step: u64,
-) -> Result<(TimePoint, Vec<String>, u64), String> {
-    let mut run = LoadedRun::load(ctx, dir)?;
+) -> Result<(TimePoint, Vec<String>, u64), SweepError> {
+    let mut run = LoadedRun::load(ctx, dir)
+        .map_err(|e| SweepError::Stage { what: "loading the checkpoint".into(), reason: e })?;
     let has_depth = run.ds.split_indices(Split::Eval).iter().all(|&f| run.ds.frames[f].depth.is_some());
     let rep = crate::nerf::evaluate::evaluate(&mut run, Split::Eval, Some(views), None, has_depth)
-        .map_err(|e| format!("evaluating: {e}"))?;
+        .map_err(|e| SweepError::Stage { what: "evaluating".into(), reason: e.to_string() })?;
     let bands =
         rep.bands.iter().map(|b| BandScore { name: b.name.clone(), psnr: b.psnr, ssim: b.ssim }).collect::<Vec<_>>();
     let names = bands.iter().map(|b| b.name.clone()).collect();
@@ -285,7 +296,7 @@ const SWEEP_CLOUD_THRESHOLD_M: f64 = 0.25;
 fn geometry_score(
     run: &mut LoadedRun,
     depth: Option<&crate::output::metrics::depth::DepthReport>,
-) -> Result<Option<super::result::GeometryScore>, String> {
+) -> Result<Option<super::result::GeometryScore>, SweepError> {
     use crate::output::compare::{compare_clouds_with, AccuracyOptions, CompareOptions};
     let truth = run.ds.root.join("ground_truth.ply");
     if depth.is_none() && !truth.is_file() {
@@ -303,13 +314,15 @@ fn geometry_score(
         g.median_footprint_m = fin(o.median_footprint);
     }
     if truth.is_file() {
-        let reference = crate::output::pointcloud::read_ply(&truth).map_err(|e| format!("{}: {e}", truth.display()))?;
+        let reference = crate::output::pointcloud::read_ply(&truth).map_err(|e| SweepError::file(&truth, e))?;
         let opts = crate::nerf::export::ExportOptions { rays: SWEEP_EXPORT_RAYS, ..Default::default() };
-        let cloud = crate::nerf::export::export_points(run, &opts)?;
+        let cloud = crate::nerf::export::export_points(run, &opts)
+            .map_err(|e| SweepError::Stage { what: "exporting the cloud".into(), reason: e })?;
         if !cloud.is_empty() {
             let c = CompareOptions { threshold: SWEEP_CLOUD_THRESHOLD_M, ..Default::default() };
-            let r = compare_clouds_with(&cloud, &reference, &c, &AccuracyOptions::default())
-                .map_err(|e| format!("comparing the exported cloud: {e}"))?;
+            let r = compare_clouds_with(&cloud, &reference, &c, &AccuracyOptions::default()).map_err(|e| {
+                SweepError::Stage { what: "comparing the exported cloud".into(), reason: e.to_string() }
+            })?;
             g.cloud_accuracy_median_m = fin(r.accuracy.median);
             g.cloud_completeness_median_m = fin(r.completeness.median);
             g.cloud_f_score = fin(r.f_score);
