@@ -58,7 +58,7 @@ fn run(
     println!("device: {} ({}, driver {})", caps.name, caps.device_type, caps.driver_name);
     println!("scene: {scene}");
     println!("host: {} logical CPUs", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(0));
-    let mut cfg = ModelConfig::resolve("tiny")?;
+    let mut cfg = ModelConfig::resolve("tiny").map_err(|e| e.to_string())?;
     cfg.trainer.max_steps = steps;
     cfg.trainer.steps_per_eval = eval_every;
     cfg.trainer.steps_per_save = steps.max(1000);

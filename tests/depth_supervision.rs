@@ -168,7 +168,7 @@ fn bad_depth_input_is_named() {
     ] {
         let mut m = supervised(DepthSource::SparsePoints);
         f(m.loss.depth.as_mut().expect("depth"));
-        let e = m.validate().expect_err("invalid");
+        let e = m.validate().expect_err("invalid").to_string();
         assert!(e.contains(key), "{key}: {e}");
     }
 }

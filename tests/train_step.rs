@@ -263,6 +263,6 @@ fn distortion_ramp_interpolates_and_validates() {
     assert_eq!(c.loss.distortion_at(5000), 0.01);
     c.validate().expect("a valid ramp");
     c.loss.distortion_ramp = Some(DistortionRamp { from_step: 300, to_step: 300, mult: 0.01 });
-    let e = c.validate().expect_err("empty ramp");
+    let e = c.validate().expect_err("empty ramp").to_string();
     assert!(e.contains("loss.distortion_ramp"), "{e}");
 }

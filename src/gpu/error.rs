@@ -26,6 +26,9 @@ pub enum GpuError {
     Dispatch { kernel: String, msg: String },
     #[error("buffer {name:?}: {msg}")]
     Buffer { name: String, msg: String },
+    /// A module's configuration is out of range (an MLP or hash-grid shape): `what` names it.
+    #[error("{what}: {msg}")]
+    Config { what: String, msg: String },
 }
 
 /// Maps a `vk::Result` error to [`GpuError::Vulkan`] naming the call.

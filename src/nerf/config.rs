@@ -2,6 +2,7 @@
 //! Multispectral-NeRF's Table 1 as another, and small ones for CI. Unknown keys are errors that name the key
 //! (`deny_unknown_fields`). The number of bands is not here: it comes from the dataset.
 
+pub use super::config_error::ConfigError;
 use crate::nn::hashgrid::HashGridConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -322,19 +323,20 @@ pub struct TrainerConfig {
 
 impl ModelConfig {
     /// Loads and validates a model file; errors name the file and, for YAML problems, the key and line.
-    pub fn load(path: &Path) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        Self::parse(&text).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError::Read { path: path.to_path_buf(), reason: e.to_string() })?;
+        Self::parse(&text).map_err(|e| e.in_profile(path.display().to_string()))
     }
 
-    pub fn parse(text: &str) -> Result<Self, String> {
-        let c: ModelConfig = serde_yaml::from_str(text).map_err(|e| e.to_string())?;
+    pub fn parse(text: &str) -> Result<Self, ConfigError> {
+        let c: ModelConfig = serde_yaml::from_str(text).map_err(|e| ConfigError::key(e.to_string()))?;
         c.validate()?;
         Ok(c)
     }
 
     /// A built-in profile by name (`nerfacto`, `multispectral-nerf`, `tiny`, `demo`), or a path to a YAML file.
-    pub fn resolve(name_or_path: &str) -> Result<Self, String> {
+    pub fn resolve(name_or_path: &str) -> Result<Self, ConfigError> {
         let builtin = match name_or_path {
             "nerfacto" => Some(include_str!("../../configs/models/nerfacto.yaml")),
             "multispectral-nerf" => Some(include_str!("../../configs/models/multispectral-nerf.yaml")),
@@ -343,69 +345,79 @@ impl ModelConfig {
             _ => None,
         };
         match builtin {
-            Some(t) => Self::parse(t).map_err(|e| format!("built-in model {name_or_path}: {e}")),
+            Some(t) => Self::parse(t).map_err(|e| e.in_profile(format!("built-in model {name_or_path}"))),
             None => Self::load(Path::new(name_or_path)),
         }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ConfigError> {
         let f = &self.field;
-        f.grid.validate().map_err(|e| format!("field.grid: {e}"))?;
+        f.grid.validate().map_err(|e| ConfigError::key(format!("field.grid: {e}")))?;
         for (i, p) in self.proposals.iter().enumerate() {
-            p.grid.validate().map_err(|e| format!("proposals[{i}].grid: {e}"))?;
+            p.grid.validate().map_err(|e| ConfigError::key(format!("proposals[{i}].grid: {e}")))?;
             if p.samples == 0 || p.num_layers < 2 {
-                return Err(format!("proposals[{i}]: samples must be > 0 and num_layers >= 2"));
+                return Err(ConfigError::key(format!("proposals[{i}]: samples must be > 0 and num_layers >= 2")));
             }
         }
         if f.num_layers < 2 || f.num_layers_color < 2 {
-            return Err("field.num_layers and field.num_layers_color must be >= 2 (tcnn needs a hidden layer)".into());
+            return Err(ConfigError::key(
+                "field.num_layers and field.num_layers_color must be >= 2 (tcnn needs a hidden layer)",
+            ));
         }
         if f.geo_feat_dim == 0 || f.geo_feat_dim + 1 > 128 {
-            return Err(format!("field.geo_feat_dim must be 1..=127, got {}", f.geo_feat_dim));
+            return Err(ConfigError::key(format!("field.geo_feat_dim must be 1..=127, got {}", f.geo_feat_dim)));
         }
         let s = &self.sampling;
         if !(s.near >= 0.0 && s.far > s.near) {
-            return Err(format!("sampling: need 0 <= near < far, got {} and {}", s.near, s.far));
+            return Err(ConfigError::key(format!("sampling: need 0 <= near < far, got {} and {}", s.near, s.far)));
         }
         if s.num_nerf_samples == 0 {
-            return Err("sampling.num_nerf_samples must be > 0".into());
+            return Err(ConfigError::key("sampling.num_nerf_samples must be > 0"));
         }
         if let Some(r) = &self.loss.distortion_ramp {
             if r.to_step <= r.from_step || !(r.mult.is_finite() && r.mult >= 0.0) {
-                return Err(format!(
+                return Err(ConfigError::key(format!(
                     "loss.distortion_ramp: need from_step < to_step and mult >= 0, got {} .. {} and {}",
                     r.from_step, r.to_step, r.mult
-                ));
+                )));
             }
         }
         if let Some(d) = &self.loss.depth {
             if !(d.mult.is_finite() && d.mult > 0.0) {
-                return Err(format!("loss.depth.mult must be > 0, got {}", d.mult));
+                return Err(ConfigError::key(format!("loss.depth.mult must be > 0, got {}", d.mult)));
             }
             if !(d.sigma.is_finite() && d.sigma > 0.0) {
-                return Err(format!("loss.depth.sigma must be > 0 (world units), got {}", d.sigma));
+                return Err(ConfigError::key(format!("loss.depth.sigma must be > 0 (world units), got {}", d.sigma)));
             }
             if !(0.0..=1.0).contains(&d.ray_fraction) {
-                return Err(format!("loss.depth.ray_fraction must be in [0, 1], got {}", d.ray_fraction));
+                return Err(ConfigError::key(format!(
+                    "loss.depth.ray_fraction must be in [0, 1], got {}",
+                    d.ray_fraction
+                )));
             }
         }
         let co = &self.camera_optimizer;
         if !(co.lr >= 0.0 && co.lr_final >= 0.0 && co.trans_l2_penalty >= 0.0 && co.rot_l2_penalty >= 0.0) {
-            return Err("camera_optimizer: lr, lr_final and the penalties must be >= 0".into());
+            return Err(ConfigError::key("camera_optimizer: lr, lr_final and the penalties must be >= 0"));
         }
         let t = &self.trainer;
         if t.rays_per_batch == 0 || t.rays_per_chunk == 0 || t.eval_rays_per_chunk == 0 {
-            return Err("trainer: rays_per_batch, rays_per_chunk and eval_rays_per_chunk must be > 0".into());
+            return Err(ConfigError::key(
+                "trainer: rays_per_batch, rays_per_chunk and eval_rays_per_chunk must be > 0",
+            ));
         }
         Ok(())
     }
 
     /// The band-weight vector for `bands` bands (ones unless configured); an error names a length mismatch.
-    pub fn band_weights(&self, bands: usize) -> Result<Vec<f32>, String> {
+    pub fn band_weights(&self, bands: usize) -> Result<Vec<f32>, ConfigError> {
         match &self.loss.band_weights {
             None => Ok(vec![1.0; bands]),
             Some(w) if w.len() == bands => Ok(w.clone()),
-            Some(w) => Err(format!("loss.band_weights has {} entries, the dataset has {bands} bands", w.len())),
+            Some(w) => Err(ConfigError::key(format!(
+                "loss.band_weights has {} entries, the dataset has {bands} bands",
+                w.len()
+            ))),
         }
     }
 }

@@ -5,6 +5,7 @@ pub mod buffers;
 pub mod camera_path;
 pub mod camera_poses;
 pub mod config;
+pub mod config_error;
 pub mod depth_targets;
 pub mod evaluate;
 pub mod export;

@@ -170,7 +170,7 @@ impl Pipeline {
                 .model
                 .cfg
                 .band_weights(self.model.bands)
-                .map_err(|msg| GpuError::Buffer { name: "band weights".into(), msg })?;
+                .map_err(|e| GpuError::Config { what: "band weights".into(), msg: e.to_string() })?;
             self.ctx.upload(&b.band_weights, 0, &bw)?;
             *slot = Some(b);
         }

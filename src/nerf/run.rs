@@ -46,7 +46,7 @@ impl LoadedRun {
                 dir.display()
             ));
         }
-        let cfg = ModelConfig::load(&dir.join("config.yaml"))?;
+        let cfg = ModelConfig::load(&dir.join("config.yaml")).map_err(|e| e.to_string())?;
         let info_path = dir.join("dataset.json");
         let info: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(&info_path)

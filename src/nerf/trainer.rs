@@ -198,7 +198,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     let cfg = &opts.model;
     let ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &cfg.sampling)?;
     let bands = ds.n_bands();
-    cfg.band_weights(bands)?;
+    cfg.band_weights(bands).map_err(|e| e.to_string())?;
     let train_frames = ds.split_indices(Split::Train);
     if train_frames.is_empty() {
         return Err(format!("{}: the train split is empty", ds.transforms_path.display()));

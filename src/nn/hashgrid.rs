@@ -219,7 +219,7 @@ impl HashGrid {
 
     /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (see hashgrid_bwd.comp).
     pub fn with_backward_run(ctx: &crate::gpu::Context, config: &HashGridConfig, run: u32) -> GpuResult<Self> {
-        config.validate().map_err(|msg| GpuError::Buffer { name: "hash grid config".into(), msg })?;
+        config.validate().map_err(|msg| GpuError::Config { what: "hash grid config".into(), msg })?;
         if !(1..=64).contains(&run) {
             return Err(GpuError::Buffer {
                 name: "hash grid".into(),

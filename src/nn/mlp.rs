@@ -418,7 +418,7 @@ impl Mlp {
 
     /// With explicit block sizes (benchmarks and tests compare them).
     pub fn with_tiling(ctx: &Context, config: &MlpConfig, tiling: MlpTiling) -> GpuResult<Self> {
-        config.validate().map_err(|msg| GpuError::Buffer { name: "MLP config".into(), msg })?;
+        config.validate().map_err(|msg| GpuError::Config { what: "MLP config".into(), msg })?;
         Ok(Self { config: config.clone(), tiling, reduce: Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)? })
     }
 
