@@ -98,6 +98,11 @@ pub fn export_survey(
         index_inputs.push((ix, index_bands(&probe, ix, DEFAULT_TOLERANCE_NM)?));
     }
     let mut opts = opts.clone();
+    if outputs.dsm.is_none() {
+        // The spread and consistency filters decide the DSM's nodata only; an ortho alone does not pay for them.
+        opts.max_spread_cells = None;
+        opts.consistency = None;
+    }
     let top = opts.top.unwrap_or_else(|| median_camera_height(run));
     opts.top = Some(top);
     let georef = GeoReference::in_crs(grid.origin, [grid.gsd, grid.gsd], run.ds.crs.as_ref())?;
