@@ -55,6 +55,19 @@ fn training_raises_held_out_psnr_and_resumes() {
     ] {
         assert!(run.join(f).is_file(), "run folder lacks {f}");
     }
+    // The summary names the device, the MSNERF_* switches that were set (make test sets two) and the MLP tiling.
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).expect("summary")).expect("json");
+    assert!(summary["device"].as_str().is_some_and(|d| d.contains(&g.caps().name)), "{}", summary["device"]);
+    let env: Vec<String> = serde_json::from_value(summary["environment"].clone()).expect("environment list");
+    for (var, entry) in [
+        ("MSNERF_REQUIRE_VALIDATION", "MSNERF_REQUIRE_VALIDATION=1"),
+        ("MSNERF_POISON_BUFFERS", "MSNERF_POISON_BUFFERS=1"),
+    ] {
+        let set = std::env::var(var).is_ok_and(|v| !v.is_empty() && v != "0");
+        assert_eq!(env.iter().any(|e| e == entry), set, "{var}: {env:?}");
+    }
+    assert!(summary["mlp_tiling"].as_str().is_some_and(|t| t.contains("shared_tiles")), "{}", summary["mlp_tiling"]);
     let metrics = std::fs::read_to_string(run.join("metrics.jsonl")).expect("metrics");
     let lines: Vec<serde_json::Value> = metrics.lines().map(|l| serde_json::from_str(l).expect("json line")).collect();
     assert!(lines.iter().any(|l| l["rays_per_s"].as_f64().is_some_and(|v| v > 0.0)));

@@ -53,10 +53,6 @@ pub struct DeviceCaps {
     pub is_cpu: bool,
 }
 
-fn env_flag(name: &str) -> bool {
-    std::env::var(name).map(|v| !v.is_empty() && v != "0").unwrap_or(false)
-}
-
 fn version_string(v: u32) -> String {
     format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
 }
@@ -112,7 +108,7 @@ impl DeviceCaps {
             fams.get(qf as usize).is_some_and(|f| f.timestamp_valid_bits > 0)
         });
         let l = &props.limits;
-        let no_f16 = env_flag("MSNERF_DISABLE_F16");
+        let no_f16 = crate::util::env::settings().disable_f16;
         let sg_ops = subgroup.supported_operations;
         DeviceCaps {
             name: cstr(&props.device_name),
@@ -147,7 +143,7 @@ impl DeviceCaps {
             storage_buffer_16bit: !no_f16 && v11f.storage_buffer16_bit_access == vk::TRUE,
             shader_int64: core.shader_int64 == vk::TRUE,
             buffer_device_address: v12f.buffer_device_address == vk::TRUE,
-            push_descriptor: has_push && !env_flag("MSNERF_DISABLE_PUSH_DESCRIPTOR"),
+            push_descriptor: has_push && !crate::util::env::settings().disable_push_descriptor,
             subgroup_size_control: v13f.subgroup_size_control == vk::TRUE,
             timeline_semaphore: v12f.timeline_semaphore == vk::TRUE,
             synchronization2: v13f.synchronization2 == vk::TRUE,

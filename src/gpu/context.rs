@@ -45,19 +45,19 @@ pub struct ContextDesc {
 impl ContextDesc {
     /// From the environment: `MSNERF_DEVICE`, and `MSNERF_REQUIRE_VALIDATION=1` / `MSNERF_VALIDATION=1`.
     pub fn from_env() -> Self {
-        let flag = |n: &str| std::env::var(n).is_ok_and(|v| !v.is_empty() && v != "0");
-        let validation = if flag("MSNERF_REQUIRE_VALIDATION") {
+        let env = crate::util::env::settings();
+        let validation = if env.require_validation {
             Validation::Required
-        } else if flag("MSNERF_VALIDATION") {
+        } else if env.validation {
             Validation::IfAvailable
         } else {
             Validation::Off
         };
         Self {
-            device: std::env::var("MSNERF_DEVICE").ok().filter(|s| !s.is_empty()),
+            device: env.device.clone(),
             validation,
-            force_descriptor_pools: flag("MSNERF_DISABLE_PUSH_DESCRIPTOR"),
-            poison_buffers: flag("MSNERF_POISON_BUFFERS"),
+            force_descriptor_pools: env.disable_push_descriptor,
+            poison_buffers: env.poison_buffers,
         }
     }
 }
@@ -191,6 +191,10 @@ impl Context {
             log::warn!("using CPU Vulkan device {} (no GPU found or selected): expect it to be slow", caps.name);
         }
         log::info!("device: {}", caps.summary_line());
+        let switches = crate::util::env::settings().set_switches();
+        if !switches.is_empty() {
+            log::info!("environment: {}", switches.join(" "));
+        }
         if desc.poison_buffers {
             log::info!("new device buffers are filled with NaN bits before use (MSNERF_POISON_BUFFERS)");
         }

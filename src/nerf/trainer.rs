@@ -78,6 +78,11 @@ pub struct TrainSummary {
     pub peak_gpu_bytes: u64,
     pub peak_cache_bytes: u64,
     pub run_dir: PathBuf,
+    /// The device, the `MSNERF_*` switches that were set (`util::env`) and the field MLP's kernel tiling, so the
+    /// numbers above can be traced to what produced them.
+    pub device: String,
+    pub environment: Vec<String>,
+    pub mlp_tiling: String,
 }
 
 /// Consecutive NaN/Inf-poisoned steps after which training stops.
@@ -396,6 +401,9 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     }
     kernel_totals.sort_by(|a, b| b.total_ms.total_cmp(&a.total_ms).then(a.name.cmp(&b.name)));
     summary.kernels = kernel_totals;
+    summary.device = ctx.caps().summary_line();
+    summary.environment = crate::util::env::settings().set_switches();
+    summary.mlp_tiling = format!("{:?}", pipe.model.field.mlp.tiling);
     let s = serde_json::to_string_pretty(&summary).expect("json");
     write_atomic_str(&run.join("summary.json"), s.as_bytes())?;
     Ok(summary)

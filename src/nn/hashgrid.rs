@@ -176,9 +176,16 @@ pub struct HashGrid {
     bwd_run: u32,
 }
 
-/// Points per `hashgrid_bwd` invocation: `MSNERF_HASH_BWD_RUN` when set (benchmarks), else 1.
-pub fn default_backward_run() -> u32 {
-    std::env::var("MSNERF_HASH_BWD_RUN").ok().and_then(|v| v.parse().ok()).unwrap_or(1)
+/// Points per `hashgrid_bwd` invocation: `MSNERF_HASH_BWD_RUN` when set (benchmarks), else 1; a value that is
+/// not a positive number is an error naming the variable.
+pub fn default_backward_run() -> GpuResult<u32> {
+    match &crate::util::env::settings().hash_bwd_run {
+        None => Ok(1),
+        Some(v) => v.trim().parse().ok().filter(|&n: &u32| n >= 1).ok_or_else(|| GpuError::Config {
+            what: "MSNERF_HASH_BWD_RUN".into(),
+            msg: format!("{v:?} is not a positive number of points"),
+        }),
+    }
 }
 
 fn check_array(a: &LargeArray<f32>, offset: usize, n_params: usize) -> GpuResult<()> {
@@ -214,7 +221,7 @@ struct LevelRead {
 
 impl HashGrid {
     pub fn new(ctx: &crate::gpu::Context, config: &HashGridConfig) -> GpuResult<Self> {
-        Self::with_backward_run(ctx, config, default_backward_run())
+        Self::with_backward_run(ctx, config, default_backward_run()?)
     }
 
     /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (see hashgrid_bwd.comp).

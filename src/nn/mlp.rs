@@ -219,9 +219,9 @@ impl MlpTiling {
         } else {
             Self { shared_tiles: true, mac_budget: 4096, wgrad_tile_j: 4, wgrad_tile_k: 4, wgrad_rows: 1 }
         };
-        match std::env::var("MSNERF_MLP_TILING") {
-            Ok(v) => t.with_overrides(&v).map_err(|msg| GpuError::Buffer { name: "MSNERF_MLP_TILING".into(), msg }),
-            Err(_) => Ok(t),
+        match &crate::util::env::settings().mlp_tiling {
+            Some(v) => t.with_overrides(v).map_err(|msg| GpuError::Config { what: "MSNERF_MLP_TILING".into(), msg }),
+            None => Ok(t),
         }
     }
 
