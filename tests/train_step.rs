@@ -266,3 +266,17 @@ fn distortion_ramp_interpolates_and_validates() {
     let e = c.validate().expect_err("empty ramp").to_string();
     assert!(e.contains("loss.distortion_ramp"), "{e}");
 }
+
+/// Every built-in profile parses; an unknown name is refused with the built-in list, a file path keeps its name.
+#[test]
+fn model_profiles_resolve_by_name_or_file() {
+    use msnerf::nerf::config::ModelConfig;
+    for (name, _) in ModelConfig::BUILTIN {
+        ModelConfig::resolve(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(ModelConfig::is_builtin(name));
+    }
+    let e = ModelConfig::resolve("nerfacto2").expect_err("unknown").to_string();
+    assert!(e.starts_with("nerfacto2: no such model profile") && e.contains("multispectral-nerf"), "{e}");
+    let e = ModelConfig::resolve("/no/such/profile.yaml").expect_err("missing file").to_string();
+    assert!(e.contains("/no/such/profile.yaml"), "{e}");
+}

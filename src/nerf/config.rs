@@ -335,18 +335,35 @@ impl ModelConfig {
         Ok(c)
     }
 
-    /// A built-in profile by name (`nerfacto`, `multispectral-nerf`, `tiny`, `demo`), or a path to a YAML file.
+    /// The built-in profiles (name, YAML), the one list every caller uses.
+    pub const BUILTIN: [(&'static str, &'static str); 4] = [
+        ("nerfacto", include_str!("../../configs/models/nerfacto.yaml")),
+        ("multispectral-nerf", include_str!("../../configs/models/multispectral-nerf.yaml")),
+        ("tiny", include_str!("../../configs/models/tiny.yaml")),
+        ("demo", include_str!("../../configs/models/demo.yaml")),
+    ];
+
+    /// Whether `name` is a built-in profile.
+    pub fn is_builtin(name: &str) -> bool {
+        Self::BUILTIN.iter().any(|(n, _)| *n == name)
+    }
+
+    /// A built-in profile by name (`nerfacto`, `multispectral-nerf`, `tiny`, `demo`), or a path to a YAML file; a
+    /// name that is neither is refused with the built-in list.
     pub fn resolve(name_or_path: &str) -> Result<Self, ConfigError> {
-        let builtin = match name_or_path {
-            "nerfacto" => Some(include_str!("../../configs/models/nerfacto.yaml")),
-            "multispectral-nerf" => Some(include_str!("../../configs/models/multispectral-nerf.yaml")),
-            "tiny" => Some(include_str!("../../configs/models/tiny.yaml")),
-            "demo" => Some(include_str!("../../configs/models/demo.yaml")),
-            _ => None,
-        };
-        match builtin {
-            Some(t) => Self::parse(t).map_err(|e| e.in_profile(format!("built-in model {name_or_path}"))),
-            None => Self::load(Path::new(name_or_path)),
+        match Self::BUILTIN.iter().find(|(n, _)| *n == name_or_path) {
+            Some((_, t)) => Self::parse(t).map_err(|e| e.in_profile(format!("built-in model {name_or_path}"))),
+            None => {
+                let p = Path::new(name_or_path);
+                if !p.exists() && !name_or_path.contains(['/', '.']) {
+                    let names: Vec<&str> = Self::BUILTIN.iter().map(|(n, _)| *n).collect();
+                    return Err(ConfigError::Invalid {
+                        profile: name_or_path.to_string(),
+                        reason: format!("no such model profile (built-in: {}, or a YAML file)", names.join(", ")),
+                    });
+                }
+                Self::load(p)
+            }
         }
     }
 

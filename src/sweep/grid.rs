@@ -288,8 +288,7 @@ impl Grid {
 }
 
 fn resolve_model_path(name: &str, dir: &Path) -> String {
-    let builtin = ["nerfacto", "multispectral-nerf", "demo", "tiny"];
-    if builtin.contains(&name) || Path::new(name).is_absolute() || dir.as_os_str().is_empty() {
+    if ModelConfig::is_builtin(name) || Path::new(name).is_absolute() || dir.as_os_str().is_empty() {
         return name.to_string();
     }
     let p: PathBuf = dir.join(name);
