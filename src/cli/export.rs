@@ -91,22 +91,8 @@ impl PointcloudArgs {
     /// The library options these flags ask for; errors name the flag.
     pub fn export_options(&self) -> anyhow::Result<ExportOptions> {
         anyhow::ensure!(self.rays > 0, "--rays must be > 0");
-        anyhow::ensure!(
-            self.max_spread_cells.is_finite() && self.max_spread_cells >= 0.0,
-            "--max-spread-cells must be >= 0, got {}",
-            self.max_spread_cells
-        );
-        anyhow::ensure!(
-            self.agree_tolerance.is_finite() && self.agree_tolerance > 0.0,
-            "--agree-tolerance must be > 0, got {}",
-            self.agree_tolerance
-        );
-        anyhow::ensure!(
-            self.check_views == 0 || (1..=self.check_views).contains(&self.min_agree),
-            "--min-agree must be between 1 and --check-views ({}), got {}",
-            self.check_views,
-            self.min_agree
-        );
+        let (max_spread_cells, consistency) =
+            careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
         if let Some(g) = self.gsd {
             anyhow::ensure!(g.is_finite() && g > 0.0, "--gsd must be > 0, got {g}");
         }
@@ -121,15 +107,37 @@ impl PointcloudArgs {
             min_accumulation: self.min_accumulation,
             seed: self.seed,
             normals: self.normals,
-            max_spread_cells: (self.max_spread_cells > 0.0).then_some(self.max_spread_cells),
-            consistency: (self.check_views > 0).then_some(Consistency {
-                views: self.check_views,
-                min_agree: self.min_agree,
-                tolerance: self.agree_tolerance,
-            }),
+            max_spread_cells,
+            consistency,
             scene_box: !self.keep_outside_box,
         })
     }
+}
+
+/// The careful export's spread and consistency filters from their flags (`export pointcloud`, `dsm` and `ortho`
+/// share them): 0 turns a filter off; errors name the flag.
+pub fn careful_filters(
+    max_spread_cells: f64,
+    check_views: usize,
+    min_agree: usize,
+    agree_tolerance: f64,
+) -> anyhow::Result<(Option<f64>, Option<Consistency>)> {
+    anyhow::ensure!(
+        max_spread_cells.is_finite() && max_spread_cells >= 0.0,
+        "--max-spread-cells must be >= 0, got {max_spread_cells}"
+    );
+    anyhow::ensure!(
+        agree_tolerance.is_finite() && agree_tolerance > 0.0,
+        "--agree-tolerance must be > 0, got {agree_tolerance}"
+    );
+    anyhow::ensure!(
+        check_views == 0 || (1..=check_views).contains(&min_agree),
+        "--min-agree must be between 1 and --check-views ({check_views}), got {min_agree}"
+    );
+    Ok((
+        (max_spread_cells > 0.0).then_some(max_spread_cells),
+        (check_views > 0).then_some(Consistency { views: check_views, min_agree, tolerance: agree_tolerance }),
+    ))
 }
 
 /// Filters a cloud as the flags ask.

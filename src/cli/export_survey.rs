@@ -5,9 +5,9 @@
 
 use std::path::PathBuf;
 
+use super::export::careful_filters;
 use super::Cli;
 use crate::gpu::Context;
-use crate::nerf::export::Consistency;
 use crate::nerf::run::LoadedRun;
 use crate::nerf::survey::{seen_bounds, SurveyGrid, SurveyOptions};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
@@ -85,34 +85,16 @@ pub struct OrthoArgs {
 impl SurveyArgs {
     /// The library options these flags ask for; errors name the flag.
     pub fn options(&self) -> anyhow::Result<SurveyOptions> {
-        anyhow::ensure!(
-            self.max_spread_cells.is_finite() && self.max_spread_cells >= 0.0,
-            "--max-spread-cells must be >= 0, got {}",
-            self.max_spread_cells
-        );
-        anyhow::ensure!(
-            self.agree_tolerance.is_finite() && self.agree_tolerance > 0.0,
-            "--agree-tolerance must be > 0, got {}",
-            self.agree_tolerance
-        );
-        anyhow::ensure!(
-            self.check_views == 0 || (1..=self.check_views).contains(&self.min_agree),
-            "--min-agree must be between 1 and --check-views ({}), got {}",
-            self.check_views,
-            self.min_agree
-        );
+        let (max_spread_cells, consistency) =
+            careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
         anyhow::ensure!(self.block_rays > 0, "--block-rays must be > 0");
         if let Some(t) = self.top {
             anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
         }
         Ok(SurveyOptions {
             min_accumulation: self.min_accumulation,
-            max_spread_cells: (self.max_spread_cells > 0.0).then_some(self.max_spread_cells),
-            consistency: (self.check_views > 0).then_some(Consistency {
-                views: self.check_views,
-                min_agree: self.min_agree,
-                tolerance: self.agree_tolerance,
-            }),
+            max_spread_cells,
+            consistency,
             scene_box: !self.keep_outside_box,
             top: self.top,
             block_rays: self.block_rays,
