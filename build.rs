@@ -4,9 +4,13 @@
 //! errors; every source and include is a `rerun-if-changed` input; a `.comp` file missing from the table
 //! is an error, so no kernel is forgotten.
 //!
-//! Debian: shaderc links the merged static archive made by `tools/setup-debian.sh` (see `.cargo/config.toml`).
-//! Elsewhere: `--features shaderc-from-source` builds glslang and SPIRV-Tools (needs cmake and ninja).
+//! shaderc itself: on Debian/Ubuntu, Debian's static `libshaderc_combined.a` (shaderc's `prefer-static-linking`)
+//! plus the glslang and SPIRV-Tools archives that `tools/shaderc-link` adds, so `cargo build --release` needs only
+//! `apt-get install libshaderc-dev`. Elsewhere: `SHADERC_LIB_DIR` pointing at a complete shaderc, or
+//! `--features shaderc-from-source` (builds glslang and SPIRV-Tools; needs cmake and ninja).
 
+// Linked for its build script's side effect: the glslang and SPIRV-Tools archives (see its header).
+use msnerf_shaderc_link as _;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Installs what msnerf needs on Debian 12 (and Ubuntu 22.04+), then prepares the shaderc library that build.rs links.
+# Installs what msnerf needs on Debian 12 (and Ubuntu 22.04+), the packages msnerf's build, tests and tools use.
 #   - Vulkan loader, Mesa lavapipe (the CPU Vulkan driver CI uses), Khronos validation layers, vulkaninfo
-#   - Debian's shaderc / glslang / SPIRV-Tools static libraries, merged into .shaderc/libshaderc_combined.a
+#   - Debian's shaderc / glslang / SPIRV-Tools static libraries, which build.rs links (tools/shaderc-link)
 #   - gdal-bin: `gdalinfo`, `gdalsrsinfo`, `gdaltransform`, which the tests run to check msnerf's GeoTIFFs, LAS CRS
 #     records and projections against GDAL/PROJ; python3-gdal: GDAL's Cloud-Optimized GeoTIFF validator, which
 #     the survey-export tests run on the DSM and orthomosaic
@@ -46,34 +46,11 @@ if command -v dpkg-query >/dev/null 2>&1; then
   fi
 else
   say "not a Debian-family system: install the Vulkan loader, a Vulkan driver (Mesa lavapipe works), the Khronos"
-  say "validation layers and shaderc yourself, then set SHADERC_LIB_DIR (see .cargo/config.toml) or build with"
+  say "validation layers and shaderc yourself, then set SHADERC_LIB_DIR to a complete shaderc (libshaderc_combined.a) or build with"
   say "'--features shaderc-from-source'."
-fi
-
-# --- One static shaderc archive ---------------------------------------------------------------------
-# Debian's libshaderc_combined.a holds only shaderc's own objects; glslang and SPIRV-Tools live in their own archives.
-multiarch=$(gcc -print-multiarch 2>/dev/null || dpkg-architecture -qDEB_HOST_MULTIARCH 2>/dev/null || echo x86_64-linux-gnu)
-libdir=/usr/lib/$multiarch
-out=.shaderc/libshaderc_combined.a
-parts=(libshaderc_combined libglslang libMachineIndependent libGenericCodeGen libOSDependent libOGLCompiler libHLSL libSPIRV
-       libSPIRV-Tools-opt libSPIRV-Tools libglslang-default-resource-limits)
-need_merge=0
-[ -f "$out" ] || need_merge=1
-for part in "${parts[@]}"; do
-  [ -f "$libdir/$part.a" ] || die "$libdir/$part.a not found: install libshaderc-dev glslang-dev spirv-tools"
-  [ "$need_merge" = 1 ] || [ "$libdir/$part.a" -nt "$out" ] && need_merge=1
-done
-if [ "$need_merge" = 1 ]; then
-  mkdir -p .shaderc
-  { echo "CREATE $out.tmp"; for part in "${parts[@]}"; do echo "ADDLIB $libdir/$part.a"; done; echo SAVE; echo END; } | ar -M
-  mv "$out.tmp" "$out"
-  say "merged shaderc, glslang and SPIRV-Tools into $out"
-  # shaderc-sys caches its link decision and never re-reads SHADERC_LIB_DIR: make it look again.
-  cargo clean -q -p shaderc-sys --release 2>/dev/null || true
-  cargo clean -q -p shaderc-sys 2>/dev/null || true
 fi
 
 # --- A Vulkan device --------------------------------------------------------------------------------
 icd=$(ls /usr/share/vulkan/icd.d/lvp_icd.*.json /etc/vulkan/icd.d/*.json /usr/share/vulkan/icd.d/nvidia_icd.json 2>/dev/null | head -n1 || true)
 [ -n "$icd" ] || die "no Vulkan driver manifest found: install mesa-vulkan-drivers (lavapipe) or a GPU driver"
-say "ready (Vulkan driver manifests present, shaderc at $out)"
+say "ready (Vulkan driver manifests present; shaderc, glslang and SPIRV-Tools static libraries installed)"
