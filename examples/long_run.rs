@@ -97,7 +97,7 @@ fn run(
             }
         }
     }
-    let summary = result.as_ref().map_err(|e| e.clone());
+    let summary = result.as_ref();
     let mut ok = true;
     match &summary {
         Ok(s) => {

@@ -69,7 +69,9 @@ fn training_with_drop_outliers_leaves_the_frame_out() {
     let mut model = msnerf::nerf::config::ModelConfig::resolve("tiny").unwrap();
     model.trainer.max_steps = 2;
     let run = t.path().join("run");
-    let e = msnerf::nerf::trainer::train(&g, &common::train_options(&data, &run, model.clone(), 256)).unwrap_err();
+    let e = msnerf::nerf::trainer::train(&g, &common::train_options(&data, &run, model.clone(), 256))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains(&name), "{e}");
     model.sampling.drop_outlier_cameras = true;
     let s = msnerf::nerf::trainer::train(&g, &common::train_options(&data, &run, model, 256)).unwrap();

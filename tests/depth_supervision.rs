@@ -82,7 +82,7 @@ fn train_error(data: &Path, out: &Path, model: ModelConfig) -> String {
         Ok(_) => panic!("training {} was not refused", out.display()),
     };
     assert!(!out.join("checkpoints").exists(), "nothing trained: {e}");
-    e
+    e.to_string()
 }
 
 #[test]

@@ -98,12 +98,12 @@ fn camera_path_errors_name_the_file_key_and_index() {
     for (k, (j, want)) in cases.iter().enumerate() {
         let p = tmp.path().join(format!("bad{k}.json"));
         std::fs::write(&p, j.to_string()).expect("write");
-        let e = load_camera_path(&p, &ds, &t).expect_err("must fail");
+        let e = load_camera_path(&p, &ds, &t).expect_err("must fail").to_string();
         assert!(e.contains(&format!("bad{k}.json")) && e.contains(want), "case {k}: {e}");
     }
     let p = tmp.path().join("broken.json");
     std::fs::write(&p, "{\"camera_path\": [").expect("write");
-    let e = load_camera_path(&p, &ds, &t).expect_err("must fail");
+    let e = load_camera_path(&p, &ds, &t).expect_err("must fail").to_string();
     assert!(e.contains("broken.json") && e.contains("not valid JSON"), "{e}");
 }
 

@@ -152,6 +152,11 @@ fn five_poisoned_steps_in_a_row_stop_training_with_a_clear_error() {
         bands: None,
     };
     let err = trainer::train(&g, &opts).expect_err("training must stop");
+    assert!(
+        matches!(&err, msnerf::nerf::NerfError::NonFinite { step: 7, count: 5, buffer, .. } if buffer.contains("nerf density")),
+        "a typed NaN-guard error: {err:?}"
+    );
+    let err = err.to_string();
     assert!(err.contains("5 steps in a row produced NaN/Inf"), "{err}");
     assert!(err.contains("nerf density") && err.contains("step 7"), "names the buffer and the step: {err}");
     assert!(err.contains("checkpoints"), "points at the last good checkpoint: {err}");

@@ -16,6 +16,7 @@ use crate::nerf::config::ModelConfig;
 use crate::nerf::model::Model;
 use crate::nerf::pipeline::{Batch, Pipeline};
 use crate::nerf::rays::GpuCamera;
+use crate::nerf::{NerfError, NerfResult};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 use std::time::Instant;
@@ -95,16 +96,16 @@ pub fn run(
     steps: usize,
     warmup: usize,
     at_step: Option<u64>,
-) -> Result<TrainBench, String> {
+) -> NerfResult<TrainBench> {
     let cams = ring_cameras(16);
-    let model = Model::new(ctx, cfg, bands, cams.len()).map_err(|e| e.to_string())?;
-    let mut pipe = Pipeline::new(ctx, model, &cams).map_err(|e| e.to_string())?;
+    let model = Model::new(ctx, cfg, bands, cams.len())?;
+    let mut pipe = Pipeline::new(ctx, model, &cams).map_err(NerfError::gpu("building the pipeline"))?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let r = cfg.trainer.rays_per_batch;
     pipe.step = at_step.unwrap_or_else(|| steady_step(cfg));
     for _ in 0..warmup {
         let batch = random_batch(&mut rng, r, cams.len(), bands);
-        pipe.train_step(&batch).map_err(|e| e.to_string())?;
+        pipe.train_step(&batch).map_err(NerfError::gpu("warm-up step"))?;
     }
     let first_step = pipe.step;
     let mut timing = TimingReport::default();
@@ -115,7 +116,7 @@ pub fn run(
         let ts = Instant::now();
         let batch = random_batch(&mut rng, r, cams.len(), bands);
         sampling_s += ts.elapsed().as_secs_f64();
-        let st = pipe.train_step(&batch).map_err(|e| e.to_string())?;
+        let st = pipe.train_step(&batch).map_err(NerfError::gpu("timed step"))?;
         updates += usize::from(st.proposals_updated);
         timing.accumulate(&st.timing);
     }

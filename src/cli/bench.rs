@@ -85,7 +85,7 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
             anyhow::ensure!(steps > 0, "--steps must be > 0");
             let mut all = Vec::new();
             for m in models {
-                let mut cfg = crate::nerf::config::ModelConfig::resolve(m).map_err(anyhow::Error::msg)?;
+                let mut cfg = crate::nerf::config::ModelConfig::resolve(m)?;
                 if let Some(r) = rays_per_batch {
                     cfg.trainer.rays_per_batch = r;
                     cfg.trainer.rays_per_chunk = cfg.trainer.rays_per_chunk.min(r);
@@ -97,7 +97,7 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
                     cfg.trainer.rays_per_chunk = c.min(cfg.trainer.rays_per_batch);
                 }
                 for &b in bands {
-                    let r = crate::bench::train::run(&ctx, &cfg, b, steps, 2, at_step).map_err(anyhow::Error::msg)?;
+                    let r = crate::bench::train::run(&ctx, &cfg, b, steps, 2, at_step)?;
                     if !json {
                         print!("{}", r.table());
                     }

@@ -86,15 +86,15 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
     let cloud_path = a.out.join("cloud.ply");
 
     println!("[1/6] simulating scene `{}`", a.scene);
-    let scene = SceneDesc::load(&a.scene).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let scene = SceneDesc::load(&a.scene)?;
     let sim_opts = SimOptions { sparse_points: (!a.images_only).then_some(DEMO_SPARSE), ..SimOptions::default() };
-    let sim = simulate(&scene, &sim_opts, &data).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let sim = simulate(&scene, &sim_opts, &data)?;
     println!("      {sim}");
 
     let supervision = if a.images_only { "images only" } else { "images + DS-NeRF depth from the SfM points" };
     println!("[2/6] training `{}` for {:.0} s ({supervision})", a.model, a.time_budget);
     let ctx = Context::new(&cli.context_desc())?;
-    let mut model = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    let mut model = ModelConfig::resolve(&a.model)?;
     if !a.images_only {
         model.loss.depth = Some(DEMO_DEPTH);
     }
@@ -111,10 +111,10 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         stop: None,
         bands: None,
     };
-    let ts = train(&ctx, &opts).map_err(anyhow::Error::msg)?;
+    let ts = train(&ctx, &opts)?;
 
     println!("[3/6] evaluating held-out views");
-    let mut run = LoadedRun::load(&ctx, &run_dir).map_err(anyhow::Error::msg)?;
+    let mut run = LoadedRun::load(&ctx, &run_dir)?;
     let has_depth = run.ds.frames.iter().all(|f| f.depth.is_some());
     let report = crate::nerf::evaluate::evaluate(&mut run, Split::Eval, Some(a.eval_views), None, has_depth)?;
     report.write(&run_dir.join("eval.json"))?;
@@ -143,8 +143,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         .write_png(&renders.join("contact_sheet.png"))?;
 
     println!("[5/6] exporting the multispectral point cloud");
-    let raw =
-        export_points(&mut run, &ExportOptions { rays: 100_000, ..Default::default() }).map_err(anyhow::Error::msg)?;
+    let raw = export_points(&mut run, &ExportOptions { rays: 100_000, ..Default::default() })?;
     let pargs = PointcloudArgs {
         run: run_dir.clone(),
         out: cloud_path.clone(),

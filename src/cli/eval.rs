@@ -48,7 +48,7 @@ pub fn run(cli: &Cli, a: &EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
     let ctx = Context::new(&cli.context_desc())?;
     let lpips = a.lpips_weights.as_deref().map(Lpips::load).transpose().map_err(anyhow::Error::msg)?;
-    let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
+    let mut run = LoadedRun::load(&ctx, &a.run)?;
     let report = evaluate(&mut run, split, None, lpips.as_ref(), a.depth)?;
     let out = a.output.clone().unwrap_or_else(|| a.run.join("eval.json"));
     report.write(&out)?;

@@ -185,8 +185,8 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
     anyhow::ensure!(ext_ok, "--out {}: the file must end in .ply or .las", a.out.display());
     let opts = a.export_options()?;
     let ctx = Context::new(&cli.context_desc())?;
-    let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
-    let (raw, stats) = export_points_with_stats(&mut run, &opts).map_err(anyhow::Error::msg)?;
+    let mut run = LoadedRun::load(&ctx, &a.run)?;
+    let (raw, stats) = export_points_with_stats(&mut run, &opts)?;
     let cloud = filter(raw, a)?;
     write_cloud(&cloud, &a.out, run.ds.crs.as_ref())?;
     println!("{}", summary(&stats, a.min_accumulation, cloud.len()));

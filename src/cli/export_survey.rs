@@ -176,7 +176,7 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
     }
     outputs.indices.dedup();
     let ctx = Context::new(&cli.context_desc())?;
-    let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
+    let mut run = LoadedRun::load(&ctx, &a.run)?;
     let grid = a.grid(&mut run)?;
     let bar = indicatif::ProgressBar::new(grid.height as u64);
     bar.set_style(

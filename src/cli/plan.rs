@@ -57,12 +57,12 @@ pub struct PlanArgs {
 }
 
 pub fn run(cli: &Cli, a: &PlanArgs) -> anyhow::Result<()> {
-    let mut model = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    let mut model = ModelConfig::resolve(&a.model)?;
     if let Some(v) = a.mlp_activations {
         model.mlp_activations = v;
     }
     let data = match &a.data {
-        Some(d) => DatasetShape::from_dataset(&load_dataset(d, &LoadOptions::default()).map_err(anyhow::Error::msg)?),
+        Some(d) => DatasetShape::from_dataset(&load_dataset(d, &LoadOptions::default())?),
         None => {
             if a.views == 0 || a.width == 0 || a.height == 0 || a.bands == 0 || a.sample_bytes == 0 {
                 anyhow::bail!("--views, --width, --height, --bands and --sample-bytes must be > 0");
@@ -74,12 +74,9 @@ pub fn run(cli: &Cli, a: &PlanArgs) -> anyhow::Result<()> {
     let ctx = if a.no_device { None } else { Context::new(&cli.context_desc()).ok() };
     let (profile, dev) = if a.hardware == "auto" {
         let ctx = ctx.ok_or_else(|| anyhow::anyhow!("--hardware auto needs a Vulkan device and found none"))?;
-        (
-            crate::plan::train::resolve_profile(&ctx, "auto", &model, &data).map_err(anyhow::Error::msg)?,
-            DeviceRule::from_context(&ctx),
-        )
+        (crate::plan::train::resolve_profile(&ctx, "auto", &model, &data)?, DeviceRule::from_context(&ctx))
     } else {
-        let p = HardwareProfile::resolve(&a.hardware).map_err(anyhow::Error::msg)?;
+        let p = HardwareProfile::resolve(&a.hardware)?;
         let dev = match ctx.filter(|c| p.matches(c)) {
             Some(c) => DeviceRule::from_context(&c),
             None => DeviceRule::from_profile(&p.gpu),
@@ -97,7 +94,7 @@ pub fn run(cli: &Cli, a: &PlanArgs) -> anyhow::Result<()> {
         anyhow::bail!("ray counts must be > 0");
     }
     let req = PlanRequest { model: &model, profile: &profile, data, rays: Some(rays), fit: a.fit };
-    let p = plan(&req, &dev).map_err(anyhow::Error::msg)?;
+    let p = plan(&req, &dev)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&p)?);
     } else {

@@ -94,9 +94,9 @@ fn parse_views(run: &LoadedRun, a: &RenderArgs) -> anyhow::Result<Views> {
         "all" => Views::Frames((0..run.ds.frames.len()).collect()),
         "eval" => Views::Frames(run.ds.split_indices(Split::Eval)),
         "train" => Views::Frames(run.ds.split_indices(Split::Train)),
-        "orbit" => Views::Novel(orbit_views(&run.ds, &run.transform, &a.orbit.desc()).map_err(anyhow::Error::msg)?),
+        "orbit" => Views::Novel(orbit_views(&run.ds, &run.transform, &a.orbit.desc())?),
         s if s.ends_with(".json") || Path::new(s).is_file() => {
-            Views::Novel(load_camera_path(Path::new(s), &run.ds, &run.transform).map_err(anyhow::Error::msg)?)
+            Views::Novel(load_camera_path(Path::new(s), &run.ds, &run.transform)?)
         }
         s => anyhow::bail!("--views {s}: expected {VIEWS_CHOICES}"),
     };
@@ -121,7 +121,7 @@ fn stretch(s: &str) -> anyhow::Result<Stretch> {
 
 /// Renders dataset frame `frame`, writes everything for it into `out` and returns its preview tiles.
 pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs) -> anyhow::Result<ViewFiles> {
-    let rv = run.render_view(frame).map_err(anyhow::Error::msg)?;
+    let rv = run.render_view(frame)?;
     let stem = Path::new(&run.ds.frames[frame].name)
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -132,7 +132,7 @@ pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs)
 
 /// Renders novel view `k` (set with [`LoadedRun::set_novel_views`]) and writes its files, without an error map.
 pub fn write_novel_view(run: &mut LoadedRun, k: usize, out: &Path, a: &RenderArgs) -> anyhow::Result<ViewFiles> {
-    let rv = run.render_novel_view(k).map_err(anyhow::Error::msg)?;
+    let rv = run.render_novel_view(k)?;
     let stem = run.novel[k].name.clone();
     write_outputs(run, &rv, &stem, None, out, a)
 }
@@ -197,7 +197,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
         anyhow::bail!("--orbit-views, --orbit-radius, --orbit-height and --orbit-pitch-deg need --views orbit");
     }
     let ctx = Context::new(&cli.context_desc())?;
-    let mut run = LoadedRun::load(&ctx, &a.run).map_err(anyhow::Error::msg)?;
+    let mut run = LoadedRun::load(&ctx, &a.run)?;
     // Every view is known (and a camera path fully checked) before the output folder is touched.
     let views = parse_views(&run, a)?;
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
@@ -207,7 +207,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
         Views::Novel(v) => v.len(),
     };
     if let Views::Novel(v) = &views {
-        run.set_novel_views(v).map_err(anyhow::Error::msg)?;
+        run.set_novel_views(v)?;
     }
     for k in 0..n {
         let (v, name) = match &views {

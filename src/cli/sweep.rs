@@ -50,9 +50,8 @@ fn builtin_data(scene: &str, out: &Path) -> anyhow::Result<PathBuf> {
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
     }
-    let desc = crate::sim::SceneDesc::load(scene).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let sim =
-        crate::sim::simulate(&desc, &crate::sim::SimOptions::default(), &tmp).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let desc = crate::sim::SceneDesc::load(scene)?;
+    let sim = crate::sim::simulate(&desc, &crate::sim::SimOptions::default(), &tmp)?;
     eprintln!("simulated `{scene}`: {sim}");
     if data.exists() {
         std::fs::remove_dir_all(&data).map_err(|e| anyhow::anyhow!("{}: {e}", data.display()))?;
@@ -85,7 +84,7 @@ fn command_line() -> String {
 }
 
 pub fn run(cli: &Cli, a: &SweepArgs) -> anyhow::Result<()> {
-    let grid = Grid::load(&a.grid).map_err(anyhow::Error::msg)?;
+    let grid = Grid::load(&a.grid)?;
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
     let data = match (&a.data, &a.builtin_scene) {
         (Some(d), _) => d.clone(),
@@ -125,7 +124,7 @@ pub fn run(cli: &Cli, a: &SweepArgs) -> anyhow::Result<()> {
             .collect();
         (results, Vec::new())
     } else {
-        let o = run_sweep(&ctx, &grid, &opts).map_err(anyhow::Error::msg)?;
+        let o = run_sweep(&ctx, &grid, &opts)?;
         eprintln!(
             "{} cells: {} trained now, {} done before, {} failed",
             grid.cells.len(),
@@ -143,8 +142,8 @@ pub fn run(cli: &Cli, a: &SweepArgs) -> anyhow::Result<()> {
         cpu: Machine::host_cpu(),
         cpu_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
     };
-    let mut written = write_tables(&grid, &machine, &data, &results, &a.out).map_err(anyhow::Error::msg)?;
-    written.extend(plots::write_plots(&results, &a.out.join("plots")).map_err(anyhow::Error::msg)?);
+    let mut written = write_tables(&grid, &machine, &data, &results, &a.out)?;
+    written.extend(plots::write_plots(&results, &a.out.join("plots"))?);
     let mut rc = ReportContext {
         grid: &grid,
         machine: &machine,
@@ -158,7 +157,7 @@ pub fn run(cli: &Cli, a: &SweepArgs) -> anyhow::Result<()> {
     written.push(report);
     if let Some(page) = &a.report {
         let dir = page.with_extension("");
-        written.extend(plots::write_plots(&results, &dir).map_err(anyhow::Error::msg)?);
+        written.extend(plots::write_plots(&results, &dir)?);
         rc.plots_rel = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "plots".into());
         atomic::write_bytes(page, report_markdown(&rc, &results).as_bytes())?;
         written.push(page.clone());

@@ -73,7 +73,7 @@ pub fn model_with_overrides(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
 /// The `--model` profile with the flags that change the model's memory (`--mlp-activations`): a hardware profile
 /// sizes its chunks from this.
 fn resolve_model(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
-    let mut m = ModelConfig::resolve(&a.model).map_err(anyhow::Error::msg)?;
+    let mut m = ModelConfig::resolve(&a.model)?;
     if let Some(v) = a.mlp_activations {
         m.mlp_activations = v;
     }
@@ -127,14 +127,13 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
     if let Some(h) = &a.hardware {
         use crate::plan::{train as pt, DatasetShape};
         let base = resolve_model(a)?;
-        let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref(), &base.sampling)
-            .map_err(anyhow::Error::msg)?;
+        let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref(), &base.sampling)?;
         let shape = DatasetShape::from_dataset(&ds);
-        let profile = pt::resolve_profile(&ctx, h, &base, &shape).map_err(anyhow::Error::msg)?;
+        let profile = pt::resolve_profile(&ctx, h, &base, &shape)?;
         let mut m = base;
         pt::apply_profile(&mut m, &profile);
         model = apply_overrides(m, a)?;
-        let p = pt::check_training(&ctx, &model, &profile, shape).map_err(anyhow::Error::msg)?;
+        let p = pt::check_training(&ctx, &model, &profile, shape)?;
         host_budget_bytes = p.host.cache_budget_bytes;
         resample_every = p.host.resample_every.unwrap_or(resample_every);
         let t = &model.trainer;
@@ -164,7 +163,7 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         stop: Some(stop),
         bands: a.bands.clone(),
     };
-    let s = train(&ctx, &opts).map_err(anyhow::Error::msg)?;
+    let s = train(&ctx, &opts)?;
     println!(
         "trained {} steps in {:.1} s ({:.0} rays/s, {:.0} ms/step); train PSNR {:.2} dB; held-out PSNR {} at the first \
          evaluation, best {}{}{}",

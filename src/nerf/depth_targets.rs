@@ -5,6 +5,7 @@
 //! normalised frame, (0, 1) where a pixel has no target, and optionally a share of rays drawn from target pixels.
 
 use super::config::{DepthSource, DepthSupervision};
+use super::error::{NerfError, NerfResult};
 use crate::data::camera::project_point;
 use crate::data::sparse_points::read_sparse_points;
 use crate::data::{CameraModel, Dataset, ImageCache, PixelBatch};
@@ -51,7 +52,7 @@ impl DepthTargets {
     /// Targets for `frames` (dataset indices, the train split) as `cfg` asks. Errors name the config key, file and
     /// frame: no depth in the dataset, a point that does not project into a frame of its track, a depth map of the
     /// wrong size or band count, or distances outside the sampling range (a unit mistake).
-    pub fn build(ds: &Dataset, frames: &[usize], cfg: &DepthSupervision, near_far: (f64, f64)) -> Result<Self, String> {
+    pub fn build(ds: &Dataset, frames: &[usize], cfg: &DepthSupervision, near_far: (f64, f64)) -> NerfResult<Self> {
         let scale = ds.pose_transform().scale;
         let mut out = DepthTargets {
             frames: HashMap::new(),
@@ -67,9 +68,9 @@ impl DepthTargets {
         }
         out.counts = out.frames.iter().map(|(&f, d)| (f, d.pixels.len())).collect();
         if out.total() == 0 {
-            return Err(format!(
-                "loss.depth.source: {}: no training pixel has a depth target",
-                ds.transforms_path.display()
+            return Err(NerfError::invalid(
+                "loss.depth.source",
+                format!("{}: no training pixel has a depth target", ds.transforms_path.display()),
             ));
         }
         // A unit mistake (millimetres read as metres, a wrong depth_unit_scale_factor) puts the surface far outside the
@@ -96,34 +97,43 @@ impl DepthTargets {
             };
             let (reach, dist) = (med(&mut reach), med(&mut dist));
             if !(reach <= MAX_REACH && dist > near && dist < far) {
-                return Err(format!(
-                    "loss.depth: frame `{}`: its depth targets put the surface at {reach:.1} (median, normalised \
+                return Err(NerfError::invalid(
+                    "loss.depth",
+                    format!(
+                        "frame `{}`: its depth targets put the surface at {reach:.1} (median, normalised \
                      units; the scene is [-1, 1]^3) and {dist:.3} along the rays (sampled: {near} .. {far}): check \
                      the depth unit (`depth_unit_scale_factor`, `depth_type`) or the points' coordinates",
-                    frame.name
+                        frame.name
+                    ),
                 ));
             }
         }
         Ok(out)
     }
 
-    fn dense(&mut self, ds: &Dataset, frames: &[usize]) -> Result<(), String> {
+    fn dense(&mut self, ds: &Dataset, frames: &[usize]) -> NerfResult<()> {
         for &f in frames {
             let frame = &ds.frames[f];
-            let Some(mut d) = ds.read_depth(f).map_err(|e| e.to_string())? else {
-                return Err(format!(
-                    "loss.depth.source is depth_maps but frame `{}` of {} has no `depth_file_path`",
-                    frame.name,
-                    ds.transforms_path.display()
+            let Some(mut d) = ds.read_depth(f)? else {
+                return Err(NerfError::invalid(
+                    "loss.depth.source",
+                    format!(
+                        "depth_maps, but frame `{}` of {} has no `depth_file_path`",
+                        frame.name,
+                        ds.transforms_path.display()
+                    ),
                 ));
             };
             let cam = &frame.camera;
             if ds.depth_is_z {
                 if cam.model == CameraModel::OpenCvFisheye {
-                    return Err(format!(
-                        "loss.depth: frame `{}`: z-depth maps of fisheye cameras are not supported (use `depth_type: \
-                         ray_distance`)",
-                        frame.name
+                    return Err(NerfError::invalid(
+                        "loss.depth",
+                        format!(
+                            "frame `{}`: z-depth maps of fisheye cameras are not supported (use `depth_type: \
+                             ray_distance`)",
+                            frame.name
+                        ),
                     ));
                 }
                 let w = cam.width as usize;
@@ -138,14 +148,14 @@ impl DepthTargets {
         Ok(())
     }
 
-    fn sparse(&mut self, ds: &Dataset, frames: &[usize]) -> Result<(), String> {
+    fn sparse(&mut self, ds: &Dataset, frames: &[usize]) -> NerfResult<()> {
         let Some(path) = &ds.sparse_points_path else {
-            return Err(format!(
-                "loss.depth.source is sparse_points but {} has no `sparse_points_path`",
-                ds.transforms_path.display()
+            return Err(NerfError::invalid(
+                "loss.depth.source",
+                format!("sparse_points, but {} has no `sparse_points_path`", ds.transforms_path.display()),
             ));
         };
-        let points = read_sparse_points(ds, path).map_err(|e| e.to_string())?;
+        let points = read_sparse_points(ds, path)?;
         let train: std::collections::HashSet<usize> = frames.iter().copied().collect();
         let mut per: HashMap<usize, HashMap<u32, f32>> = HashMap::new();
         for (i, p) in points.iter().enumerate() {
@@ -155,12 +165,14 @@ impl DepthTargets {
                 let rot = [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2]]);
                 let origin = [m[0][3], m[1][3], m[2][3]];
                 let Some((row, col, dist)) = project_point(&frame.camera, origin, &rot, p.xyz) else {
-                    return Err(format!(
-                        "{}: points[{i}] {:?} does not project into frame `{}` of its track (behind the camera or \
-                         outside the image)",
-                        path.display(),
-                        p.xyz,
-                        frame.name
+                    return Err(NerfError::key(
+                        path,
+                        format!("points[{i}]"),
+                        format!(
+                            "{:?} does not project into frame `{}` of its track (behind the camera or outside the \
+                             image)",
+                            p.xyz, frame.name
+                        ),
                     ));
                 };
                 // Two points on one pixel: the nearer one is the surface the pixel sees.

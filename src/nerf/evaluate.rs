@@ -24,6 +24,9 @@ pub enum EvalError {
     NoFrames { path: PathBuf, split: String },
     #[error("frame `{frame}`: {reason}")]
     Frame { frame: String, reason: String },
+    /// Rendering a frame failed.
+    #[error("frame `{frame}`: {err}")]
+    Render { frame: String, err: Box<super::error::NerfError> },
 }
 
 /// Ground truth of a frame as a spectral image and its mask.
@@ -83,8 +86,9 @@ pub fn evaluate(
     }
     let mut depth_views = Vec::new();
     for f in frames {
-        let rv =
-            run.render_view(f).map_err(|reason| EvalError::Frame { frame: run.ds.frames[f].name.clone(), reason })?;
+        let rv = run
+            .render_view(f)
+            .map_err(|e| EvalError::Render { frame: run.ds.frames[f].name.clone(), err: Box::new(e) })?;
         let pred = SpectralImage::from_interleaved(rv.width, rv.height, run.ds.bands.clone(), &rv.colour)?;
         let (gt, mask) = ground_truth(run, f)?;
         let metrics = image_metrics(&pred, &gt, mask.as_deref(), &MetricOptions { data_range: 1.0 })?;

@@ -23,6 +23,7 @@
 //! field's normal there ([`super::normals`]), facing the camera that saw it, rotated back into the world frame.
 //! [`ExportOptions::legacy`] is the earlier behaviour (steps 1-2 only), kept for comparison.
 
+use super::error::{NerfError, NerfResult};
 use super::normals::{density_gradients, normal_from_gradient};
 use super::run::LoadedRun;
 use crate::data::{camera, Split};
@@ -129,18 +130,15 @@ struct Candidate {
 }
 
 /// Renders random training pixels and returns the kept points (world frame) with their band values.
-pub fn export_points(run: &mut LoadedRun, opts: &ExportOptions) -> Result<PointCloud, String> {
+pub fn export_points(run: &mut LoadedRun, opts: &ExportOptions) -> NerfResult<PointCloud> {
     export_points_with_stats(run, opts).map(|(c, _)| c)
 }
 
 /// [`export_points`] and what each filter removed.
-pub fn export_points_with_stats(
-    run: &mut LoadedRun,
-    opts: &ExportOptions,
-) -> Result<(PointCloud, ExportStats), String> {
+pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> NerfResult<(PointCloud, ExportStats)> {
     let frames = run.ds.split_indices(Split::Train);
     if frames.is_empty() {
-        return Err(format!("{}: no training frames to export from", run.ds.transforms_path.display()));
+        return Err(NerfError::key(&run.ds.transforms_path, "frames", "no training frames to export from"));
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
     let (w, h) = (run.ds.width, run.ds.height);
@@ -152,7 +150,7 @@ pub fn export_points_with_stats(
             rng.random_range(0..w),
         ]);
     }
-    let out = run.pipe.render(&pixels).map_err(|e| format!("rendering export rays: {e}"))?;
+    let out = run.pipe.render(&pixels).map_err(NerfError::gpu("rendering export rays"))?;
     let mut stats = ExportStats { rays: opts.rays, ..Default::default() };
     let max_res = run.cfg.field.grid.max_resolution;
     let contraction = run.cfg.sampling.scene_contraction;
@@ -218,9 +216,9 @@ pub fn export_points_with_stats(
         checked_attr.push(checked[k] as f32);
     }
     stats.kept = positions.len();
-    let mut cloud = PointCloud::new(positions, bands, values).map_err(|e| e.to_string())?;
+    let mut cloud = PointCloud::new(positions, bands, values)?;
     let attr = |cloud: &mut PointCloud, name: &str, what: &str, v: Vec<f32>| {
-        cloud.add_attribute(name, what, v).map_err(|e| e.to_string())
+        cloud.add_attribute(name, what, v).map_err(NerfError::from)
     };
     attr(&mut cloud, "accumulation", "ray opacity", acc_attr)?;
     attr(&mut cloud, "depth_spread", "q75-q25 of ray weights", spread_attr)?;
@@ -230,7 +228,7 @@ pub fn export_points_with_stats(
     }
     if opts.normals {
         let grads = density_gradients(&run.pipe.ctx, &run.pipe.model, &normalised)
-            .map_err(|e| format!("density normals: {e}"))?;
+            .map_err(NerfError::gpu("density normals"))?;
         let normals = grads
             .iter()
             .zip(&view_dirs)
@@ -267,7 +265,7 @@ pub fn consistency(
     frames: &[usize],
     cands: &[([f64; 3], usize)],
     c: &Consistency,
-) -> Result<(Vec<u32>, Vec<u32>, usize), String> {
+) -> NerfResult<(Vec<u32>, Vec<u32>, usize)> {
     let views: Vec<View> = frames
         .iter()
         .map(|&f| {
@@ -301,7 +299,7 @@ pub fn consistency(
     if checks.is_empty() {
         return Ok((agree, checked, 0));
     }
-    let out = run.pipe.render(&pixels).map_err(|e| format!("rendering consistency rays: {e}"))?;
+    let out = run.pipe.render(&pixels).map_err(NerfError::gpu("rendering consistency rays"))?;
     for (i, &(k, dist, focal)) in checks.iter().enumerate() {
         let d = out.median_depth[i] as f64;
         if (d - dist).abs() <= c.tolerance * dist / focal {

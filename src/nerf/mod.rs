@@ -7,6 +7,7 @@ pub mod camera_poses;
 pub mod config;
 pub mod config_error;
 pub mod depth_targets;
+pub mod error;
 pub mod evaluate;
 pub mod export;
 pub mod kernels;
@@ -21,3 +22,5 @@ pub mod survey;
 pub mod survey_products;
 pub mod trainer;
 pub mod views;
+
+pub use error::{NerfError, NerfResult};

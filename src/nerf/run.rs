@@ -3,13 +3,14 @@
 //! frames and of novel views (orbits, camera paths).
 
 use super::config::ModelConfig;
+use super::error::{NerfError, NerfResult};
 use super::model::Model;
 use super::pipeline::Pipeline;
 use super::rays::GpuCamera;
 use super::trainer::{camera_table, load_run_dataset};
 use super::views::NovelView;
 use crate::data::{Dataset, PoseTransform};
-use crate::gpu::Context;
+use crate::gpu::{Context, GpuResult};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -39,66 +40,67 @@ pub struct RenderedView {
 
 impl LoadedRun {
     /// Loads `dir`; errors name the file that is missing or malformed.
-    pub fn load(ctx: &Context, dir: &Path) -> Result<Self, String> {
+    pub fn load(ctx: &Context, dir: &Path) -> NerfResult<Self> {
         if !dir.join("config.yaml").is_file() || !dir.join("checkpoints/latest.msnp").is_file() {
-            return Err(format!(
-                "{}: not a run folder (it needs config.yaml and checkpoints/latest.msnp, as `msnerf train` writes)",
-                dir.display()
+            return Err(NerfError::file(
+                dir,
+                "not a run folder (it needs config.yaml and checkpoints/latest.msnp, as `msnerf train` writes)",
             ));
         }
-        let cfg = ModelConfig::load(&dir.join("config.yaml")).map_err(|e| e.to_string())?;
+        let cfg = ModelConfig::load(&dir.join("config.yaml"))?;
         let info_path = dir.join("dataset.json");
         let info: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(&info_path)
-                .map_err(|e| format!("{}: {e} (is this a run folder?)", info_path.display()))?,
+                .map_err(|e| NerfError::file(&info_path, format!("{e} (is this a run folder?)")))?,
         )
-        .map_err(|e| format!("{}: {e}", info_path.display()))?;
-        let data = info["data"].as_str().ok_or_else(|| format!("{}: key `data` missing", info_path.display()))?;
+        .map_err(|e| NerfError::file(&info_path, e))?;
+        let data = info["data"].as_str().ok_or_else(|| NerfError::key(&info_path, "data", "missing"))?;
         // `band_indices`: the run trained on these bands only (`msnerf train --bands`, sweep axis `bands`).
         let band_indices: Option<Vec<usize>> = serde_json::from_value(info["band_indices"].clone())
-            .map_err(|e| format!("{}: key `band_indices`: {e}", info_path.display()))?;
+            .map_err(|e| NerfError::key(&info_path, "band_indices", e))?;
         let ds = load_run_dataset(Path::new(data), band_indices.as_deref(), &cfg.sampling)?;
         let checkpoint = dir.join("checkpoints/latest.msnp");
-        let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len()).map_err(|e| e.to_string())?;
-        model.store.load(&checkpoint).map_err(|e| e.to_string())?;
-        let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
+        let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len())?;
+        model.store.load(&checkpoint)?;
+        let mut pipe =
+            Pipeline::new(ctx, model, &camera_table(&ds)).map_err(NerfError::gpu("building the pipeline"))?;
         pipe.appearance_rows = Some(ds.split_indices(crate::data::Split::Train));
         let transform = ds.pose_transform();
         Ok(Self { dir: dir.to_path_buf(), cfg, ds, transform, pipe, checkpoint, novel: Vec::new() })
     }
 
     /// Renders every pixel of frame `frame` (its own camera and pose).
-    pub fn render_view(&mut self, frame: usize) -> Result<RenderedView, String> {
+    pub fn render_view(&mut self, frame: usize) -> NerfResult<RenderedView> {
         let (w, h) = (self.ds.width as usize, self.ds.height as usize);
-        self.render_camera(frame, w, h).map_err(|e| format!("rendering frame {frame}: {e}"))
+        self.render_camera(frame, w, h).map_err(NerfError::gpu(format!("rendering frame {frame}")))
     }
 
     /// Puts `views` in the pipeline's camera table after the dataset's frames (replacing earlier novel views), so
     /// that [`LoadedRun::render_novel_view`] can render them.
-    pub fn set_novel_views(&mut self, views: &[NovelView]) -> Result<(), String> {
+    pub fn set_novel_views(&mut self, views: &[NovelView]) -> NerfResult<()> {
         let mut table = camera_table(&self.ds);
         for v in views {
             let c2w: [[f32; 4]; 3] = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| v.c2w[r][c] as f32));
             table.push(GpuCamera::new(&v.camera, &c2w));
         }
-        self.pipe.set_cameras(&table).map_err(|e| format!("camera table: {e}"))?;
+        self.pipe.set_cameras(&table).map_err(NerfError::gpu("camera table"))?;
         self.novel = views.to_vec();
         Ok(())
     }
 
     /// Renders novel view `k` of the last [`LoadedRun::set_novel_views`] at its own size; `frame` of the result is
     /// its index in the camera table.
-    pub fn render_novel_view(&mut self, k: usize) -> Result<RenderedView, String> {
-        let v = self.novel.get(k).ok_or_else(|| format!("novel view {k} was not set"))?;
+    pub fn render_novel_view(&mut self, k: usize) -> NerfResult<RenderedView> {
+        let v = self.novel.get(k).ok_or_else(|| NerfError::invalid(format!("novel view {k}"), "was not set"))?;
         let (w, h, name) = (v.camera.width as usize, v.camera.height as usize, v.name.clone());
-        self.render_camera(self.ds.frames.len() + k, w, h).map_err(|e| format!("rendering {name}: {e}"))
+        self.render_camera(self.ds.frames.len() + k, w, h).map_err(NerfError::gpu(format!("rendering {name}")))
     }
 
-    fn render_camera(&mut self, cam: usize, w: usize, h: usize) -> Result<RenderedView, String> {
+    fn render_camera(&mut self, cam: usize, w: usize, h: usize) -> GpuResult<RenderedView> {
         let pixels: Vec<u32> =
             (0..h as u32).flat_map(|r| (0..w as u32).flat_map(move |c| [cam as u32, r, c])).collect();
         let t = Instant::now();
-        let out = self.pipe.render(&pixels).map_err(|e| e.to_string())?;
+        let out = self.pipe.render(&pixels)?;
         let scale = 1.0 / self.transform.scale as f32;
         Ok(RenderedView {
             frame: cam,

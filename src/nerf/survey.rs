@@ -32,7 +32,7 @@ pub enum SurveyError {
     Invalid { what: String, reason: String },
     /// Rendering failed.
     #[error("rendering the survey grid: {0}")]
-    Render(String),
+    Render(#[from] super::error::NerfError),
     /// Writing a product failed.
     #[error(transparent)]
     Output(#[from] crate::output::OutputError),
@@ -179,7 +179,7 @@ pub fn seen_bounds(run: &mut LoadedRun) -> Result<[f64; 4], SurveyError> {
     let (w, h) = (run.ds.width, run.ds.height);
     // 1. Ground height from the centre pixels.
     let pixels: Vec<u32> = frames.iter().flat_map(|&f| [f as u32, h / 2, w / 2]).collect();
-    let out = run.pipe.render(&pixels).map_err(|e| SurveyError::Render(e.to_string()))?;
+    let out = run.pipe.render(&pixels).map_err(super::error::NerfError::gpu("the survey rays"))?;
     let mut zs = Vec::new();
     for (k, &f) in frames.iter().enumerate() {
         if out.accumulation[k] < 0.5 || !out.median_depth[k].is_finite() {
@@ -306,7 +306,7 @@ pub fn render_survey(
         let n = rows * grid.width;
         let pixels: Vec<u32> =
             (row0..row0 + rows).flat_map(|r| (0..grid.width).flat_map(move |c| [cam, r as u32, c as u32])).collect();
-        let out = run.pipe.render(&pixels).map_err(|e| SurveyError::Render(e.to_string()))?;
+        let out = run.pipe.render(&pixels).map_err(super::error::NerfError::gpu("the survey rays"))?;
         stats.rays += n;
         let mut height = vec![f32::NAN; n];
         let mut values = vec![f32::NAN; n * nb];

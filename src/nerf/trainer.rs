@@ -13,6 +13,7 @@
 //! Ctrl-C saves a checkpoint and stops; `--resume` continues from the latest one; `--time-budget` stops in time.
 
 use super::config::ModelConfig;
+use super::error::{NerfError, NerfResult};
 use super::model::Model;
 use super::pipeline::{Batch, Pipeline, StepStats};
 use super::rays::GpuCamera;
@@ -107,7 +108,7 @@ pub struct EvalSet {
     pub targets: Vec<f32>,
 }
 
-pub fn eval_set(ds: &Dataset, n: usize, seed: u64) -> Result<EvalSet, String> {
+pub fn eval_set(ds: &Dataset, n: usize, seed: u64) -> NerfResult<EvalSet> {
     let frames = ds.split_indices(Split::Eval);
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_e7a1);
     let b = ds.n_bands();
@@ -117,7 +118,7 @@ pub fn eval_set(ds: &Dataset, n: usize, seed: u64) -> Result<EvalSet, String> {
     }
     let per = n.div_ceil(frames.len());
     for &fi in &frames {
-        let img = ds.read_frame(fi).map_err(|e| e.to_string())?;
+        let img = ds.read_frame(fi)?;
         let mut px = vec![0.0f32; b];
         for _ in 0..per {
             let (row, col) = (rng.random_range(0..ds.height), rng.random_range(0..ds.width));
@@ -131,8 +132,8 @@ pub fn eval_set(ds: &Dataset, n: usize, seed: u64) -> Result<EvalSet, String> {
 }
 
 /// Held-out PSNR (data range 1) over the eval set: mean squared error over unmasked pixels and all bands.
-pub fn eval_psnr(pipe: &mut Pipeline, set: &EvalSet) -> Result<f64, String> {
-    let out = pipe.render(&set.pixels).map_err(|e| e.to_string())?;
+pub fn eval_psnr(pipe: &mut Pipeline, set: &EvalSet) -> NerfResult<f64> {
+    let out = pipe.render(&set.pixels).map_err(NerfError::gpu("rendering the held-out pixels"))?;
     let b = pipe.model.bands;
     let (mut sq, mut count) = (0.0f64, 0.0f64);
     for i in 0..set.pixels.len() / 3 {
@@ -151,14 +152,15 @@ fn ckpt_paths(run: &Path) -> (PathBuf, PathBuf) {
     (d.join("latest.msnp"), d.join("latest.json"))
 }
 
-fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState, ds: &Dataset) -> Result<(), String> {
+fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState, ds: &Dataset) -> NerfResult<()> {
     let (p, s) = ckpt_paths(run);
-    std::fs::create_dir_all(p.parent().expect("has parent")).map_err(|e| format!("{}: {e}", run.display()))?;
-    pipe.model.store.save(&p).map_err(|e| e.to_string())?;
+    let dir = p.parent().expect("has parent");
+    std::fs::create_dir_all(dir).map_err(|e| NerfError::file(dir, e))?;
+    pipe.model.store.save(&p)?;
     write_atomic_str(&s, serde_json::to_string_pretty(state).expect("serialisable").as_bytes())?;
     let store = &pipe.model.store;
     if let Some(slot) = store.slot(super::model::POSE_SLOT) {
-        let poses = store.download_slot(store.params(), slot).map_err(|e| e.to_string())?;
+        let poses = store.download_slot(store.params(), slot).map_err(NerfError::gpu("reading the refined poses"))?;
         let doc =
             super::camera_poses::camera_poses_json(ds, &ds.pose_transform(), &ds.split_indices(Split::Train), &poses);
         write_atomic_str(&run.join("camera_poses.json"), serde_json::to_string_pretty(&doc).expect("json").as_bytes())?;
@@ -185,28 +187,28 @@ pub fn load_run_dataset(
     data: &Path,
     bands: Option<&[usize]>,
     sampling: &crate::nerf::config::SamplingConfig,
-) -> Result<Dataset, String> {
+) -> NerfResult<Dataset> {
     let opts = LoadOptions {
         normalization: sampling.pose_normalization,
         drop_outliers: sampling.drop_outlier_cameras,
         ..Default::default()
     };
-    let mut ds = load_dataset(data, &opts).map_err(|e| e.to_string())?;
+    let mut ds = load_dataset(data, &opts)?;
     if let Some(b) = bands {
-        ds.select_bands(b).map_err(|e| e.to_string())?;
+        ds.select_bands(b)?;
     }
     Ok(ds)
 }
 
 /// Runs training; returns the summary. Errors are messages that name the file, key or step.
-pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String> {
+pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let cfg = &opts.model;
     let ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &cfg.sampling)?;
     let bands = ds.n_bands();
-    cfg.band_weights(bands).map_err(|e| e.to_string())?;
+    cfg.band_weights(bands)?;
     let train_frames = ds.split_indices(Split::Train);
     if train_frames.is_empty() {
-        return Err(format!("{}: the train split is empty", ds.transforms_path.display()));
+        return Err(NerfError::key(&ds.transforms_path, "frames", "the train split is empty"));
     }
     if cfg.camera_optimizer.enabled() && ds.aerial_layout() {
         // Measured on the campus flight (docs/geometry.md, "On an NVIDIA H100"): with exact poses SO3xR3 moved the
@@ -220,8 +222,11 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         );
     }
     let run = &opts.out;
-    std::fs::create_dir_all(run).map_err(|e| format!("{}: {e}", run.display()))?;
-    write_atomic_str(&run.join("config.yaml"), serde_yaml::to_string(cfg).map_err(|e| e.to_string())?.as_bytes())?;
+    std::fs::create_dir_all(run).map_err(|e| NerfError::file(run, e))?;
+    write_atomic_str(
+        &run.join("config.yaml"),
+        serde_yaml::to_string(cfg).expect("a model config serialises").as_bytes(),
+    )?;
     write_atomic_str(&run.join("dataparser_transforms.json"), ds.pose_transform().to_json().as_bytes())?;
     let ds_info = serde_json::json!({
         "data": opts.data, "bands": ds.bands, "band_indices": opts.bands, "width": ds.width, "height": ds.height,
@@ -230,17 +235,17 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     });
     write_atomic_str(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
 
-    let model = Model::new(ctx, cfg, bands, ds.frames.len()).map_err(|e| e.to_string())?;
-    let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(|e| e.to_string())?;
+    let model = Model::new(ctx, cfg, bands, ds.frames.len())?;
+    let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(NerfError::gpu("building the pipeline"))?;
     pipe.n_train_cameras = train_frames.len();
     pipe.appearance_rows = Some(train_frames.clone());
     let mut state =
         TrainerState { step: 0, schedule: ProposalSchedule::default(), best_eval_psnr: None, elapsed_s: 0.0 };
     if opts.resume {
         let (p, s) = ckpt_paths(run);
-        let text = std::fs::read_to_string(&s).map_err(|e| format!("{}: {e} (nothing to resume)", s.display()))?;
-        state = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", s.display()))?;
-        pipe.model.store.load(&p).map_err(|e| e.to_string())?;
+        let text = std::fs::read_to_string(&s).map_err(|e| NerfError::file(&s, format!("{e} (nothing to resume)")))?;
+        state = serde_json::from_str(&text).map_err(|e| NerfError::file(&s, e))?;
+        pipe.model.store.load(&p)?;
         pipe.step = state.step;
         pipe.schedule = state.schedule;
     }
@@ -252,8 +257,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
             resample_every: opts.resample_every,
             seed: cfg.trainer.seed ^ state.step,
         },
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let eval = eval_set(&ds, opts.eval_pixels, cfg.trainer.seed)?;
     let near_far = (cfg.sampling.near as f64, cfg.sampling.far as f64);
     let depth = match &cfg.loss.depth {
@@ -266,9 +270,9 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         .create(true)
         .append(true)
         .open(&metrics_path)
-        .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
-    let mut log = |v: serde_json::Value| -> Result<(), String> {
-        writeln!(metrics, "{v}").and_then(|_| metrics.flush()).map_err(|e| format!("{}: {e}", metrics_path.display()))
+        .map_err(|e| NerfError::file(&metrics_path, e))?;
+    let mut log = |v: serde_json::Value| -> NerfResult<()> {
+        writeln!(metrics, "{v}").and_then(|_| metrics.flush()).map_err(|e| NerfError::file(&metrics_path, e))
     };
 
     let max_steps = cfg.trainer.max_steps;
@@ -282,7 +286,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
         b
     });
     // Pipeline compilation (lavapipe: at each kernel's first dispatch) happens here, before the clock starts.
-    pipe.warm_up().map_err(|e| format!("kernel warm-up: {e}"))?;
+    pipe.warm_up().map_err(NerfError::gpu("kernel warm-up"))?;
     ctx.with_ledger(|l| l.reset_peaks());
     let start = Instant::now();
     let elapsed0 = state.elapsed_s;
@@ -303,7 +307,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
             summary.stopped_early = Some(format!("time budget of {:.0} s reached", opts.time_budget_s.unwrap_or(0.0)));
             break;
         }
-        cache.step().map_err(|e| e.to_string())?;
+        cache.step()?;
         let n_depth = depth.as_ref().map_or(0, |d| d.rays_per_batch(r));
         let mut batches = vec![cache.sample_pixels(&mut rng, r - n_depth)];
         if let Some(d) = depth.as_ref().filter(|_| n_depth > 0) {
@@ -321,7 +325,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
             }
         }
         let t0 = Instant::now();
-        let stats = pipe.train_step(&batch).map_err(|e| format!("step {}: {e}", state.step))?;
+        let stats = pipe.train_step(&batch).map_err(NerfError::gpu(format!("step {}", state.step)))?;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         step_ms_total += ms;
         gpu_ms_total += stats.timing.gpu_ms;
@@ -335,11 +339,12 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
             let what = stats.poisoned.clone().unwrap_or_default();
             log(serde_json::json!({"step": stats.step, "skipped": true, "poisoned_buffer": what}))?;
             if poisoned_in_a_row >= MAX_POISONED_STEPS {
-                return Err(format!(
-                    "step {}: {MAX_POISONED_STEPS} steps in a row produced NaN/Inf (first in: {what}); stopping. The last good checkpoint is in {}",
-                    stats.step,
-                    run.join("checkpoints").display()
-                ));
+                return Err(NerfError::NonFinite {
+                    step: stats.step,
+                    buffer: what,
+                    count: MAX_POISONED_STEPS,
+                    checkpoints: run.join("checkpoints"),
+                });
             }
             continue;
         }
@@ -409,6 +414,6 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> Result<TrainSummary, String>
     Ok(summary)
 }
 
-fn write_atomic_str(path: &Path, bytes: &[u8]) -> Result<(), String> {
-    atomic::write_bytes(path, bytes).map_err(|e| e.to_string())
+fn write_atomic_str(path: &Path, bytes: &[u8]) -> NerfResult<()> {
+    atomic::write_bytes(path, bytes).map_err(|e| NerfError::file(path, e))
 }

@@ -7,6 +7,7 @@
 //! Defaults: centre = the least-squares point closest to the training cameras' optical axes (nerfstudio's "focus"
 //! centre); radius = their mean horizontal distance from it; height = their mean height above it.
 
+use super::error::{NerfError, NerfResult};
 use crate::data::pose::Mat4;
 use crate::data::{Camera, Dataset, PoseTransform, Split};
 use crate::sim::cameras::{heading_pose, look_at};
@@ -66,9 +67,9 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
 
 /// The default orbit of the training cameras (normalised poses). With parallel optical axes (a nadir grid) there is
 /// no closest point: the centre is then one normalised unit (the camera spread) along the mean viewing direction.
-pub fn orbit_frame(poses: &[Mat4]) -> Result<OrbitFrame, String> {
+pub fn orbit_frame(poses: &[Mat4]) -> NerfResult<OrbitFrame> {
     if poses.is_empty() {
-        return Err("no training cameras to derive an orbit from".into());
+        return Err(NerfError::invalid("orbit", "no training cameras to derive an orbit from"));
     }
     let n = poses.len() as f64;
     let origin = |p: &Mat4| [p[0][3], p[1][3], p[2][3]];
@@ -105,12 +106,12 @@ pub fn orbit_frame(poses: &[Mat4]) -> Result<OrbitFrame, String> {
 }
 
 /// The orbit's cameras (`orbit_000` ...), in the normalised frame.
-pub fn orbit_views(ds: &Dataset, transform: &PoseTransform, desc: &OrbitDesc) -> Result<Vec<NovelView>, String> {
+pub fn orbit_views(ds: &Dataset, transform: &PoseTransform, desc: &OrbitDesc) -> NerfResult<Vec<NovelView>> {
     if desc.views == 0 {
-        return Err("--orbit-views: must be at least 1".into());
+        return Err(NerfError::invalid("--orbit-views", "must be at least 1"));
     }
     let check = |flag: &str, v: Option<f64>, ok: &dyn Fn(f64) -> bool, want: &str| match v {
-        Some(x) if !x.is_finite() || !ok(x) => Err(format!("{flag}: must be {want}, got {x}")),
+        Some(x) if !x.is_finite() || !ok(x) => Err(NerfError::invalid(flag, format!("must be {want}, got {x}"))),
         _ => Ok(()),
     };
     check("--orbit-radius", desc.radius, &|x| x > 0.0, "positive")?;
@@ -123,14 +124,14 @@ pub fn orbit_views(ds: &Dataset, transform: &PoseTransform, desc: &OrbitDesc) ->
     let s = transform.scale;
     let radius = desc.radius.map_or(of.radius, |r| r * s);
     if radius <= 0.0 {
-        return Err("the training cameras sit on the orbit centre: give --orbit-radius".into());
+        return Err(NerfError::invalid("--orbit-radius", "the training cameras sit on the orbit centre: give one"));
     }
     let height = match (desc.height, desc.pitch_deg) {
         (Some(h), _) => h * s,
         (None, Some(p)) => -radius * p.to_radians().tan(),
         (None, None) => of.height,
     };
-    let camera = ds.frames.first().ok_or("the dataset has no frames")?.camera;
+    let camera = ds.frames.first().ok_or_else(|| NerfError::file(&ds.root, "the dataset has no frames"))?.camera;
     let c = of.centre;
     let views = (0..desc.views)
         .map(|k| {

@@ -13,6 +13,7 @@
 //!
 //! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
 
+use super::SettingError;
 use super::{vec_width, ParamSlice, RowSlice};
 use crate::gpu::{BufferDesc, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, MemoryCategory, Recorder};
 use crate::shaders;
@@ -52,21 +53,27 @@ impl HashGridConfig {
             .powf(1.0 / (self.n_levels - 1) as f64)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         let f = self.features_per_level;
         if self.n_levels == 0 || self.n_levels > 32 {
-            return Err(format!("n_levels must be 1..=32, got {}", self.n_levels));
+            return Err(SettingError::new("n_levels", format!("must be 1..=32, got {}", self.n_levels)));
         }
         if ![1, 2, 4, 8].contains(&f) {
-            return Err(format!("features_per_level must be 1, 2, 4 or 8, got {f}"));
+            return Err(SettingError::new("features_per_level", format!("must be 1, 2, 4 or 8, got {f}")));
         }
         if !(8..=24).contains(&self.log2_hashmap_size) {
-            return Err(format!("log2_hashmap_size must be 8..=24, got {}", self.log2_hashmap_size));
+            return Err(SettingError::new(
+                "log2_hashmap_size",
+                format!("must be 8..=24, got {}", self.log2_hashmap_size),
+            ));
         }
         if self.base_resolution < 2 || self.max_resolution < self.base_resolution {
-            return Err(format!(
-                "need 2 <= base_resolution <= max_resolution, got {} and {}",
-                self.base_resolution, self.max_resolution
+            return Err(SettingError::new(
+                "base_resolution/max_resolution",
+                format!(
+                    "need 2 <= base_resolution <= max_resolution, got {} and {}",
+                    self.base_resolution, self.max_resolution
+                ),
             ));
         }
         Ok(())
@@ -226,7 +233,7 @@ impl HashGrid {
 
     /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (see hashgrid_bwd.comp).
     pub fn with_backward_run(ctx: &crate::gpu::Context, config: &HashGridConfig, run: u32) -> GpuResult<Self> {
-        config.validate().map_err(|msg| GpuError::Config { what: "hash grid config".into(), msg })?;
+        config.validate().map_err(|e| GpuError::Config { what: "hash grid config".into(), msg: e.to_string() })?;
         if !(1..=64).contains(&run) {
             return Err(GpuError::Buffer {
                 name: "hash grid".into(),

@@ -29,6 +29,7 @@
 //! the backward pass's ReLU mask, the weight gradients' inputs) stores them as fp16 pairs in 32-bit words (spec
 //! constants `HALF_*`); inputs, outputs, deltas and all arithmetic stay fp32.
 
+use super::SettingError;
 use super::{vec_width, ParamSlice, RowSlice};
 use crate::gpu::{Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder};
 use crate::shaders;
@@ -73,15 +74,18 @@ pub struct MlpConfig {
 }
 
 impl MlpConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         if ![16, 32, 64, 128].contains(&self.width) {
-            return Err(format!("MLP width must be 16, 32, 64 or 128, got {}", self.width));
+            return Err(SettingError::new("width", format!("must be 16, 32, 64 or 128, got {}", self.width)));
         }
         if self.n_hidden_layers == 0 || self.n_hidden_layers > 8 {
-            return Err(format!("n_hidden_layers must be 1..=8, got {}", self.n_hidden_layers));
+            return Err(SettingError::new("n_hidden_layers", format!("must be 1..=8, got {}", self.n_hidden_layers)));
         }
         if self.n_input == 0 || self.n_input > 256 || self.n_output == 0 || self.n_output > 256 {
-            return Err(format!("MLP input/output widths must be 1..=256, got {} and {}", self.n_input, self.n_output));
+            return Err(SettingError::new(
+                "n_input/n_output",
+                format!("must be 1..=256, got {} and {}", self.n_input, self.n_output),
+            ));
         }
         Ok(())
     }
@@ -220,25 +224,28 @@ impl MlpTiling {
             Self { shared_tiles: true, mac_budget: 4096, wgrad_tile_j: 4, wgrad_tile_k: 4, wgrad_rows: 1 }
         };
         match &crate::util::env::settings().mlp_tiling {
-            Some(v) => t.with_overrides(v).map_err(|msg| GpuError::Config { what: "MSNERF_MLP_TILING".into(), msg }),
+            Some(v) => t
+                .with_overrides(v)
+                .map_err(|e| GpuError::Config { what: "MSNERF_MLP_TILING".into(), msg: e.to_string() }),
             None => Ok(t),
         }
     }
 
     /// `key=value` pairs separated by commas; keys are the field names (`shared` for `shared_tiles`, 0 or 1).
-    pub fn with_overrides(mut self, spec: &str) -> Result<Self, String> {
+    pub fn with_overrides(mut self, spec: &str) -> Result<Self, SettingError> {
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-            let (key, value) = part.split_once('=').ok_or_else(|| format!("{part:?} is not key=value"))?;
-            let n: usize = value.trim().parse().map_err(|_| format!("{key}: {value:?} is not a number"))?;
+            let (key, value) = part.split_once('=').ok_or_else(|| SettingError::new(part, "is not key=value"))?;
+            let n: usize =
+                value.trim().parse().map_err(|_| SettingError::new(key, format!("{value:?} is not a number")))?;
             if key.trim() == "shared" {
                 if n > 1 {
-                    return Err(format!("shared: {n} is not 0 or 1"));
+                    return Err(SettingError::new("shared", format!("{n} is not 0 or 1")));
                 }
                 self.shared_tiles = n == 1;
                 continue;
             }
             if n == 0 || n > 1 << 16 {
-                return Err(format!("{key}: {n} is outside 1..=65536"));
+                return Err(SettingError::new(key, format!("{n} is outside 1..=65536")));
             }
             match key.trim() {
                 "mac_budget" => self.mac_budget = n,
@@ -248,7 +255,7 @@ impl MlpTiling {
                 "wgrad_rows" => self.wgrad_rows = n,
                 other => {
                     let keys = "shared, mac_budget, wgrad_tile, wgrad_tile_j, wgrad_tile_k, wgrad_rows";
-                    return Err(format!("unknown key {other:?} ({keys})"));
+                    return Err(SettingError::new(other, format!("unknown key ({keys})")));
                 }
             }
         }
@@ -418,7 +425,7 @@ impl Mlp {
 
     /// With explicit block sizes (benchmarks and tests compare them).
     pub fn with_tiling(ctx: &Context, config: &MlpConfig, tiling: MlpTiling) -> GpuResult<Self> {
-        config.validate().map_err(|msg| GpuError::Config { what: "MLP config".into(), msg })?;
+        config.validate().map_err(|e| GpuError::Config { what: "MLP config".into(), msg: e.to_string() })?;
         Ok(Self { config: config.clone(), tiling, reduce: Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)? })
     }
 
@@ -855,11 +862,11 @@ mod tests {
         assert_eq!(o, want);
         let both = t.with_overrides("wgrad_tile=16").expect("valid");
         assert_eq!((both.wgrad_tile_j, both.wgrad_tile_k), (16, 16));
-        assert!(t.with_overrides("shared=2").unwrap_err().contains("shared"));
-        assert!(t.with_overrides("tile=3").unwrap_err().contains("unknown key \"tile\""));
-        assert!(t.with_overrides("wgrad_tile=x").unwrap_err().contains("wgrad_tile"));
-        assert!(t.with_overrides("wgrad_rows=0").unwrap_err().contains("wgrad_rows"));
-        assert!(t.with_overrides("mac_budget").unwrap_err().contains("key=value"));
+        assert!(t.with_overrides("shared=2").unwrap_err().to_string().contains("shared"));
+        assert_eq!(t.with_overrides("tile=3").unwrap_err().key, "tile");
+        assert!(t.with_overrides("wgrad_tile=x").unwrap_err().to_string().contains("wgrad_tile"));
+        assert!(t.with_overrides("wgrad_rows=0").unwrap_err().to_string().contains("wgrad_rows"));
+        assert!(t.with_overrides("mac_budget").unwrap_err().to_string().contains("key=value"));
     }
 
     #[test]

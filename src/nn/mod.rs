@@ -7,7 +7,10 @@ pub mod adam;
 pub mod hashgrid;
 pub mod mlp;
 pub mod params;
+pub mod setting_error;
 pub mod sh;
+
+pub use setting_error::SettingError;
 
 use crate::gpu::{GpuBuffer, LargeArray};
 

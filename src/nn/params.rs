@@ -20,6 +20,7 @@ mod file;
 
 pub use file::Checksum;
 
+use super::SettingError;
 use crate::gpu::{Binding, Context, GpuError, GpuResult, LargeArray, MemoryCategory, Recorder};
 use crate::nn::adam::AdamHyper;
 use crate::ops;
@@ -82,15 +83,16 @@ impl ParamGroup {
         }
     }
 
-    fn validate(&self) -> Result<(), String> {
+    fn validate(&self) -> Result<(), SettingError> {
         let h = &self.adam;
+        let key = || format!("group {:?}", self.name);
         let ok_lr = self.lr0 == 0.0 || (self.lr0 > 0.0 && self.lr_final > 0.0);
         if !(self.lr0.is_finite() && self.lr_final.is_finite() && ok_lr) {
-            return Err(format!("group {:?}: learning rates must be finite, lr0 >= 0 and lr_final > 0", self.name));
+            return Err(SettingError::new(key(), "learning rates must be finite, lr0 >= 0 and lr_final > 0"));
         }
         let beta_ok = |b: f64| (0.0..1.0).contains(&b);
         if !(beta_ok(h.beta1) && beta_ok(h.beta2) && h.eps > 0.0 && h.weight_decay >= 0.0) {
-            return Err(format!("group {:?}: bad Adam hyper-parameters {h:?}", self.name));
+            return Err(SettingError::new(key(), format!("bad Adam hyper-parameters {h:?}")));
         }
         Ok(())
     }
@@ -187,7 +189,7 @@ impl ParamLayout {
         }
         let chunk = 1usize << chunk_shift;
         for (i, g) in groups.iter().enumerate() {
-            g.validate().map_err(ParamError::Layout)?;
+            g.validate().map_err(|e| ParamError::Layout(e.to_string()))?;
             if g.name.is_empty() || g.name.len() > MAX_NAME_BYTES || groups[..i].iter().any(|o| o.name == g.name) {
                 return err(format!("group name {:?} is empty, too long or repeated", g.name));
             }

@@ -17,6 +17,9 @@ pub enum SweepError {
     /// A stage of a cell's run failed (evaluating, comparing the cloud).
     #[error("{what}: {reason}")]
     Stage { what: String, reason: String },
+    /// Training, loading or exporting a cell's run failed.
+    #[error("{what}: {err}")]
+    Run { what: String, err: Box<crate::nerf::NerfError> },
     /// A plot could not be drawn or written.
     #[error("drawing a plot: {0}")]
     Plot(String),

@@ -95,7 +95,7 @@ pub fn run_sweep(ctx: &Context, grid: &Grid, opts: &SweepOptions) -> Result<Swee
             load_run_dataset(&opts.data, Some(b), &cc.model.sampling).map_err(|e| SweepError::Cell {
                 index: c.index,
                 describe: c.describe(),
-                reason: e,
+                reason: e.to_string(),
             })?;
         }
     }
@@ -196,7 +196,7 @@ pub fn run_cell(
             stop: None,
             bands: cc.bands.clone(),
         };
-        let s = train(ctx, &t).map_err(|e| SweepError::Stage { what: "training".into(), reason: e })?;
+        let s = train(ctx, &t).map_err(|e| SweepError::Run { what: "training".into(), err: Box::new(e) })?;
         let seg_steps = s.steps - steps;
         steps = s.steps;
         elapsed = s.elapsed_s;
@@ -273,7 +273,7 @@ fn evaluate_point(
     step: u64,
 ) -> Result<(TimePoint, Vec<String>, u64), SweepError> {
     let mut run = LoadedRun::load(ctx, dir)
-        .map_err(|e| SweepError::Stage { what: "loading the checkpoint".into(), reason: e })?;
+        .map_err(|e| SweepError::Run { what: "loading the checkpoint".into(), err: Box::new(e) })?;
     let has_depth = run.ds.split_indices(Split::Eval).iter().all(|&f| run.ds.frames[f].depth.is_some());
     let rep = crate::nerf::evaluate::evaluate(&mut run, Split::Eval, Some(views), None, has_depth)
         .map_err(|e| SweepError::Stage { what: "evaluating".into(), reason: e.to_string() })?;
@@ -317,7 +317,7 @@ fn geometry_score(
         let reference = crate::output::pointcloud::read_ply(&truth).map_err(|e| SweepError::file(&truth, e))?;
         let opts = crate::nerf::export::ExportOptions { rays: SWEEP_EXPORT_RAYS, ..Default::default() };
         let cloud = crate::nerf::export::export_points(run, &opts)
-            .map_err(|e| SweepError::Stage { what: "exporting the cloud".into(), reason: e })?;
+            .map_err(|e| SweepError::Run { what: "exporting the cloud".into(), err: Box::new(e) })?;
         if !cloud.is_empty() {
             let c = CompareOptions { threshold: SWEEP_CLOUD_THRESHOLD_M, ..Default::default() };
             let r = compare_clouds_with(&cloud, &reference, &c, &AccuracyOptions::default()).map_err(|e| {

@@ -5,6 +5,7 @@
 //! The CSV is written by hand: three flat tables of numbers and identifiers, where RFC 4180 quoting is a few lines
 //! and a dependency would buy nothing (the tests read the files back with the `csv` crate).
 
+use super::error::SweepError;
 use super::grid::Grid;
 use super::pareto::{memory_front, time_front_cells};
 use super::result::CellResult;
@@ -202,7 +203,7 @@ pub fn write_tables(
     data: &Path,
     results: &[CellResult],
     out: &Path,
-) -> Result<Vec<PathBuf>, String> {
+) -> Result<Vec<PathBuf>, SweepError> {
     let json = SweepJson {
         grid,
         machine,
@@ -214,12 +215,12 @@ pub fn write_tables(
         ("cells.csv", cells_csv(results)),
         ("points.csv", points_csv(results)),
         ("kernels.csv", kernels_csv(results)),
-        ("sweep.json", serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?),
+        ("sweep.json", serde_json::to_string_pretty(&json).expect("the sweep table serialises")),
     ];
     let mut paths = Vec::new();
     for (name, text) in files {
         let p = out.join(name);
-        atomic::write_bytes(&p, text.as_bytes()).map_err(|e| e.to_string())?;
+        atomic::write_bytes(&p, text.as_bytes())?;
         paths.push(p);
     }
     Ok(paths)
