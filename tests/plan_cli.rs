@@ -160,6 +160,8 @@ fn train_with_hardware_refuses_or_trains_with_the_profile() {
             "multispectral-nerf",
             "--hardware",
             "lavapipe",
+            "--rays-per-batch",
+            "4096",
             "--rays-per-chunk",
             "4096",
         ])

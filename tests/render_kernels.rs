@@ -8,7 +8,7 @@ mod common;
 use common::{gpu, rng};
 use msnerf::data::camera::{Camera, CameraModel, Distortion};
 use msnerf::gpu::{Context, GpuBuffer, MemoryCategory};
-use msnerf::nerf::buffers::RAY_OUT_FIXED;
+use msnerf::nerf::buffers::{RayOut, RAY_OUT_FIXED};
 use msnerf::nerf::config::DepthLoss;
 use msnerf::nerf::kernels::{
     CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
@@ -413,18 +413,28 @@ fn composite_matches_twin_for_every_background() {
             }
             check_vals(&gw[i * n..(i + 1) * n], &t.weights, "weights");
             let ro = &go[i * (RAY_OUT_FIXED + bb)..(i + 1) * (RAY_OUT_FIXED + bb)];
+            use RayOut::*;
+            let cols =
+                [LossRgb, LossDistortion, Accumulation, MedianDepth, ExpectedDepth, DepthQ25, DepthQ75, LossDepth];
             check_vals(
-                &ro[..5],
-                &[t.loss_rgb, t.loss_dist, t.accumulation, t.median_depth, t.expected_depth],
+                &cols.map(|c| c.of(ro)),
+                &[
+                    t.loss_rgb,
+                    t.loss_dist,
+                    t.accumulation,
+                    t.median_depth,
+                    t.expected_depth,
+                    t.depth_q25,
+                    t.depth_q75,
+                    t.loss_depth,
+                ],
                 "ray outputs",
             );
-            check_vals(&ro[6..8], &[t.depth_q25, t.depth_q75], "depth quantiles");
-            check_vals(&ro[8..9], &[t.loss_depth], "depth loss");
             // A ray without a target (or masked out) has no depth loss; most rays with one have some (a URF target
             // behind every sample, or a Gaussian far from all of them, legitimately gives 0).
             let has = depth_loss.is_some() && cc.depth[2 * i] > 0.0 && cc.targets[i * (bb + 1) + bb] > 0.0;
             if !has {
-                assert_eq!(ro[8], 0.0, "ray {i}: no target, no depth loss");
+                assert_eq!(RayOut::LossDepth.of(ro), 0.0, "ray {i}: no target, no depth loss");
             }
             with_loss += usize::from(has && t.loss_depth != 0.0);
             with_target += usize::from(has);

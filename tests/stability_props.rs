@@ -10,7 +10,7 @@ mod common;
 mod stability_support;
 
 use common::gpu;
-use msnerf::nerf::buffers::RAY_OUT_FIXED;
+use msnerf::nerf::buffers::{RayOut, RAY_OUT_FIXED};
 use msnerf::nerf::kernels::Geometry;
 use msnerf::reference::render as tw;
 use proptest::prelude::*;
@@ -192,7 +192,7 @@ fn gpu_weights_resampling_and_composite_keep_the_invariants() {
             let out = r.composite(&c, true);
             prop_assert!(out.d_raw.iter().chain(&out.d_colour).chain(&out.ray_out).all(|v| v.is_finite()));
             for i in 0..rays.len() {
-                let a = out.ray_out[i * (RAY_OUT_FIXED + 2) + 2]; // RAY_OUT_FIXED fixed columns, 2 bands
+                let a = out.ray_out[i * (RAY_OUT_FIXED + 2) + RayOut::Accumulation.col()]; // 2 bands
                 prop_assert!((-1e-6..=1.0 + 1e-5).contains(&a), "accumulation {a}");
             }
             Ok(())

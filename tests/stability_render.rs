@@ -9,7 +9,7 @@ mod common;
 mod stability_support;
 
 use common::gpu;
-use msnerf::nerf::buffers::RAY_OUT_FIXED;
+use msnerf::nerf::buffers::{RayOut, RAY_OUT_FIXED};
 use msnerf::nerf::kernels::Geometry;
 use msnerf::reference::render as tw;
 use stability_support::*;
@@ -169,7 +169,7 @@ fn dense_media_weights_resampling_composite_and_interlevel_stay_finite() {
         c.background = bg;
         let out = composite_matches_twin(&r, &c, "dense composite");
         for i in 0..nr {
-            let a = out.ray_out[i * (RAY_OUT_FIXED + bands) + 2];
+            let a = out.ray_out[i * (RAY_OUT_FIXED + bands) + RayOut::Accumulation.col()];
             assert!((a - 1.0).abs() < 1e-5, "ray {i}: opaque ray accumulates 1, got {a}");
         }
     }
@@ -207,9 +207,9 @@ fn empty_space_gives_zero_weights_and_finite_everything() {
                 assert!(out.weights.iter().all(|&w| w == 0.0), "all weights zero");
                 for i in 0..nr {
                     let ro = &out.ray_out[i * (RAY_OUT_FIXED + bands)..(i + 1) * (RAY_OUT_FIXED + bands)];
-                    assert_eq!(ro[2], 0.0, "accumulation");
-                    assert_eq!(ro[4], 0.0, "expected depth of an empty ray");
-                    assert_eq!(ro[1], 0.0, "distortion of an empty ray");
+                    assert_eq!(RayOut::Accumulation.of(ro), 0.0, "accumulation");
+                    assert_eq!(RayOut::ExpectedDepth.of(ro), 0.0, "expected depth of an empty ray");
+                    assert_eq!(RayOut::LossDistortion.of(ro), 0.0, "distortion of an empty ray");
                 }
             }
         }
@@ -375,13 +375,15 @@ fn median_and_quantiles_are_exact_crossings() {
         let cross = |level: f64| t_a - (1.0 - level).ln() / sigma;
         let cell = (t_b - t_a) / (ib - ia) as f64;
         let tol = 2e-4 + 1e-3 * cell;
-        assert!(((ro[2] as f64) - total).abs() < 1e-4, "sigma {sigma}: accumulation {} want {total}", ro[2]);
+        let (acc, median) = (RayOut::Accumulation.of(ro) as f64, RayOut::MedianDepth.of(ro) as f64);
+        assert!((acc - total).abs() < 1e-4, "sigma {sigma}: accumulation {acc} want {total}");
         if total >= 0.5 {
             let want = t_a + 2f64.ln() / sigma;
-            assert!((ro[3] as f64 - want).abs() < tol, "sigma {sigma}: median {} want {want}", ro[3]);
+            assert!((median - want).abs() < tol, "sigma {sigma}: median {median} want {want}");
         }
         let (q25, q75) = (cross(0.25 * total), cross(0.75 * total));
-        assert!((ro[6] as f64 - q25).abs() < tol, "sigma {sigma}: q25 {} want {q25}", ro[6]);
-        assert!((ro[7] as f64 - q75).abs() < tol, "sigma {sigma}: q75 {} want {q75}", ro[7]);
+        let (g25, g75) = (RayOut::DepthQ25.of(ro) as f64, RayOut::DepthQ75.of(ro) as f64);
+        assert!((g25 - q25).abs() < tol, "sigma {sigma}: q25 {g25} want {q25}");
+        assert!((g75 - q75).abs() < tol, "sigma {sigma}: q75 {g75} want {q75}");
     }
 }

@@ -19,9 +19,9 @@
 // Backward: g_i = <G, c_i - bg> + dLd/dw_i + dLdepth/dw_i; dL/dsigma_k = delta_k (g_k T_{k+1} - sum_{i>k} g_i w_i);
 //   dL/draw_k = dL/dsigma_k * scale exp(clamp(raw_k, -15, 15)); dL/dc_i = w_i G (+ (1 - A) G for the last sample with
 //   last_sample background). The exclusive prefix of sigma delta is parked in dy_density during the forward pass.
-// Outputs per ray (ray_out, stride 9 + B): loss_rgb, loss_dist, accumulation, median depth, expected depth,
-//   squared error (unweighted, summed over bands), depth quantiles q25 and q75 of the normalised weights, loss_depth,
-//   C_0..C_{B-1} (clamped to [0,1] in evaluation).
+// Outputs per ray (ray_out, stride RAY_OUT_FIXED + B; the named columns of render/ray_out.glsl): loss_rgb, loss_dist,
+//   accumulation, median depth, expected depth, squared error (unweighted, summed over bands), depth quantiles q25
+//   and q75 of the normalised weights, loss_depth, C_0..C_{B-1} (clamped to [0,1] in evaluation).
 // Depths are exact crossings inside an interval, not its midpoint: inside [t0, t1) the density is constant, so the
 //   accumulation there is A_prev + T_i (1 - exp(-sigma (t - t0))) and the level L is crossed at
 //   t = t0 + delta * crossing_frac(u, tau), u = (L - A_prev) / w_i (see render_common.glsl). The median is the
@@ -42,6 +42,7 @@
 #define WG_SIZE 64
 #include "common/index.glsl"
 #include "render/render_common.glsl"
+#include "render/ray_out.glsl"
 layout(local_size_x = WG_SIZE) in;
 layout(std430, binding = 0) readonly buffer Edges { float edges[]; };
 layout(std430, binding = 1) readonly buffer Density { float density[]; };
@@ -62,7 +63,6 @@ layout(push_constant) uniform Push {
 } pc;
 
 const uint MAX_BANDS = 128u;
-const uint RAY_OUT_FIXED = 9u;
 const float DS_EPS = 1e-7;
 const float URF_SIGMA_SCALE = 3.0; // the Gaussian of the URF window has standard deviation s / 3
 const float INV_SQRT_2PI = 0.3989422804014327;
@@ -182,15 +182,15 @@ void main() {
         ray_out[ro + RAY_OUT_FIXED + b] = pc.train != 0u ? c : clamp(isnan(c) ? 0.0 : c, 0.0, 1.0);
         C[b] = 2.0 * band_w[b] * e * pc.rgb_norm * ray_w; // from here on C holds G = dL/dC
     }
-    ray_out[ro] = loss * pc.rgb_norm * ray_w;
-    ray_out[ro + 1u] = dist * pc.dist_norm * ray_w;
-    ray_out[ro + 2u] = A;
-    ray_out[ro + 3u] = median;
-    ray_out[ro + 4u] = expected;
-    ray_out[ro + 5u] = sq * ray_w;
-    ray_out[ro + 6u] = q25;
-    ray_out[ro + 7u] = q75;
-    ray_out[ro + 8u] = loss_depth * pc.depth_norm * ray_w;
+    ray_out[ro + RO_LOSS_RGB] = loss * pc.rgb_norm * ray_w;
+    ray_out[ro + RO_LOSS_DISTORTION] = dist * pc.dist_norm * ray_w;
+    ray_out[ro + RO_ACCUMULATION] = A;
+    ray_out[ro + RO_MEDIAN_DEPTH] = median;
+    ray_out[ro + RO_EXPECTED_DEPTH] = expected;
+    ray_out[ro + RO_SQUARED_ERROR] = sq * ray_w;
+    ray_out[ro + RO_DEPTH_Q25] = q25;
+    ray_out[ro + RO_DEPTH_Q75] = q75;
+    ray_out[ro + RO_LOSS_DEPTH] = loss_depth * pc.depth_norm * ray_w;
     if (pc.train == 0u) return;
 
     // Backward: reverse pass with suffix sums S = sum_{i>k} g_i w_i, Sw = sum_{i>k} w_i, Swm = sum_{i>k} w_i m_i.

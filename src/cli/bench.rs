@@ -87,14 +87,13 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
             for m in models {
                 let mut cfg = crate::nerf::config::ModelConfig::resolve(m)?;
                 if let Some(r) = rays_per_batch {
-                    cfg.trainer.rays_per_batch = r;
-                    cfg.trainer.rays_per_chunk = cfg.trainer.rays_per_chunk.min(r);
+                    cfg.trainer.set_rays_per_batch(r);
                 }
                 if let Some(c) = rays_per_chunk {
                     if c == 0 {
                         anyhow::bail!("--rays-per-chunk must be > 0");
                     }
-                    cfg.trainer.rays_per_chunk = c.min(cfg.trainer.rays_per_batch);
+                    cfg.trainer.set_rays_per_chunk(c);
                 }
                 for &b in bands {
                     let r = crate::bench::train::run(&ctx, &cfg, b, steps, 2, at_step)?;

@@ -5,6 +5,7 @@
 use super::Cli;
 use crate::data::{load_dataset, LoadOptions};
 use crate::gpu::Context;
+use crate::nerf::config::chunk_within_batch;
 use crate::nerf::config::{ActivationStorage, ModelConfig};
 use crate::plan::fit::profile_rays;
 use crate::plan::{plan, DatasetShape, DeviceRule, HardwareProfile, PlanRequest, RayCounts};
@@ -87,7 +88,7 @@ pub fn run(cli: &Cli, a: &PlanArgs) -> anyhow::Result<()> {
     let batch = a.rays_per_batch.unwrap_or(base.rays_per_batch);
     let rays = RayCounts {
         rays_per_batch: batch,
-        rays_per_chunk: a.rays_per_chunk.unwrap_or(base.rays_per_chunk.min(batch)),
+        rays_per_chunk: a.rays_per_chunk.unwrap_or(chunk_within_batch(base.rays_per_chunk, batch)),
         eval_rays_per_chunk: a.eval_rays_per_chunk.unwrap_or(base.eval_rays_per_chunk),
     };
     if rays.rays_per_batch == 0 || rays.rays_per_chunk == 0 || rays.eval_rays_per_chunk == 0 {

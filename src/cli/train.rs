@@ -90,11 +90,10 @@ fn apply_overrides(mut m: ModelConfig, a: &TrainArgs) -> anyhow::Result<ModelCon
         t.max_steps = v;
     }
     if let Some(v) = a.rays_per_batch {
-        t.rays_per_batch = v;
-        t.rays_per_chunk = t.rays_per_chunk.min(v);
+        t.set_rays_per_batch(v);
     }
     if let Some(v) = a.rays_per_chunk {
-        t.rays_per_chunk = v;
+        t.set_rays_per_chunk(v);
     }
     if let Some(v) = a.seed {
         t.seed = v;

@@ -62,25 +62,31 @@ pub struct LevelBuffers<A: Alloc> {
     /// Density MLP output rows: raw density (+ geometric features for the NeRF field).
     pub raw: A::F,
     pub weights: A::F,
-    /// Training only: MLP activations, deltas, split-K scratch, dL/draw rows, dL/denc rows.
-    pub acts: Option<A::F>,
-    pub deltas: Option<A::F>,
-    pub scratch: Option<A::F>,
-    pub dy: Option<A::F>,
-    pub dx: Option<A::F>,
+    /// Training only: the density MLP's backward buffers (dy = dL/draw rows, dx = dL/denc rows).
+    pub train: Option<Backward<A>>,
     /// Interlevel loss per ray (training, proposal levels only).
     pub losses: Option<A::F>,
+}
+
+/// The training-only buffers of one MLP's backward pass, present together or not at all.
+pub struct Backward<A: Alloc> {
+    /// Hidden-layer activations kept from the forward pass.
+    pub acts: A::F,
+    pub deltas: A::F,
+    /// Split-K weight-gradient scratch.
+    pub scratch: A::F,
+    /// dL/d(output) rows.
+    pub dy: A::F,
+    /// dL/d(input) rows.
+    pub dx: A::F,
 }
 
 /// The colour head's buffers (NeRF level).
 pub struct ColourBuffers<A: Alloc> {
     pub input: A::F,
     pub out: A::F,
-    pub acts: Option<A::F>,
-    pub deltas: Option<A::F>,
-    pub scratch: Option<A::F>,
-    pub dy: Option<A::F>,
-    pub dx: Option<A::F>,
+    /// Training only: dy = dL/dc rows, dx = dL/dinput rows.
+    pub train: Option<Backward<A>>,
 }
 
 /// Camera pose refinement (training with the camera optimiser on): the uncorrected ray directions, the hash-input
@@ -115,15 +121,76 @@ pub struct ChunkBuffers<A: Alloc> {
     pub depth_targets: Option<A::F>,
 }
 
-/// Per-ray output columns of the composite kernel besides the B colours.
-pub const RAY_OUT_FIXED: usize = 9;
-
-/// An MLP's training buffers (activations, deltas, weight-gradient scratch); all None for inference.
-struct MlpTrain<A: Alloc> {
-    acts: Option<A::F>,
-    deltas: Option<A::F>,
-    scratch: Option<A::F>,
+/// The per-ray output columns of the composite kernel before the B colours, as named in
+/// `glsl/render/ray_out.glsl` (a unit test below compares the two lists).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum RayOut {
+    /// Band-weighted colour loss (times its normaliser and the ray weight).
+    LossRgb,
+    /// Distortion loss (times its normaliser and the ray weight).
+    LossDistortion,
+    /// Accumulated opacity A.
+    Accumulation,
+    /// Exact crossing of A = 0.5.
+    MedianDepth,
+    /// Weighted mean depth.
+    ExpectedDepth,
+    /// Unweighted squared error summed over bands (times the ray weight).
+    SquaredError,
+    /// Crossing of 0.25 A.
+    DepthQ25,
+    /// Crossing of 0.75 A.
+    DepthQ75,
+    /// Depth loss (times its normaliser and the ray weight).
+    LossDepth,
 }
+
+impl RayOut {
+    /// Every fixed column, in buffer order.
+    pub const ALL: [RayOut; 9] = [
+        RayOut::LossRgb,
+        RayOut::LossDistortion,
+        RayOut::Accumulation,
+        RayOut::MedianDepth,
+        RayOut::ExpectedDepth,
+        RayOut::SquaredError,
+        RayOut::DepthQ25,
+        RayOut::DepthQ75,
+        RayOut::LossDepth,
+    ];
+
+    /// The column's index in a ray's row.
+    pub const fn col(self) -> usize {
+        self as usize
+    }
+
+    /// This column of one ray's row (`RAY_OUT_FIXED + B` floats).
+    pub fn of(self, row: &[f32]) -> f32 {
+        row[self as usize]
+    }
+
+    /// The GLSL constant naming the column.
+    pub const fn glsl_name(self) -> &'static str {
+        match self {
+            RayOut::LossRgb => "RO_LOSS_RGB",
+            RayOut::LossDistortion => "RO_LOSS_DISTORTION",
+            RayOut::Accumulation => "RO_ACCUMULATION",
+            RayOut::MedianDepth => "RO_MEDIAN_DEPTH",
+            RayOut::ExpectedDepth => "RO_EXPECTED_DEPTH",
+            RayOut::SquaredError => "RO_SQUARED_ERROR",
+            RayOut::DepthQ25 => "RO_DEPTH_Q25",
+            RayOut::DepthQ75 => "RO_DEPTH_Q75",
+            RayOut::LossDepth => "RO_LOSS_DEPTH",
+        }
+    }
+}
+
+/// Per-ray output columns of the composite kernel besides the B colours (the colours start here).
+pub const RAY_OUT_FIXED: usize = RayOut::ALL.len();
+
+/// An MLP's activations, deltas and weight-gradient scratch (None for inference); allocated before the level's
+/// other buffers, [`Backward::finish`] adds dy and dx after them (the ledger's order).
+type MlpTrain<A> = Option<[<A as Alloc>::F; 3]>;
 
 fn mlp_train<A: Alloc>(
     a: &mut A,
@@ -133,14 +200,25 @@ fn mlp_train<A: Alloc>(
     train: bool,
 ) -> GpuResult<MlpTrain<A>> {
     if !train {
-        return Ok(MlpTrain { acts: None, deltas: None, scratch: None });
+        return Ok(None);
     }
     let act = MemoryCategory::Activations;
-    Ok(MlpTrain {
-        acts: Some(a.f32(&format!("{name} activations"), act, mlp.hidden_floats(rows))?),
-        deltas: Some(a.f32(&format!("{name} deltas"), act, mlp.delta_floats(rows))?),
-        scratch: Some(a.f32(&format!("{name} weight-gradient scratch"), act, mlp.wgrad_scratch_floats(rows))?),
-    })
+    Ok(Some([
+        a.f32(&format!("{name} activations"), act, mlp.hidden_floats(rows))?,
+        a.f32(&format!("{name} deltas"), act, mlp.delta_floats(rows))?,
+        a.f32(&format!("{name} weight-gradient scratch"), act, mlp.wgrad_scratch_floats(rows))?,
+    ]))
+}
+
+impl<A: Alloc> Backward<A> {
+    /// The MLP buffers of [`mlp_train`] plus dy (`dy_name`, `dy_floats`) and dx; None for inference.
+    fn finish(a: &mut A, mlp: MlpTrain<A>, dy: (&str, usize), dx: (&str, usize)) -> GpuResult<Option<Self>> {
+        let Some([acts, deltas, scratch]) = mlp else { return Ok(None) };
+        let act = MemoryCategory::Activations;
+        let dy = a.f32(dy.0, act, dy.1)?;
+        let dx = a.f32(dx.0, act, dx.1)?;
+        Ok(Some(Backward { acts, deltas, scratch, dy, dx }))
+    }
 }
 
 impl<A: Alloc> ChunkBuffers<A> {
@@ -162,7 +240,7 @@ impl<A: Alloc> ChunkBuffers<A> {
                      mlp: &crate::nn::mlp::MlpConfig,
                      prop: bool| {
             let s = rays * n;
-            let MlpTrain { acts, deltas, scratch } = mlp_train(a, &format!("{name} MLP"), mlp, s, train)?;
+            let mlp_bufs = mlp_train(a, &format!("{name} MLP"), mlp, s, train)?;
             GpuResult::Ok(LevelBuffers {
                 n,
                 edges: a.f32(&format!("{name} edges"), act, rays * (n + 1))?,
@@ -170,11 +248,12 @@ impl<A: Alloc> ChunkBuffers<A> {
                 enc: a.f32(&format!("{name} encoding"), act, s * enc_w)?,
                 raw: a.f32(&format!("{name} density"), act, s * raw_w)?,
                 weights: a.f32(&format!("{name} weights"), act, s)?,
-                acts,
-                deltas,
-                scratch,
-                dy: if train { Some(a.f32(&format!("{name} dL/ddensity"), act, s * raw_w)?) } else { None },
-                dx: if train { Some(a.f32(&format!("{name} dL/dencoding"), act, s * enc_w)?) } else { None },
+                train: Backward::finish(
+                    a,
+                    mlp_bufs,
+                    (&format!("{name} dL/ddensity"), s * raw_w),
+                    (&format!("{name} dL/dencoding"), s * enc_w),
+                )?,
                 losses: if train && prop {
                     Some(a.f32(&format!("{name} interlevel losses"), ray, rays)?)
                 } else {
@@ -191,15 +270,11 @@ impl<A: Alloc> ChunkBuffers<A> {
         let nerf = level(a, "nerf", n, fm.in_pad(), fm.n_output, fm, false)?;
         let cm = &model.colour_mlp;
         let s = rays * n;
-        let MlpTrain { acts, deltas, scratch } = mlp_train(a, "colour MLP", cm, s, train)?;
+        let mlp_bufs = mlp_train(a, "colour MLP", cm, s, train)?;
         let colour = ColourBuffers {
             input: a.f32("colour input", act, s * cm.in_pad())?,
             out: a.f32("colour output", act, s * bands)?,
-            acts,
-            deltas,
-            scratch,
-            dy: if train { Some(a.f32("colour dL/dc", act, s * bands)?) } else { None },
-            dx: if train { Some(a.f32("colour dL/dinput", act, s * cm.in_pad())?) } else { None },
+            train: Backward::finish(a, mlp_bufs, ("colour dL/dc", s * bands), ("colour dL/dinput", s * cm.in_pad()))?,
         };
         let pose = if train && cfg.camera_optimizer.enabled() {
             let most = cfg.proposals.iter().map(|p| p.samples).chain([n]).max().unwrap_or(n);
@@ -244,5 +319,29 @@ impl<A: Alloc> ChunkBuffers<A> {
                 None
             },
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{RayOut, RAY_OUT_FIXED};
+
+    /// `glsl/render/ray_out.glsl`'s `const uint NAME = Nu;` lines are the Rust enum's names and indices, in order,
+    /// and RAY_OUT_FIXED agrees: a column added on one side only, or two swapped, fails here.
+    #[test]
+    fn ray_out_columns_match_the_glsl_include() {
+        let text = include_str!("../../glsl/render/ray_out.glsl");
+        let consts: Vec<(String, usize)> = text
+            .lines()
+            .filter_map(|l| l.trim().strip_prefix("const uint "))
+            .map(|l| {
+                let (name, rest) = l.split_once('=').expect("NAME = value");
+                let value = rest.trim().split(|c: char| !c.is_ascii_digit()).next().expect("a number");
+                (name.trim().to_owned(), value.parse().expect("an integer"))
+            })
+            .collect();
+        let mut want: Vec<(String, usize)> = RayOut::ALL.iter().map(|c| (c.glsl_name().to_owned(), c.col())).collect();
+        want.push(("RAY_OUT_FIXED".to_owned(), RAY_OUT_FIXED));
+        assert_eq!(consts, want);
     }
 }

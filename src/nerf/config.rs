@@ -321,6 +321,26 @@ pub struct TrainerConfig {
     pub seed: u64,
 }
 
+/// The batch/chunk rule, defined once: a training chunk never exceeds its batch (a batch smaller than the chunk is
+/// processed as one chunk of that batch). The trainer's flags, the planner, the sweep and the benchmarks apply it
+/// through here or [`TrainerConfig::set_rays_per_batch`].
+pub fn chunk_within_batch(rays_per_chunk: usize, rays_per_batch: usize) -> usize {
+    rays_per_chunk.min(rays_per_batch)
+}
+
+impl TrainerConfig {
+    /// Sets the batch, keeping the chunk within it ([`chunk_within_batch`]).
+    pub fn set_rays_per_batch(&mut self, rays: usize) {
+        self.rays_per_batch = rays;
+        self.rays_per_chunk = chunk_within_batch(self.rays_per_chunk, rays);
+    }
+
+    /// Sets the chunk, within the batch ([`chunk_within_batch`]).
+    pub fn set_rays_per_chunk(&mut self, rays: usize) {
+        self.rays_per_chunk = chunk_within_batch(rays, self.rays_per_batch);
+    }
+}
+
 impl ModelConfig {
     /// Loads and validates a model file; errors name the file and, for YAML problems, the key and line.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {

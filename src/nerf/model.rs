@@ -6,18 +6,45 @@ use super::config::{ActivationStorage, ModelConfig};
 use crate::gpu::{Context, GpuResult};
 use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
 use crate::nn::mlp::{Activation, Mlp, MlpConfig};
-use crate::nn::params::{MatrixShape, ParamError, ParamGroup, ParamStore, ParamStoreDesc, SlotDesc, SlotKind};
+use crate::nn::params::{
+    MatrixShape, ParamError, ParamGroup, ParamSlot, ParamStore, ParamStoreDesc, SlotDesc, SlotKind,
+};
 
 /// The parameter slot of the camera pose corrections (6 floats per camera) and its optimiser group.
 pub const POSE_SLOT: &str = "camera.pose";
 pub const CAMERA_GROUP: &str = "camera";
+/// The NeRF field's density part ([`density_slots`] gives its grid and MLP slots).
+pub const FIELD: &str = "field";
+/// The colour MLP's slot.
+pub const COLOUR_MLP_SLOT: &str = "field.colour_mlp";
+/// The appearance embeddings' slot (one row per camera plus the evaluation row).
+pub const APPEARANCE_SLOT: &str = "field.appearance";
+
+/// The proposal network `i`'s name ([`density_slots`] gives its slots).
+pub fn proposal_name(i: usize) -> String {
+    format!("proposal{i}")
+}
+
+/// The (hash grid, MLP) slot names of density field `name` ([`FIELD`] or a [`proposal_name`]).
+pub fn density_slots(name: &str) -> (String, String) {
+    (format!("{name}.grid"), format!("{name}.mlp"))
+}
+
+/// The slots the pipeline reads every step, resolved once when the model is built (no lookup by name per call).
+#[derive(Clone, Debug)]
+pub struct ModelSlots {
+    pub colour_mlp: ParamSlot,
+    pub appearance: Option<ParamSlot>,
+    pub pose: Option<ParamSlot>,
+}
 
 /// Widths of one density field (a proposal or the NeRF density part).
 pub struct DensityField {
     pub grid: HashGrid,
     pub mlp: Mlp,
-    pub grid_slot: String,
-    pub mlp_slot: String,
+    /// Offsets of the hash table and the MLP weights in the store's arrays.
+    pub grid_offset: usize,
+    pub mlp_offset: usize,
     /// Where the encoding lands in the MLP input rows (stride = MLP in_pad).
     pub enc_slot: OutputSlot,
 }
@@ -30,6 +57,7 @@ pub struct Model {
     pub field: DensityField,
     pub colour: Mlp,
     pub store: ParamStore,
+    pub slots: ModelSlots,
 }
 
 fn mlp_shapes(c: &MlpConfig) -> Vec<MatrixShape> {
@@ -117,14 +145,15 @@ impl ModelShapes {
     /// The parameter store's slots, in store order.
     pub fn param_slots(&self) -> Vec<SlotDesc> {
         let f = &self.cfg.field;
+        let (grid, mlp) = density_slots(FIELD);
         let mut slots = vec![
-            SlotDesc::new("field.grid", SlotKind::HashTable { len: f.grid.n_params() }, "fields"),
-            SlotDesc::new("field.mlp", SlotKind::Mlp { matrices: mlp_shapes(&self.field_mlp) }, "fields"),
-            SlotDesc::new("field.colour_mlp", SlotKind::Mlp { matrices: mlp_shapes(&self.colour_mlp) }, "fields"),
+            SlotDesc::new(&grid, SlotKind::HashTable { len: f.grid.n_params() }, "fields"),
+            SlotDesc::new(&mlp, SlotKind::Mlp { matrices: mlp_shapes(&self.field_mlp) }, "fields"),
+            SlotDesc::new(COLOUR_MLP_SLOT, SlotKind::Mlp { matrices: mlp_shapes(&self.colour_mlp) }, "fields"),
         ];
         if f.appearance_embed_dim > 0 {
             slots.push(SlotDesc::new(
-                "field.appearance",
+                APPEARANCE_SLOT,
                 // One row per camera plus a spare row that holds the mean embedding for evaluation.
                 SlotKind::Embedding { rows: self.n_cameras + 1, dim: f.appearance_embed_dim },
                 "fields",
@@ -135,16 +164,9 @@ impl ModelShapes {
             slots.push(SlotDesc::new(POSE_SLOT, SlotKind::Zeros { len: 6 * self.n_cameras }, CAMERA_GROUP));
         }
         for (i, (pc, m)) in self.cfg.proposals.iter().zip(&self.proposal_mlps).enumerate() {
-            slots.push(SlotDesc::new(
-                &format!("proposal{i}.grid"),
-                SlotKind::HashTable { len: pc.grid.n_params() },
-                "proposals",
-            ));
-            slots.push(SlotDesc::new(
-                &format!("proposal{i}.mlp"),
-                SlotKind::Mlp { matrices: mlp_shapes(m) },
-                "proposals",
-            ));
+            let (grid, mlp) = density_slots(&proposal_name(i));
+            slots.push(SlotDesc::new(&grid, SlotKind::HashTable { len: pc.grid.n_params() }, "proposals"));
+            slots.push(SlotDesc::new(&mlp, SlotKind::Mlp { matrices: mlp_shapes(m) }, "proposals"));
         }
         slots
     }
@@ -171,41 +193,47 @@ impl Model {
     pub fn new(ctx: &Context, cfg: &ModelConfig, bands: usize, n_cameras: usize) -> Result<Self, ParamError> {
         let shapes = ModelShapes::new(cfg, bands, n_cameras);
         let gpu = |e: crate::gpu::GpuError| ParamError::Gpu(e);
-        let density_field = |ctx: &Context, grid: &HashGridConfig, mlp_cfg: &MlpConfig, pad, name: &str| {
+        // Offsets are filled in once the store exists (below).
+        let density_field = |ctx: &Context, grid: &HashGridConfig, mlp_cfg: &MlpConfig, pad| {
             let grid_k = HashGrid::new(ctx, grid)?;
             let mlp = Mlp::new(ctx, mlp_cfg)?;
             let in_pad = mlp_cfg.in_pad();
             GpuResult::Ok(DensityField {
                 grid: grid_k,
                 mlp,
-                grid_slot: format!("{name}.grid"),
-                mlp_slot: format!("{name}.mlp"),
+                grid_offset: 0,
+                mlp_offset: 0,
                 enc_slot: OutputSlot { stride: in_pad, col: 0, pad_to: in_pad, pad_value: pad },
             })
         };
         // tcnn pads the proposal MLPs' inputs with ones (a learned bias); the field's grid output (32) needs none.
-        let proposals = cfg
+        let mut proposals = cfg
             .proposals
             .iter()
             .zip(&shapes.proposal_mlps)
-            .enumerate()
-            .map(|(i, (p, m))| density_field(ctx, &p.grid, m, 1.0, &format!("proposal{i}")))
+            .map(|(p, m)| density_field(ctx, &p.grid, m, 1.0))
             .collect::<GpuResult<Vec<_>>>()
             .map_err(gpu)?;
-        let field = density_field(ctx, &cfg.field.grid, &shapes.field_mlp, 0.0, "field").map_err(gpu)?;
+        let mut field = density_field(ctx, &cfg.field.grid, &shapes.field_mlp, 0.0).map_err(gpu)?;
         let colour = Mlp::new(ctx, &shapes.colour_mlp).map_err(gpu)?;
         let store = ParamStore::new(ctx, &shapes.store_desc(None))?;
-        Ok(Self { cfg: cfg.clone(), bands, n_cameras, proposals, field, colour, store })
+        let slot = |name: &str| store.slot(name).cloned().expect("the store holds every slot the model declares");
+        let names = std::iter::once(FIELD.to_owned()).chain((0..proposals.len()).map(proposal_name));
+        for (f, name) in std::iter::once(&mut field).chain(proposals.iter_mut()).zip(names) {
+            let (grid, mlp) = density_slots(&name);
+            (f.grid_offset, f.mlp_offset) = (slot(&grid).offset, slot(&mlp).offset);
+        }
+        let slots = ModelSlots {
+            colour_mlp: slot(COLOUR_MLP_SLOT),
+            appearance: store.slot(APPEARANCE_SLOT).cloned(),
+            pose: store.slot(POSE_SLOT).cloned(),
+        };
+        Ok(Self { cfg: cfg.clone(), bands, n_cameras, proposals, field, colour, store, slots })
     }
 
     /// The configuration-only description this model was built from.
     pub fn shapes(&self) -> ModelShapes {
         ModelShapes::new(&self.cfg, self.bands, self.n_cameras)
-    }
-
-    /// Offset of a slot in the store's arrays.
-    pub fn offset(&self, slot: &str) -> usize {
-        self.store.slot(slot).map(|s| s.offset).expect("slots are created with the model")
     }
 
     pub fn n_params(&self) -> usize {

@@ -39,9 +39,9 @@ pub fn density_gradients(ctx: &Context, model: &Model, points: &[[f64; 3]]) -> G
     let deltas = buf("normals deltas", c.delta_floats(n_max))?;
     let scratch = buf("normals wgrad scratch", c.wgrad_scratch_floats(n_max))?;
     let store = &model.store;
-    let grid_p = ParamSlice { array: store.params(), offset: model.offset(&f.grid_slot) };
-    let mlp_p = ParamSlice { array: store.params(), offset: model.offset(&f.mlp_slot) };
-    let mlp_g = ParamSlice { array: store.grads(), offset: model.offset(&f.mlp_slot) };
+    let grid_p = ParamSlice { array: store.params(), offset: f.grid_offset };
+    let mlp_p = ParamSlice { array: store.params(), offset: f.mlp_offset };
+    let mlp_g = ParamSlice { array: store.grads(), offset: f.mlp_offset };
     let mut seed = vec![0.0f32; n_max * c.n_output];
     seed.iter_mut().step_by(c.n_output).for_each(|v| *v = 1.0);
     ctx.upload(&dy, 0, &seed)?;

@@ -7,12 +7,12 @@
 //! (loss and dL/draw, dL/dc) -> colour MLP backward -> geometric-feature and appearance gradients -> density MLP
 //! backward -> hash grid backward; on proposal-update steps `interlevel` -> proposal MLP and hash grid backward.
 
-use super::buffers::{ChunkBuffers, GpuAlloc, RAY_OUT_FIXED};
+use super::buffers::{Backward, ChunkBuffers, GpuAlloc, RayOut, RAY_OUT_FIXED};
 use super::config::Background;
 use super::kernels::{
     BackgroundMode, CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
 };
-use super::model::{Model, POSE_SLOT};
+use super::model::Model;
 use super::pose::{LevelGrad, PoseKernels, PoseSlot};
 use super::rays::GpuCamera;
 use super::schedule::{anneal_at, ProposalSchedule};
@@ -100,8 +100,9 @@ fn need<T>(o: &Option<T>) -> &T {
 }
 
 /// The hidden-layer scratch of an MLP's inference: its training activations, or the chunk's inference scratch.
-fn infer_scratch<'a>(acts: &'a Option<GpuBuffer<f32>>, b: &'a ChunkBuffers<GpuAlloc>) -> &'a GpuBuffer<f32> {
-    acts.as_ref().or(b.mlp_scratch.as_ref()).expect("inference buffers have the MLP scratch, training ones activations")
+fn infer_scratch<'a>(train: &'a Option<Backward<GpuAlloc>>, b: &'a ChunkBuffers<GpuAlloc>) -> &'a GpuBuffer<f32> {
+    let acts = train.as_ref().map(|t| &t.acts);
+    acts.or(b.mlp_scratch.as_ref()).expect("inference buffers have the MLP scratch, training ones activations")
 }
 
 impl Pipeline {
@@ -139,7 +140,7 @@ impl Pipeline {
     /// The pose slot, when poses are refined.
     fn pose_slot(&self) -> Option<PoseSlot<'_>> {
         let store = &self.model.store;
-        let slot = store.slot(POSE_SLOT)?;
+        let slot = self.model.slots.pose.as_ref()?;
         Some(PoseSlot { params: store.params(), grads: store.grads(), offset: slot.offset })
     }
 
@@ -212,15 +213,15 @@ impl Pipeline {
                 }
             }
             let s = r * lv.n;
-            let gp = ParamSlice { array: params, offset: m.offset(&field.grid_slot) };
+            let gp = ParamSlice { array: params, offset: field.grid_offset };
             field.grid.forward(rec, gp, &lv.positions, s, &lv.enc, field.enc_slot)?;
-            let mp = ParamSlice { array: params, offset: m.offset(&field.mlp_slot) };
+            let mp = ParamSlice { array: params, offset: field.mlp_offset };
             let input = RowSlice { buf: &lv.enc, stride: field.enc_slot.stride, col: 0 };
             let out = RowSlice { buf: &lv.raw, stride: 1, col: 0 };
             if train && update_props {
-                field.mlp.forward(rec, mp, input, s, out, need(&lv.acts))?;
+                field.mlp.forward(rec, mp, input, s, out, &need(&lv.train).acts)?;
             } else {
-                field.mlp.infer(rec, mp, input, s, out, infer_scratch(&lv.acts, b))?;
+                field.mlp.infer(rec, mp, input, s, out, infer_scratch(&lv.train, b))?;
             }
             k.weights(rec, rb, geo, lv.n, &lv.edges, (&lv.raw, 1), scale, &lv.weights)?;
             prev = Some((&lv.edges, &lv.weights, lv.n));
@@ -238,39 +239,39 @@ impl Pipeline {
         let f = &m.field;
         f.grid.forward(
             rec,
-            ParamSlice { array: params, offset: m.offset(&f.grid_slot) },
+            ParamSlice { array: params, offset: f.grid_offset },
             &lv.positions,
             s,
             &lv.enc,
             f.enc_slot,
         )?;
         let fm = &f.mlp.config;
-        let mp = ParamSlice { array: params, offset: m.offset(&f.mlp_slot) };
+        let mp = ParamSlice { array: params, offset: f.mlp_offset };
         let input = RowSlice { buf: &lv.enc, stride: fm.in_pad(), col: 0 };
         let out = RowSlice { buf: &lv.raw, stride: fm.n_output, col: 0 };
         if train {
-            f.mlp.forward(rec, mp, input, s, out, need(&lv.acts))?;
+            f.mlp.forward(rec, mp, input, s, out, &need(&lv.train).acts)?;
         } else {
-            f.mlp.infer(rec, mp, input, s, out, infer_scratch(&lv.acts, b))?;
+            f.mlp.infer(rec, mp, input, s, out, infer_scratch(&lv.train, b))?;
         }
         let geo_dim = m.cfg.field.geo_feat_dim;
         let app_dim = m.cfg.field.appearance_embed_dim;
         let cm = &m.colour.config;
         let app = if app_dim > 0 {
-            let slot = store.slot("field.appearance").expect("appearance slot exists when the module is on");
+            let slot = m.slots.appearance.as_ref().expect("appearance slot exists when the module is on");
             let binding = store.slot_binding(params, slot)?;
             Some((binding, &b.cam_idx, app_dim, if train { None } else { Some(m.n_cameras as u32) }))
         } else {
             None
         };
         k.colour_input(rec, rb, lv.n, (&lv.raw, fm.n_output), geo_dim, app, (&b.colour.input, cm.in_pad()))?;
-        let cp = ParamSlice { array: params, offset: m.offset("field.colour_mlp") };
+        let cp = ParamSlice { array: params, offset: m.slots.colour_mlp.offset };
         let cin = RowSlice { buf: &b.colour.input, stride: cm.in_pad(), col: 0 };
         let cout = RowSlice { buf: &b.colour.out, stride: m.bands, col: 0 };
         if train {
-            m.colour.forward(rec, cp, cin, s, cout, need(&b.colour.acts))
+            m.colour.forward(rec, cp, cin, s, cout, &need(&b.colour.train).acts)
         } else {
-            m.colour.infer(rec, cp, cin, s, cout, infer_scratch(&b.colour.acts, b))
+            m.colour.infer(rec, cp, cin, s, cout, infer_scratch(&b.colour.train, b))
         }
     }
 
@@ -286,25 +287,19 @@ impl Pipeline {
         let m = &self.model;
         let (params, grads) = (m.store.params(), m.store.grads());
         let c = &field.mlp.config;
-        let mp = ParamSlice { array: params, offset: m.offset(&field.mlp_slot) };
-        let mg = ParamSlice { array: grads, offset: m.offset(&field.mlp_slot) };
+        let mp = ParamSlice { array: params, offset: field.mlp_offset };
+        let mg = ParamSlice { array: grads, offset: field.mlp_offset };
         let input = RowSlice { buf: &lv.enc, stride: c.in_pad(), col: 0 };
         let out = RowSlice { buf: &lv.raw, stride: c.n_output, col: 0 };
-        let dy = RowSlice { buf: need(&lv.dy), stride: c.n_output, col: 0 };
-        let dx = RowSlice { buf: need(&lv.dx), stride: c.in_pad(), col: 0 };
+        let dy = RowSlice { buf: &need(&lv.train).dy, stride: c.n_output, col: 0 };
+        let dx = RowSlice { buf: &need(&lv.train).dx, stride: c.in_pad(), col: 0 };
         let bufs = crate::nn::mlp::MlpTrainBuffers {
-            acts: need(&lv.acts),
-            deltas: need(&lv.deltas),
-            scratch: need(&lv.scratch),
+            acts: &need(&lv.train).acts,
+            deltas: &need(&lv.train).deltas,
+            scratch: &need(&lv.train).scratch,
         };
         field.mlp.backward(rec, mp, mg, (input, out, dy), s, &bufs, Some(dx))?;
-        field.grid.backward_params(
-            rec,
-            ParamSlice { array: grads, offset: m.offset(&field.grid_slot) },
-            &lv.positions,
-            s,
-            dx,
-        )
+        field.grid.backward_params(rec, ParamSlice { array: grads, offset: field.grid_offset }, &lv.positions, s, dx)
     }
 
     /// Records composite + backward of one training chunk.
@@ -344,8 +339,8 @@ impl Pipeline {
             colours: &b.colour.out,
             targets: &b.targets,
             band_weights: &b.band_weights,
-            dy_density: need(&lv.dy),
-            dy_colour: need(&b.colour.dy),
+            dy_density: &need(&lv.train).dy,
+            dy_colour: &need(&b.colour.train).dy,
             weights: &lv.weights,
             ray_out: &b.ray_out,
             depth_targets: b.depth_targets.as_ref(),
@@ -353,36 +348,42 @@ impl Pipeline {
         k.composite(rec, rb, geo, lv.n, &p, &cb)?;
         let s = r * lv.n;
         let cm = &m.colour.config;
-        let cp = ParamSlice { array: params, offset: m.offset("field.colour_mlp") };
-        let cg = ParamSlice { array: grads, offset: m.offset("field.colour_mlp") };
+        let cp = ParamSlice { array: params, offset: m.slots.colour_mlp.offset };
+        let cg = ParamSlice { array: grads, offset: m.slots.colour_mlp.offset };
         let cin = RowSlice { buf: &b.colour.input, stride: cm.in_pad(), col: 0 };
         let cout = RowSlice { buf: &b.colour.out, stride: m.bands, col: 0 };
-        let cdy = RowSlice { buf: need(&b.colour.dy), stride: m.bands, col: 0 };
-        let cdx = RowSlice { buf: need(&b.colour.dx), stride: cm.in_pad(), col: 0 };
+        let cdy = RowSlice { buf: &need(&b.colour.train).dy, stride: m.bands, col: 0 };
+        let cdx = RowSlice { buf: &need(&b.colour.train).dx, stride: cm.in_pad(), col: 0 };
         let cbufs = crate::nn::mlp::MlpTrainBuffers {
-            acts: need(&b.colour.acts),
-            deltas: need(&b.colour.deltas),
-            scratch: need(&b.colour.scratch),
+            acts: &need(&b.colour.train).acts,
+            deltas: &need(&b.colour.train).deltas,
+            scratch: &need(&b.colour.train).scratch,
         };
         m.colour.backward(rec, cp, cg, (cin, cout, cdy), s, &cbufs, Some(cdx))?;
         let geo_dim = m.cfg.field.geo_feat_dim;
         let sh_dim = crate::nn::sh::SH_DIM;
-        k.copy_cols(rec, s, geo_dim, (need(&b.colour.dx), cm.in_pad(), sh_dim), (need(&lv.dy), fm.n_output, 1))?;
+        k.copy_cols(
+            rec,
+            s,
+            geo_dim,
+            (&need(&b.colour.train).dx, cm.in_pad(), sh_dim),
+            (&need(&lv.train).dy, fm.n_output, 1),
+        )?;
         let app_dim = m.cfg.field.appearance_embed_dim;
         if app_dim > 0 {
-            let off = m.offset("field.appearance");
+            let off = m.slots.appearance.as_ref().expect("appearance slot exists when the module is on").offset;
             k.appearance_grad(
                 rec,
                 grads,
                 off,
                 (r, lv.n),
                 app_dim,
-                (need(&b.colour.dx), cm.in_pad(), sh_dim + geo_dim),
+                (&need(&b.colour.train).dx, cm.in_pad(), sh_dim + geo_dim),
                 &b.cam_idx,
             )?;
         }
         self.record_density_backward(rec, f, lv, s)?;
-        let cdx = (need(&b.colour.dx), cm.in_pad());
+        let cdx = (&need(&b.colour.train).dx, cm.in_pad());
         self.record_pose_level(rec, b, rb, f, lv, Some(cdx), false)?;
         if !update_props {
             return self.record_pose_reduce(rec, b, r);
@@ -394,7 +395,7 @@ impl Pipeline {
                 prop_edges: &pl.edges,
                 prop_raw: &pl.raw,
                 prop_weights: &pl.weights,
-                prop_dy: need(&pl.dy),
+                prop_dy: &need(&pl.train).dy,
                 losses: need(&pl.losses),
             };
             k.interlevel(rec, rb, geo, (lv.n, pl.n), 1, scale, inter_norm, &ib)?;
@@ -419,8 +420,8 @@ impl Pipeline {
         let (Some(pk), Some(pb)) = (self.pose_kernels.as_ref(), &b.pose) else { return Ok(()) };
         let m = &self.model;
         let s = rb.n_rays * lv.n;
-        let gp = ParamSlice { array: m.store.params(), offset: m.offset(&field.grid_slot) };
-        let dx = RowSlice { buf: need(&lv.dx), stride: field.mlp.config.in_pad(), col: 0 };
+        let gp = ParamSlice { array: m.store.params(), offset: field.grid_offset };
+        let dx = RowSlice { buf: &need(&lv.train).dx, stride: field.mlp.config.in_pad(), col: 0 };
         field.grid.backward_input(rec, gp, &lv.positions, s, dx, &pb.dpos)?;
         let level = LevelGrad { n: lv.n, edges: &lv.edges, dpos: &pb.dpos, colour_dx, accumulate };
         pk.ray_grad(rec, rb, self.geometry(false), &level, &b.dummy, &pb.ray_grads)
@@ -569,7 +570,9 @@ impl Pipeline {
         let mut result = Ok(());
         for c0 in (0..n_rays).step_by(chunk) {
             let r = chunk.min(n_rays - c0);
-            let run = || -> GpuResult<TimingReport> {
+            // Everything fallible for this chunk runs in here, so an error never leaves `train_bufs` taken (the next
+            // step would otherwise allocate them again without a word).
+            let run = || -> GpuResult<(TimingReport, Vec<Vec<u8>>)> {
                 self.upload_rays(
                     &b,
                     &batch.pixels[3 * c0..3 * (c0 + r)],
@@ -582,29 +585,32 @@ impl Pipeline {
                 }
                 self.record_forward(&mut rec, &b, (r, c0), true, update_props)?;
                 self.record_backward(&mut rec, &b, (r, c0), norms, update_props)?;
-                rec.submit_and_wait()
+                let timing = rec.submit_and_wait()?;
+                // The chunk's per-ray outputs and, on proposal-update steps, the interlevel losses: one readback.
+                let mut parts = vec![Part::download(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?];
+                if update_props {
+                    for pl in &b.proposals {
+                        parts.push(Part::download(need(&pl.losses), 0, r)?);
+                    }
+                }
+                Ok((timing, self.ctx.download_parts(&parts)?))
             };
-            match run() {
-                Ok(t) => stats.timing.accumulate(&t),
+            let got = match run() {
+                Ok((t, got)) => {
+                    stats.timing.accumulate(&t);
+                    got
+                }
                 Err(e) => {
                     result = Err(e);
                     break;
                 }
-            }
-            // The chunk's per-ray outputs and, on proposal-update steps, the interlevel losses: one readback.
-            let mut parts = vec![Part::download(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?];
-            if update_props {
-                for pl in &b.proposals {
-                    parts.push(Part::download(need(&pl.losses), 0, r)?);
-                }
-            }
-            let got = self.ctx.download_parts(&parts)?;
+            };
             let out: Vec<f32> = bytemuck::pod_collect_to_vec(&got[0]);
             for row in out.chunks(RAY_OUT_FIXED + bands) {
-                stats.loss_rgb += row[0] as f64;
-                stats.loss_distortion += row[1] as f64;
-                sq += row[5] as f64;
-                stats.loss_depth += row[8] as f64;
+                stats.loss_rgb += RayOut::LossRgb.of(row) as f64;
+                stats.loss_distortion += RayOut::LossDistortion.of(row) as f64;
+                sq += RayOut::SquaredError.of(row) as f64;
+                stats.loss_depth += RayOut::LossDepth.of(row) as f64;
             }
             for l in &got[1..] {
                 stats.loss_interlevel +=
@@ -628,7 +634,10 @@ impl Pipeline {
         let grads_finite = finite && grads_ok;
         if result.is_ok() && !grads_finite {
             stats.skipped = true;
-            stats.poisoned = Some(self.first_poisoned(&b)?);
+            match self.first_poisoned(&b) {
+                Ok(name) => stats.poisoned = Some(name),
+                Err(e) => result = Err(e),
+            }
         }
         self.train_bufs = Some(b);
         result?;
@@ -721,11 +730,11 @@ impl Pipeline {
                 ])?;
                 let ro: Vec<f32> = bytemuck::pod_collect_to_vec(&got[0]);
                 for row in ro.chunks(RAY_OUT_FIXED + bands) {
-                    out.accumulation.push(row[2]);
-                    out.median_depth.push(row[3]);
-                    out.expected_depth.push(row[4]);
-                    out.depth_q25.push(row[6]);
-                    out.depth_q75.push(row[7]);
+                    out.accumulation.push(RayOut::Accumulation.of(row));
+                    out.median_depth.push(RayOut::MedianDepth.of(row));
+                    out.expected_depth.push(RayOut::ExpectedDepth.of(row));
+                    out.depth_q25.push(RayOut::DepthQ25.of(row));
+                    out.depth_q75.push(RayOut::DepthQ75.of(row));
                     out.colour.extend_from_slice(&row[RAY_OUT_FIXED..]);
                 }
                 out.direction_norm.extend(bytemuck::pod_collect_to_vec::<u8, f32>(&got[1]));
@@ -744,7 +753,7 @@ impl Pipeline {
             return Ok(());
         }
         let store = &self.model.store;
-        let slot = store.slot("field.appearance").expect("appearance slot").clone();
+        let slot = self.model.slots.appearance.clone().expect("appearance slot");
         let mut emb = store.download_slot(store.params(), &slot)?;
         let rows = self.model.n_cameras;
         let all: Vec<usize> = (0..rows).collect();

@@ -159,7 +159,7 @@ fn save_checkpoint(pipe: &Pipeline, run: &Path, state: &TrainerState, ds: &Datas
     pipe.model.store.save(&p)?;
     write_atomic_str(&s, serde_json::to_string_pretty(state).expect("serialisable").as_bytes())?;
     let store = &pipe.model.store;
-    if let Some(slot) = store.slot(super::model::POSE_SLOT) {
+    if let Some(slot) = &pipe.model.slots.pose {
         let poses = store.download_slot(store.params(), slot).map_err(NerfError::gpu("reading the refined poses"))?;
         let doc =
             super::camera_poses::camera_poses_json(ds, &ds.pose_transform(), &ds.split_indices(Split::Train), &poses);

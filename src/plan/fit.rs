@@ -6,6 +6,7 @@ use super::error::PlanError;
 use super::hardware::HardwareProfile;
 use super::host::{plan_host, DatasetShape, HostPlan};
 use super::vram::{plan_vram, RayCounts, VramPlan};
+use crate::nerf::config::chunk_within_batch;
 use crate::nerf::config::ModelConfig;
 use crate::nerf::model::ModelShapes;
 use serde::Serialize;
@@ -72,7 +73,7 @@ pub fn profile_rays(p: &HardwareProfile) -> RayCounts {
     let t = &p.trainer;
     RayCounts {
         rays_per_batch: t.rays_per_batch,
-        rays_per_chunk: t.rays_per_chunk.min(t.rays_per_batch),
+        rays_per_chunk: chunk_within_batch(t.rays_per_chunk, t.rays_per_batch),
         eval_rays_per_chunk: t.eval_rays_per_chunk,
     }
 }

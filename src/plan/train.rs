@@ -9,6 +9,7 @@ use super::hardware::{HardwareProfile, TrainerProfile};
 use super::host::DatasetShape;
 use super::vram::RayCounts;
 use crate::gpu::Context;
+use crate::nerf::config::chunk_within_batch;
 use crate::nerf::config::ModelConfig;
 use crate::nerf::model::ModelShapes;
 
@@ -27,7 +28,7 @@ pub fn resolve_profile(
         ctx,
         TrainerProfile {
             rays_per_batch: t.rays_per_batch,
-            rays_per_chunk: t.rays_per_chunk.min(t.rays_per_batch),
+            rays_per_chunk: chunk_within_batch(t.rays_per_chunk, t.rays_per_batch),
             eval_rays_per_chunk: t.eval_rays_per_chunk,
         },
     );

@@ -4,7 +4,7 @@
 //! averages over all of the model's cameras, as the GPU pipeline does by default). The GPU pipeline (`crate::nerf::pipeline`) is tested against it.
 
 use super::{hashgrid, mlp, pose, render, sh};
-use crate::nerf::model::{Model, POSE_SLOT};
+use crate::nerf::model::Model;
 use crate::nerf::schedule::anneal_at;
 
 /// One ray of the batch, already generated (origin, unit direction; before any pose correction), with its camera,
@@ -57,9 +57,9 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         crate::nerf::config::Background::Random => render::Background::Constant(f64::NAN), // per ray, below
     };
     let mut out = RefStep { grads: vec![0.0; params.len()], ..Default::default() };
-    let slice = |name: &str, len: usize| model.offset(name)..model.offset(name) + len;
+    let slice = |offset: usize, len: usize| offset..offset + len;
 
-    let pose_off = model.store.slot(POSE_SLOT).map(|sl| sl.offset);
+    let pose_off = model.slots.pose.as_ref().map(|sl| sl.offset);
     for (gi, ray) in rays.iter().enumerate() {
         // Pose correction (training): origin + t, direction rotated by exp(w).
         let (origin, dir) = match pose_off {
@@ -77,8 +77,8 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
                 None => render::initial_edges(pc.samples, jitter(0), s.single_jitter),
                 Some((e, w)) => render::pdf_resample(e, w, pc.samples, anneal, jitter(p as u32), s.single_jitter),
             };
-            let grid = &params[slice(&field.grid_slot, pc.grid.n_params())];
-            let w_mlp = &params[slice(&field.mlp_slot, field.mlp.config.n_params())];
+            let grid = &params[slice(field.grid_offset, pc.grid.n_params())];
+            let w_mlp = &params[slice(field.mlp_offset, field.mlp.config.n_params())];
             let levels_tab = pc.grid.levels();
             let in_pad = field.mlp.config.in_pad();
             let mut encs = Vec::new();
@@ -103,15 +103,15 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         let f = &model.field;
         let fg = &cfg.field.grid;
         let grid_levels = fg.levels();
-        let grid = &params[slice(&f.grid_slot, fg.n_params())];
+        let grid = &params[slice(f.grid_offset, fg.n_params())];
         let fm = &f.mlp.config;
-        let w_density = &params[slice(&f.mlp_slot, fm.n_params())];
+        let w_density = &params[slice(f.mlp_offset, fm.n_params())];
         let cm = &model.colour.config;
-        let w_colour = &params[slice("field.colour_mlp", cm.n_params())];
+        let w_colour = &params[slice(model.slots.colour_mlp.offset, cm.n_params())];
         let (geo_dim, app_dim) = (cfg.field.geo_feat_dim, cfg.field.appearance_embed_dim);
         let shv = sh::encode(dir);
         let app: Vec<f64> = if app_dim > 0 {
-            let o = model.offset("field.appearance") + ray.camera * app_dim;
+            let o = model.slots.appearance.as_ref().expect("appearance slot").offset + ray.camera * app_dim;
             params[o..o + app_dim].to_vec()
         } else {
             vec![]
@@ -162,14 +162,14 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         out.loss_distortion += comp.loss_dist;
         out.loss_depth += comp.loss_depth;
         // Backward through the colour MLP, then the density MLP and the hash grid.
-        let (co, fo, go) = (model.offset("field.colour_mlp"), model.offset(&f.mlp_slot), model.offset(&f.grid_slot));
+        let (co, fo, go) = (model.slots.colour_mlp.offset, f.mlp_offset, f.grid_offset);
         let mut dpos = vec![0.0; 3 * n];
         let mut dsh = [0.0; sh::SH_DIM];
         for k in 0..n {
             let dy_c = &comp.d_colour[k * bands..(k + 1) * bands];
             let dx = mlp::backward(cm, w_colour, &cin[k], dy_c, &mut out.grads[co..co + cm.n_params()]);
             if app_dim > 0 {
-                let o = model.offset("field.appearance") + ray.camera * app_dim;
+                let o = model.slots.appearance.as_ref().expect("appearance slot").offset + ray.camera * app_dim;
                 for a in 0..app_dim {
                     out.grads[o + a] += dx[sh::SH_DIM + geo_dim + a];
                 }
@@ -252,7 +252,7 @@ fn proposal_backward(
     let (pedges, pencs, praw) = (&lv.edges, &lv.encodings, &lv.raw);
     let (loss, d_raw) = render::interlevel(geom, nerf_edges, nerf_weights, pedges, praw, scale, inter_norm);
     out.loss_interlevel += loss;
-    let (mo, go) = (model.offset(&field.mlp_slot), model.offset(&field.grid_slot));
+    let (mo, go) = (field.mlp_offset, field.grid_offset);
     let w_mlp = &params[mo..mo + field.mlp.config.n_params()];
     let grid = &params[go..go + pc.grid.n_params()];
     let plevels = pc.grid.levels();

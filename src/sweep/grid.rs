@@ -280,7 +280,7 @@ impl Grid {
             serde_yaml::from_value(tree).map_err(|e| cell.error(format!("the resulting model config: {e}")))?;
         // A smaller batch than the chunk size means one chunk of that batch (as `msnerf train --rays-per-batch`).
         if cell.get("trainer.rays_per_batch").is_some() && cell.get("trainer.rays_per_chunk").is_none() {
-            model.trainer.rays_per_chunk = model.trainer.rays_per_chunk.min(model.trainer.rays_per_batch);
+            model.trainer.set_rays_per_batch(model.trainer.rays_per_batch);
         }
         model.validate().map_err(|e| cell.error(format!("invalid model config: {e}")))?;
         Ok(CellConfig { model, model_name, bands })
