@@ -226,6 +226,50 @@ fn the_report_says_what_to_pick_for_1_5_and_15_minutes() {
     assert!(md.contains("![") && md.contains("(figs/psnr_vs_time.svg)") && md.contains("(figs/kernel_times.png)"));
     assert!(md.contains("compare the bands they share (blue, green, red)"), "band subsets are flagged");
     assert!(md.contains("| 0 ★ |") && md.contains("| 2 |"), "front cells are starred");
+    assert!(md.contains("Seed noise is not measured in this sweep"), "no repeats, no tie threshold: {md}");
+    assert!(!md.contains("within the seed noise"), "nothing is called a tie without a measurement");
+}
+
+/// Cells that differ only in `trainer.seed` measure the seed noise: the report states the spread of their PSNR at
+/// each evaluation point and uses the largest as the tie threshold (issue 24: measured, not asserted).
+#[test]
+fn seed_repeats_measure_the_noise_the_report_uses() {
+    let mut r = results();
+    // Cell 0 again with two other seeds: PSNR 18.0/17.8/18.1 at 10 s, 22.0/22.3/21.9 at 30 s, 24.0/23.9/24.0 at 60 s.
+    for (k, (seed, curve)) in [("1", [17.8, 22.3, 23.9]), ("2", [18.1, 21.9, 24.0])].into_iter().enumerate() {
+        let mut c = r[0].clone();
+        c.index = 3 + k;
+        c.id = format!("cell-{}", c.index);
+        c.label = format!("field.hidden_dim=16, trainer.seed={seed}");
+        c.values.push(("trainer.seed".into(), seed.into()));
+        for (p, v) in c.points.iter_mut().zip(curve) {
+            p.psnr = v;
+        }
+        r.push(c);
+    }
+    let noise = msnerf::sweep::noise::seed_noise(&r).expect("repeats found");
+    assert_eq!(noise.cells, [0, 3, 4]);
+    let want = [(10.0, 0.3), (30.0, 0.4), (60.0, 0.1)];
+    for ((t, d), (wt, wd)) in noise.spread_db.iter().zip(want) {
+        assert!(*t == wt && (d - wd).abs() < 1e-9, "spread at {t} s: {d}, want {wd}");
+    }
+    assert!((noise.max_db() - 0.4).abs() < 1e-9);
+    let g = grid();
+    let m = machine();
+    let md = report_markdown(&report_context(&g, &m, "2026-11-26"), &r);
+    assert!(
+        md.contains("Seed noise, measured: #0 (field.hidden_dim=16), #3") && md.contains("0.40 dB at 30 s"),
+        "the measured spread is stated: {md}"
+    );
+    // At 30 s the pick is cell 3 (22.3); cell 0 (22.0) and cell 4 (21.9) lie within 0.4 dB of it, cell 1 (21.0) not.
+    let row = md.lines().find(|l| l.starts_with("| 30 s |")).expect("30 s row");
+    assert!(row.contains("within the seed noise (0.40 dB): #0, #4") && !row.contains("#1"), "{row}");
+    // Without a seed override nothing is a repeat, even with equal settings.
+    let mut same = results();
+    let mut c = same[0].clone();
+    c.index = 3;
+    same.push(c);
+    assert!(msnerf::sweep::noise::seed_noise(&same).is_none());
 }
 
 /// Geometry measured at an evaluation point shows up in the report and in `cells.csv`; without any, the report has

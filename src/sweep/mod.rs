@@ -13,6 +13,7 @@
 
 pub mod error;
 pub mod grid;
+pub mod noise;
 pub mod pareto;
 pub mod plots;
 pub mod report;

@@ -3,6 +3,7 @@
 //! band, where the step time goes, the plots, and the limits of the measurement.
 
 use super::grid::Grid;
+use super::noise::{seed_noise, SeedNoise, SEED_KEY};
 use super::pareto::{candidates, time_front, time_front_cells};
 use super::result::{CellResult, TimePoint};
 use super::table::Machine;
@@ -53,20 +54,38 @@ pub fn shared_psnr(p: &TimePoint, bands: &[&String]) -> f64 {
     }
 }
 
-/// Run-to-run noise of one held-out PSNR measurement, as the report states it.
-const NOISE_DB: f64 = 0.3;
-
-/// The other candidates whose best PSNR by `budget_s` is within [`NOISE_DB`] of the pick's.
-fn near_ties(results: &[CellResult], budget_s: f64, pick: usize, psnr: f64) -> Vec<String> {
+/// The other candidates whose best PSNR by `budget_s` is within `noise_db` (the measured seed noise) of the pick's.
+fn near_ties(results: &[CellResult], budget_s: f64, pick: usize, psnr: f64, noise_db: f64) -> Vec<String> {
     let ok = candidates(results);
     results
         .iter()
         .enumerate()
         .filter(|(i, _)| *i != pick && ok[*i])
         .filter_map(|(_, r)| {
-            r.best_within(budget_s).filter(|p| psnr - p.psnr < NOISE_DB).map(|_| format!("#{}", r.index))
+            r.best_within(budget_s).filter(|p| psnr - p.psnr <= noise_db).map(|_| format!("#{}", r.index))
         })
         .collect()
+}
+
+/// The Limits section's line on seed noise: measured from repeats, or said to be unmeasured.
+fn noise_line(results: &[CellResult], noise: Option<&SeedNoise>) -> String {
+    let Some(n) = noise else {
+        return format!(
+            "- One run per configuration and one seed. Seed noise is not measured in this sweep (repeat a cell with \
+             other `{SEED_KEY}` values to measure it), so no difference is called a tie; at a fixed wall-clock time \
+             the machine's load adds more."
+        );
+    };
+    let label = |i: usize| results.iter().find(|r| r.index == i).map_or(String::new(), |r| r.label.clone());
+    let cells: Vec<String> = n.cells.iter().map(|&i| format!("#{i} ({})", label(i))).collect();
+    let spread: Vec<String> = n.spread_db.iter().map(|&(t, d)| format!("{d:.2} dB at {}", secs(t))).collect();
+    format!(
+        "- Seed noise, measured: {} are one configuration with other seeds; their held-out PSNR spread (max - min) \
+         is {}. Differences under {:.2} dB are called ties; at a fixed wall-clock time the machine's load adds more.",
+        cells.join(", "),
+        if spread.is_empty() { "not comparable (no shared evaluation point)".to_owned() } else { spread.join(", ") },
+        n.max_db()
+    )
 }
 
 fn secs(t: f64) -> String {
@@ -93,6 +112,7 @@ fn mib(b: u64) -> String {
 pub fn report_markdown(ctx: &ReportContext, results: &[CellResult]) -> String {
     let g = ctx.grid;
     let mut s = String::new();
+    let noise = seed_noise(results);
     let _ = writeln!(s, "# Accuracy against training time: `{}`\n", g.name);
     if let Some(d) = &g.description {
         let _ = writeln!(s, "{}\n", d.trim());
@@ -149,9 +169,11 @@ pub fn report_markdown(ctx: &ReportContext, results: &[CellResult]) -> String {
                 } else {
                     format!("measured at {:.0} s", p.elapsed_s)
                 };
-                let close = near_ties(results, b, i, p.psnr);
-                if !close.is_empty() {
-                    let _ = write!(note, "; within {NOISE_DB} dB (noise): {}", close.join(", "));
+                if let Some(n) = &noise {
+                    let close = near_ties(results, b, i, p.psnr, n.max_db());
+                    if !close.is_empty() {
+                        let _ = write!(note, "; within the seed noise ({:.2} dB): {}", n.max_db(), close.join(", "));
+                    }
                 }
                 let _ = writeln!(
                     s,
@@ -319,9 +341,10 @@ pub fn report_markdown(ctx: &ReportContext, results: &[CellResult]) -> String {
     }
     let _ = writeln!(
         s,
-        "- One run per configuration and one seed: at a fixed step count, differences under about {NOISE_DB} dB are seed noise; at a fixed wall-clock time the machine's load adds more.\n\
+        "{}\n\
          - Wall-clock budgets measure this machine under its load at the time; steps per second move with it.\n\
          - PSNR is over {} held-out views, not the whole eval split (`msnerf eval RUN` scores them all).",
+        noise_line(results, noise.as_ref()),
         g.eval_views
     );
     if m.device_type.eq_ignore_ascii_case("cpu") {
