@@ -27,22 +27,22 @@ demo: build
 	./target/release/msnerf demo
 
 # docs/accuracy-vs-time.md and its plots: the configs/sweeps/accuracy-report.yaml sweep on the built-in campus scene
-# (~16 min on 2 cores with lavapipe). Resumable: rerunning skips the cells already in accuracy-report-output/.
+# (~20 min on 2 cores with lavapipe). Resumable: rerunning skips the cells already in accuracy-report-output/.
 accuracy-report: build
 	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/accuracy-report.yaml \
 		--out accuracy-report-output --report docs/accuracy-vs-time.md
 
-# docs/accuracy-vs-time-5min.md: three configurations for 5 minutes each (~16 min on 2 cores with lavapipe).
+# docs/accuracy-vs-time-5min.md: three configurations and a seed repeat for 5 minutes each (~22 min on 2 cores with lavapipe).
 accuracy-report-5min: build
 	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/five-minutes.yaml \
 		--out accuracy-report-5min-output --report docs/accuracy-vs-time-5min.md
 
-# docs/mlp-precision.md: fp32 against fp16 hidden activations, 90 s each (~4 min on 2 cores with lavapipe).
+# docs/mlp-precision.md: fp32 against fp16 hidden activations and a seed repeat, 90 s each (~6 min on 2 cores with lavapipe).
 mlp-precision-report: build
 	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/mlp-precision.yaml \
 		--out mlp-precision-output --report docs/mlp-precision.md
 
-# docs/geometry-vs-time.md: depth and cloud accuracy against time, poses against aerial normalisation (~12 min).
+# docs/geometry-vs-time.md: depth and cloud accuracy against time, poses against aerial normalisation, a seed repeat (~18 min).
 geometry-sweep: build
 	./target/release/msnerf sweep --builtin-scene campus --grid configs/sweeps/geometry.yaml \
 		--out geometry-sweep-output --report docs/geometry-vs-time.md
