@@ -141,7 +141,8 @@ pub fn report_markdown(ctx: &ReportContext, results: &[CellResult]) -> String {
     let points: Vec<String> = g.eval_at_s.iter().map(|t| secs(*t)).collect();
     let _ = writeln!(
         s,
-        "Each configuration is trained from scratch, with the same seed, for {budget}. Held-out PSNR (data range 1, the \
+        "Each configuration is trained from scratch, with the same seed (unless a cell sets `trainer.seed`), for {budget}. \
+         Held-out PSNR (data range 1, the \
          MSE over all bands) and SSIM are measured on {} whole held-out views after {} of training{}; evaluation \
          time is not counted as training time. Time per step is the host time of one training step; the per-kernel \
          split comes from GPU timestamps.\n",
