@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use super::camera::Camera;
 use super::error::{DataError, FrameRef};
-use super::pose::{normalize_poses, Mat4, PoseTransform};
+use super::pose::{from_dmat4, normalize_poses, rigid_inverse, to_dmat4, Mat4, PoseTransform};
 use super::raster::{BandScale, Raster, SampleType, Samples};
 use super::reader::{read_image_file, DecodedImage};
 use super::split::{assign_splits, normalize_name, Split, SplitMethod};
@@ -151,7 +151,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         });
     }
 
-    let undo = raw.applied_transform.map(|a| super::pose::rigid_inverse(&a));
+    let undo = raw.applied_transform.map(|a| from_dmat4(&rigid_inverse(&to_dmat4(&a))));
     let mut frames = Vec::with_capacity(raw_frames.len());
     for (f, split) in raw_frames.into_iter().zip(splits) {
         let fr = FrameRef { index: f.index, name: f.name.clone() };
@@ -183,7 +183,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         frames.push(Frame {
             name: f.name,
             index_in_file: f.index,
-            c2w: undo.as_ref().map_or(f.c2w, |u| super::pose::mat_mul(u, &f.c2w)),
+            c2w: undo.as_ref().map_or(f.c2w, |u| from_dmat4(&(to_dmat4(u) * to_dmat4(&f.c2w)))),
             camera: f.camera,
             image,
             mask: f.mask_path,
