@@ -240,13 +240,15 @@ fn png_8_and_16_bit_and_jpeg_keep_their_depth() {
         assert_eq!(r.samples.raw(i), v as f64);
     }
     assert_eq!(r.get(1, 2, 1), (d16[(w as usize + 2) * 3 + 1] as f64 / 65535.0) as f32);
-    // RGBA 8-bit: alpha dropped for an RGB dataset, values / 255.
+    // RGBA 8-bit: alpha is not a band; the RGB samples stay u8, read as values / 255 composited over the default
+    // black background (tests/data_alpha.rs covers the compositing).
     write_transforms(td.path(), w, h, serde_json::json!({}), vec![frame("b8.png", 0.0, "train")]);
     let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
     let r = ds.read_frame(0).unwrap();
     assert_eq!((r.bands, r.sample_type()), (3, SampleType::U8));
-    assert_eq!(r.raw(2, 3, 2), d8[(2 * w as usize + 3) * 4 + 2] as f64);
-    assert_eq!(r.get(2, 3, 0), (d8[(2 * w as usize + 3) * 4] as f64 / 255.0) as f32);
+    let px = (2 * w as usize + 3) * 4;
+    assert_eq!(r.raw(2, 3, 2), d8[px + 2] as f64);
+    assert_eq!(r.get(2, 3, 0), (d8[px] as f64 / 255.0 * (d8[px + 3] as f64 / 255.0)) as f32);
     // JPEG: lossy, so only shape and type.
     image::ImageBuffer::<image::Rgb<u8>, _>::from_pixel(16, 16, image::Rgb([200, 100, 50]))
         .save(td.path().join("c.jpg"))

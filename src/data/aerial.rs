@@ -20,7 +20,7 @@
 
 use super::camera::{camera_direction, Camera};
 use super::pose::{rotation_between, Mat4, PoseTransform};
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 
 /// Why the aerial normalisation does not apply (the caller falls back to `poses` and says so).
 #[derive(Debug, Clone, PartialEq)]
@@ -58,15 +58,9 @@ fn percentile(v: &mut [f64], q: f64) -> f64 {
 /// The aerial normalisation of cameras `frames` (camera-to-world, intrinsics).
 pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform, NotAerial> {
     let n = frames.len();
-    let mut up = [0.0; 3];
-    for (p, _) in frames {
-        for (i, u) in up.iter_mut().enumerate() {
-            *u += p[i][1];
-        }
-    }
-    let rows = rotation_between(up, [0.0, 0.0, 1.0]);
-    let r = DMat3::from_cols_array_2d(&rows).transpose(); // rotation_between returns rows
-                                                          // Levelled camera centres and forward axes (OpenGL cameras look along -z).
+    let up = frames.iter().fold(DVec3::ZERO, |u, (p, _)| u + column(p, 1));
+    let r = rotation_between(up, DVec3::Z);
+    // Levelled camera centres and forward axes (OpenGL cameras look along -z).
     let centres: Vec<DVec3> = frames.iter().map(|(p, _)| r * column(p, 3)).collect();
     let fwd: Vec<DVec3> = frames.iter().map(|(p, _)| r * -column(p, 2)).collect();
     let mean_fz = fwd.iter().map(|a| a.z).sum::<f64>() / n.max(1) as f64;
@@ -131,6 +125,6 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
     let (y0, y1) = (percentile(&mut ys, 0.02), percentile(&mut ys, 0.98));
     // 3. Scale and centre.
     let e = (0.5 * (x1 - x0)).max(0.5 * (y1 - y0)).max(0.25 * height.abs()).max(1e-9);
-    let centre = [0.5 * (x0 + x1), 0.5 * (y0 + y1), z_g + 0.5 * e];
-    Ok(PoseTransform { transform: [0, 1, 2].map(|i| [rows[i][0], rows[i][1], rows[i][2], -centre[i]]), scale: 1.0 / e })
+    let centre = DVec3::new(0.5 * (x0 + x1), 0.5 * (y0 + y1), z_g + 0.5 * e);
+    Ok(PoseTransform::new(r, -centre, 1.0 / e))
 }

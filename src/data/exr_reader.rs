@@ -10,7 +10,7 @@ use exr::prelude::*;
 use half::f16;
 
 use super::raster::{Raster, Samples};
-use super::reader::{DecodedImage, FileMeta};
+use super::reader::{AlphaChannel, DecodedImage, FileMeta};
 
 pub fn read_exr(path: &Path, max_bytes: usize) -> std::result::Result<DecodedImage, String> {
     let f = std::fs::File::open(path).map_err(|e| e.to_string())?;
@@ -92,5 +92,10 @@ pub fn read_exr_from<R: Read + Seek>(reader: R, max_bytes: usize) -> std::result
         Samples::F32(v)
     };
     let raster = Raster::new(w as u32, h as u32, bands, samples).ok_or("EXR sample count does not match its size")?;
-    Ok(DecodedImage { raster, meta: FileMeta { channel_names: names, ..FileMeta::default() } })
+    // OpenEXR's alpha is the channel `A` (or `layer.A`), and its colour is premultiplied by it.
+    let alpha = (bands > 1)
+        .then(|| names.iter().position(|n| n.rsplit('.').next().unwrap_or(n) == "A"))
+        .flatten()
+        .map(|index| AlphaChannel { index, associated: true });
+    Ok(DecodedImage { raster, meta: FileMeta { channel_names: names, alpha, ..FileMeta::default() } })
 }

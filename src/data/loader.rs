@@ -11,9 +11,10 @@ use std::path::{Path, PathBuf};
 
 use super::camera::Camera;
 use super::error::{DataError, FrameRef};
-use super::pose::{normalize_poses, Mat4, PoseTransform};
+use super::pose::{from_dmat4, normalize_poses, rigid_inverse, to_dmat4, Mat4, PoseTransform};
+use super::raster::Alpha;
 use super::raster::{BandScale, Raster, SampleType, Samples};
-use super::reader::{read_image_file, DecodedImage};
+use super::reader::{read_image_file, AlphaChannel, DecodedImage};
 use super::split::{assign_splits, normalize_name, Split, SplitMethod};
 use super::transforms::parse_transforms;
 pub use super::transforms::Band;
@@ -28,6 +29,37 @@ pub struct LoadOptions {
     /// Leave frames with an outlying camera centre out (split `unused`, listed in `Dataset::dropped_outliers`)
     /// instead of refusing the dataset ([`super::outliers`]).
     pub drop_outliers: bool,
+    /// What an image's alpha channel is composited over when the frame is read ([`AlphaBackground`]).
+    pub alpha_background: AlphaBackground,
+}
+
+/// What the ground truth of an image with an alpha channel is composited over, as nerfstudio's
+/// `RGBRenderer.blend_background` does it: `gt = c·α + bg·(1 − α)` in every band (model values, after the black
+/// level and pixel scale).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum AlphaBackground {
+    /// Black (0): the default, and the model backgrounds `last_sample` (nerfstudio does not blend the ground truth
+    /// with the last sample) and `random` outside training.
+    #[default]
+    Black,
+    /// White (1): the model background `white`.
+    White,
+    /// The model background `random` in training: nerfstudio blends the ground truth with each ray's random colour
+    /// in the loss, which msnerf's loss does not do, so a frame with alpha is refused by name.
+    Refuse,
+}
+
+impl AlphaBackground {
+    /// The ground truth's background for a model's `rendering.background`, in training or in evaluation.
+    pub fn for_model(background: crate::nerf::config::Background, training: bool) -> AlphaBackground {
+        use crate::nerf::config::Background;
+        match background {
+            Background::LastSample | Background::Black => AlphaBackground::Black,
+            Background::White => AlphaBackground::White,
+            Background::Random if training => AlphaBackground::Refuse,
+            Background::Random => AlphaBackground::Black,
+        }
+    }
 }
 
 /// Where a frame's pixels come from.
@@ -94,6 +126,8 @@ pub struct Dataset {
     /// [`Dataset::pose_transform`] and whether it is the aerial fit, computed once (the fit looks at pairs of
     /// cameras).
     pub transform_cache: std::sync::OnceLock<(PoseTransform, bool)>,
+    /// Whether the first frame's file has an alpha channel (composited as `options.alpha_background` says).
+    pub has_alpha: bool,
 }
 
 /// A subset of a dataset's bands (`msnerf train --bands`, sweep axis `bands`): the indices kept, in order, into
@@ -151,7 +185,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         });
     }
 
-    let undo = raw.applied_transform.map(|a| super::pose::rigid_inverse(&a));
+    let undo = raw.applied_transform.map(|a| from_dmat4(&rigid_inverse(&to_dmat4(&a))));
     let mut frames = Vec::with_capacity(raw_frames.len());
     for (f, split) in raw_frames.into_iter().zip(splits) {
         let fr = FrameRef { index: f.index, name: f.name.clone() };
@@ -183,7 +217,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         frames.push(Frame {
             name: f.name,
             index_in_file: f.index,
-            c2w: undo.as_ref().map_or(f.c2w, |u| super::pose::mat_mul(u, &f.c2w)),
+            c2w: undo.as_ref().map_or(f.c2w, |u| from_dmat4(&(to_dmat4(u) * to_dmat4(&f.c2w)))),
             camera: f.camera,
             image,
             mask: f.mask_path,
@@ -260,10 +294,12 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         dropped_outliers,
         band_selection: None,
         transform_cache: Default::default(),
+        has_alpha: false,
     };
     // Probe the first frame: sample type, and band identity when the header does not name the bands.
     let probe = ds.decode_sources(0)?;
     ds.sample_type = probe[0].raster.sample_type();
+    ds.has_alpha = matches!(ds.frames[0].image, ImageSource::File(_)) && colour_alpha(&probe[0]).is_some();
     if raw.bands.is_none() {
         ds.bands = infer_bands(&ds, &probe)?;
     }
@@ -300,10 +336,12 @@ fn infer_bands(ds: &Dataset, probe: &[DecodedImage]) -> Result<Vec<Band>, DataEr
         }
         ImageSource::File(p) => {
             let d = &probe[0];
-            if !d.meta.channel_names.is_empty() && d.raster.bands != 3 {
-                return Ok(d.meta.channel_names.iter().map(|n| band(n.clone(), None, None)).collect());
+            let alpha = colour_alpha(d).map(|a| a.index);
+            let n = d.raster.bands - usize::from(alpha.is_some());
+            if !d.meta.channel_names.is_empty() && n != 3 {
+                let names = d.meta.channel_names.iter().enumerate().filter(|&(i, _)| Some(i) != alpha);
+                return Ok(names.map(|(_, n)| band(n.clone(), None, None)).collect());
             }
-            let n = d.raster.bands;
             if n == 3 || n == 4 {
                 return Ok(["red", "green", "blue"].iter().map(|s| band(s.to_string(), None, None)).collect());
             }
@@ -381,10 +419,13 @@ impl Dataset {
         self.width as u64 * self.height as u64 * self.bands.len() as u64 * self.sample_type.bytes() as u64
     }
 
-    /// Bytes one image takes in memory including its mask plane, if the frame has one.
+    /// Bytes one image takes in memory including its mask plane, if the frame has one, and its alpha plane, if
+    /// the first frame had one.
     pub fn frame_bytes(&self, i: usize) -> u64 {
-        let mask = if self.frames[i].mask.is_some() { self.width as u64 * self.height as u64 } else { 0 };
-        self.image_bytes() + mask
+        let px = self.width as u64 * self.height as u64;
+        let mask = if self.frames[i].mask.is_some() { px } else { 0 };
+        let alpha = if self.has_alpha { px * self.sample_type.bytes() as u64 } else { 0 };
+        self.image_bytes() + mask + alpha
     }
 
     /// Indices of the frames in a split.
@@ -479,6 +520,7 @@ impl Dataset {
                 let mut r = select_channels(&raster, &sel.indices);
                 r.scaling = sel.indices.iter().map(|&b| raster.scaling[b]).collect();
                 r.mask = raster.mask;
+                r.alpha = raster.alpha;
                 r
             }
             None => raster,
@@ -554,7 +596,44 @@ impl Dataset {
         }
     }
 
+    /// The file's colour channels in band order, with its alpha channel (if any) taken out and attached as the
+    /// raster's [`Alpha`].
     fn arrange_channels(&self, d: DecodedImage, p: &Path, f: &Frame) -> Result<Raster, DataError> {
+        let Some(a) = colour_alpha(&d) else { return self.arrange_colour(d, p, f) };
+        let background = match self.options.alpha_background {
+            AlphaBackground::Black => 0.0,
+            AlphaBackground::White => 1.0,
+            AlphaBackground::Refuse => {
+                return Err(DataError::InvalidValue {
+                    path: p.to_path_buf(),
+                    key: "rendering.background".into(),
+                    frame: Some(frame_of(f)),
+                    reason: "the image has an alpha channel and the model's background is `random`: nerfstudio \
+                             blends such ground truth with each ray's random colour in the loss, which msnerf does \
+                             not; use background black, white or last_sample, or remove the alpha channel"
+                        .into(),
+                })
+            }
+        };
+        let n = d.raster.bands;
+        let px = d.raster.width as usize * d.raster.height as usize;
+        let mut alpha = Samples::zeros(d.raster.sample_type(), px);
+        for q in 0..px {
+            alpha.copy_from(q, &d.raster.samples, q * n + a.index);
+        }
+        let colour: Vec<usize> = (0..n).filter(|&c| c != a.index).collect();
+        let mut meta = d.meta;
+        if !meta.channel_names.is_empty() {
+            meta.channel_names.remove(a.index);
+        }
+        meta.alpha = None;
+        let d = DecodedImage { raster: select_channels(&d.raster, &colour), meta };
+        let mut r = self.arrange_colour(d, p, f)?;
+        r.alpha = Some(Alpha { samples: alpha, associated: a.associated, background });
+        Ok(r)
+    }
+
+    fn arrange_colour(&self, d: DecodedImage, p: &Path, f: &Frame) -> Result<Raster, DataError> {
         let nb = self.file_bands().len();
         let r = d.raster;
         let names = &d.meta.channel_names;
@@ -700,6 +779,11 @@ impl Dataset {
         let px = (self.width * self.height) as usize;
         Ok(Some((0..px).map(|q| (r.samples.raw(q * r.bands) * s) as f32).collect()))
     }
+}
+
+/// The file's alpha channel, when it has one besides at least one colour channel.
+fn colour_alpha(d: &DecodedImage) -> Option<AlphaChannel> {
+    d.meta.alpha.filter(|a| d.raster.bands >= 2 && a.index < d.raster.bands)
 }
 
 fn select_channels(r: &Raster, order: &[usize]) -> Raster {

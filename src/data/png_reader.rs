@@ -6,7 +6,7 @@ use std::path::Path;
 use image::DynamicImage;
 
 use super::raster::{Raster, Samples};
-use super::reader::{DecodedImage, FileMeta};
+use super::reader::{AlphaChannel, DecodedImage, FileMeta};
 
 pub fn read_png_jpeg(path: &Path, max_bytes: usize) -> Result<DecodedImage, String> {
     let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
@@ -35,5 +35,7 @@ pub fn read_png_jpeg_bytes(bytes: &[u8], max_bytes: usize) -> Result<DecodedImag
         _ => return Err("unsupported PNG/JPEG pixel layout".into()),
     };
     let raster = Raster::new(w, h, bands, samples).ok_or("decoded size mismatch")?;
-    Ok(DecodedImage { raster, meta: FileMeta::default() })
+    // Grey+alpha and RGBA: the last channel is straight (unassociated) alpha, as PNG defines it.
+    let alpha = matches!(bands, 2 | 4).then_some(AlphaChannel { index: bands - 1, associated: false });
+    Ok(DecodedImage { raster, meta: FileMeta { alpha, ..FileMeta::default() } })
 }

@@ -137,7 +137,39 @@ impl BandScale {
     pub const IDENTITY: BandScale = BandScale { black: 0.0, scale: 1.0 };
 }
 
-/// One decoded image: `bands` samples per pixel, row 0 at the top, plus an optional validity mask.
+/// An image's alpha channel and what it is composited over (nerfstudio's `blend_background`): a band's model
+/// value v becomes `v·α + bg·(1 − α)` (straight alpha) or `v + bg·(1 − α)` (associated, i.e. premultiplied,
+/// alpha), with α the stored alpha over the type's full scale (2^bits − 1 for integers, 1 for floats), clamped
+/// to [0, 1]. The colour bands' black level and pixel scale do not apply to α.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Alpha {
+    /// One sample per pixel, row-major, in the file's sample type.
+    pub samples: Samples,
+    /// Whether the colour is premultiplied by α (TIFF ExtraSamples 1, OpenEXR); straight alpha otherwise (PNG,
+    /// TIFF ExtraSamples 2).
+    pub associated: bool,
+    /// The background's model value, the same in every band.
+    pub background: f64,
+}
+
+impl Alpha {
+    /// α of pixel `p` in [0, 1].
+    #[inline]
+    pub fn at(&self, p: usize) -> f64 {
+        (self.samples.raw(p) / self.samples.sample_type().default_scale()).clamp(0.0, 1.0)
+    }
+
+    /// Model value `v` of pixel `p` composited over the background.
+    #[inline]
+    pub fn blend(&self, p: usize, v: f64) -> f64 {
+        let a = self.at(p);
+        let colour = if self.associated { v } else { v * a };
+        colour + self.background * (1.0 - a)
+    }
+}
+
+/// One decoded image: `bands` samples per pixel, row 0 at the top, plus an optional validity mask and an
+/// optional alpha channel that every value read is composited with.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Raster {
     pub width: u32,
@@ -148,6 +180,8 @@ pub struct Raster {
     pub scaling: Vec<BandScale>,
     /// Optional per-pixel mask, `width * height` bytes, 0 = ignore the pixel.
     pub mask: Option<Vec<u8>>,
+    /// Optional alpha channel (not one of the `bands`), applied by every accessor that returns model values.
+    pub alpha: Option<Alpha>,
 }
 
 impl Raster {
@@ -156,16 +190,38 @@ impl Raster {
         if samples.len() != width as usize * height as usize * bands || bands == 0 {
             return None;
         }
-        Some(Raster { width, height, bands, samples, scaling: vec![BandScale::IDENTITY; bands], mask: None })
+        Some(Raster {
+            width,
+            height,
+            bands,
+            samples,
+            scaling: vec![BandScale::IDENTITY; bands],
+            mask: None,
+            alpha: None,
+        })
     }
 
     pub fn sample_type(&self) -> SampleType {
         self.samples.sample_type()
     }
 
-    /// Bytes held in memory (samples plus mask).
+    /// Bytes held in memory (samples plus mask and alpha).
     pub fn bytes(&self) -> u64 {
-        (self.samples.len() * self.sample_type().bytes()) as u64 + self.mask.as_ref().map_or(0, |m| m.len() as u64)
+        (self.samples.len() * self.sample_type().bytes()) as u64
+            + self.mask.as_ref().map_or(0, |m| m.len() as u64)
+            + self.alpha.as_ref().map_or(0, |a| (a.samples.len() * a.samples.sample_type().bytes()) as u64)
+    }
+
+    /// Model value of band `band` at pixel index `p`: scaled, then composited over the background when the
+    /// raster has an alpha channel.
+    #[inline]
+    fn value(&self, p: usize, band: usize) -> f32 {
+        let s = self.scaling[band];
+        let v = (self.samples.raw(p * self.bands + band) - s.black) / s.scale;
+        match &self.alpha {
+            None => v as f32,
+            Some(a) => a.blend(p, v) as f32,
+        }
     }
 
     /// Stored value of one sample, unscaled.
@@ -174,20 +230,19 @@ impl Raster {
         self.samples.raw((row as usize * self.width as usize + col as usize) * self.bands + band)
     }
 
-    /// Model value of one sample: `(raw − black) / scale` as f32.
+    /// Model value of one sample: `(raw − black) / scale` as f32 (composited over the background when the raster
+    /// has an alpha channel).
     #[inline]
     pub fn get(&self, row: u32, col: u32, band: usize) -> f32 {
-        let s = self.scaling[band];
-        ((self.raw(row, col, band) - s.black) / s.scale) as f32
+        self.value(row as usize * self.width as usize + col as usize, band)
     }
 
     /// All bands of one pixel as f32 into `out` (length `bands`).
     #[inline]
     pub fn pixel_into(&self, row: u32, col: u32, out: &mut [f32]) {
-        let base = (row as usize * self.width as usize + col as usize) * self.bands;
+        let p = row as usize * self.width as usize + col as usize;
         for (b, o) in out.iter_mut().enumerate().take(self.bands) {
-            let s = self.scaling[b];
-            *o = ((self.samples.raw(base + b) - s.black) / s.scale) as f32;
+            *o = self.value(p, b);
         }
     }
 
@@ -203,8 +258,7 @@ impl Raster {
     /// One band as f32, row-major (for checks and tests; allocates).
     pub fn band_f32(&self, band: usize) -> Vec<f32> {
         let n = self.width as usize * self.height as usize;
-        let s = self.scaling[band];
-        (0..n).map(|p| ((self.samples.raw(p * self.bands + band) - s.black) / s.scale) as f32).collect()
+        (0..n).map(|p| self.value(p, band)).collect()
     }
 
     /// Per-band (min, max) of the model values over finite samples; `None` for a band with none.
@@ -213,8 +267,7 @@ impl Raster {
         let n = self.width as usize * self.height as usize;
         for p in 0..n {
             for (b, slot) in r.iter_mut().enumerate() {
-                let s = self.scaling[b];
-                let v = ((self.samples.raw(p * self.bands + b) - s.black) / s.scale) as f32;
+                let v = self.value(p, b);
                 if v.is_finite() {
                     *slot = Some(match *slot {
                         None => (v, v),

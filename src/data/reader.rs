@@ -21,6 +21,17 @@ pub struct FileMeta {
     pub black_level: Option<f64>,
     /// Channel names in file order (OpenEXR only).
     pub channel_names: Vec<String>,
+    /// The channel that is alpha, when the file flags one (PNG grey+alpha and RGBA; TIFF ExtraSamples 1 or 2;
+    /// an OpenEXR channel named `A`). It is one of the raster's bands as decoded; the loader takes it out.
+    pub alpha: Option<AlphaChannel>,
+}
+
+/// Which decoded channel is alpha, and whether the colour is premultiplied by it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AlphaChannel {
+    pub index: usize,
+    /// Associated (premultiplied) alpha: TIFF ExtraSamples 1 and OpenEXR. Straight alpha: PNG, TIFF ExtraSamples 2.
+    pub associated: bool,
 }
 
 /// A decoded file: samples in their stored type (identity scaling) plus metadata.

@@ -15,7 +15,7 @@ use tiff::decoder::{ifd::Value, Decoder, DecodingResult, Limits};
 use tiff::tags::{PlanarConfiguration, Tag};
 
 use super::raster::{Raster, Samples};
-use super::reader::{DecodedImage, FileMeta};
+use super::reader::{AlphaChannel, DecodedImage, FileMeta};
 use super::xmp::parse_xmp_band;
 
 const TAG_XMP: u16 = 700;
@@ -98,6 +98,7 @@ pub fn read_tiff_from<R: std::io::Read + std::io::Seek>(reader: R, max_bytes: us
     let mut meta = FileMeta::default();
     let mut pages: Vec<(u32, u32, usize, Samples)> = Vec::new();
     let mut page_index = 0usize;
+    let mut extra: Vec<u16> = Vec::new();
     loop {
         let subfile = dec.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(err)?.unwrap_or(0);
         if subfile & 1 == 0 {
@@ -113,8 +114,12 @@ pub fn read_tiff_from<R: std::io::Read + std::io::Seek>(reader: R, max_bytes: us
                         meta.black_level = Some(vals.iter().sum::<f64>() / vals.len() as f64);
                     }
                 }
+                extra = dec.find_tag_unsigned_vec::<u16>(Tag::ExtraSamples).ok().flatten().unwrap_or_default();
             }
             pages.push(read_page(&mut dec, max_bytes)?);
+            if pages.len() == 1 {
+                meta.alpha = alpha_channel(pages[0].2, &extra);
+            }
             // Only multi-page files of single-sample pages are band stacks; stop after page 1 otherwise.
             if pages[0].2 != 1 {
                 break;
@@ -136,6 +141,14 @@ pub fn read_tiff_from<R: std::io::Read + std::io::Seek>(reader: R, max_bytes: us
         interleave_pages(w, h, same)?
     };
     Ok(DecodedImage { raster, meta })
+}
+
+/// The alpha channel ExtraSamples (tag 338) flags on a page of `samples` samples: the extra samples are the last
+/// ones, after the colour samples (so this holds for RGB + alpha and for a B-band MinIsBlack image + alpha alike);
+/// 1 is associated (premultiplied) alpha, 2 unassociated (straight) alpha. The first one flagged is used.
+fn alpha_channel(samples: usize, extra: &[u16]) -> Option<AlphaChannel> {
+    let base = samples.checked_sub(extra.len())?;
+    extra.iter().position(|&e| e == 1 || e == 2).map(|k| AlphaChannel { index: base + k, associated: extra[k] == 1 })
 }
 
 fn read_page<R: std::io::Read + std::io::Seek>(

@@ -203,7 +203,8 @@ pub fn load_run_dataset(
 /// Runs training; returns the summary. Errors are messages that name the file, key or step.
 pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let cfg = &opts.model;
-    let ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &cfg.sampling)?;
+    let mut ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &cfg.sampling)?;
+    ds.options.alpha_background = crate::data::AlphaBackground::for_model(cfg.rendering.background, true);
     let bands = ds.n_bands();
     cfg.band_weights(bands)?;
     let train_frames = ds.split_indices(Split::Train);

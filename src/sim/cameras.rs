@@ -12,11 +12,13 @@
 //!
 //! Intrinsics: fx = fy = (w/2) / tan(HFOV/2), principal point at the image centre (w/2, h/2).
 
+use glam::{DMat4, DVec3};
+
 use crate::data::camera::{Camera, CameraModel, Distortion};
+use crate::data::pose::from_dmat4;
+pub use crate::data::pose::Mat4;
 
 use super::scene::{CameraGroupDesc, SceneDesc};
-
-pub type Mat4 = [[f64; 4]; 4];
 
 /// Pinhole intrinsics for a `width` x `height` image with horizontal field of view `hfov_deg`.
 pub fn intrinsics(width: u32, height: u32, hfov_deg: f64) -> Camera {
@@ -33,43 +35,34 @@ pub fn intrinsics(width: u32, height: u32, hfov_deg: f64) -> Camera {
     }
 }
 
-fn norm(v: [f64; 3]) -> [f64; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    v.map(|x| x / l)
+fn norm(v: DVec3) -> DVec3 {
+    v / v.length()
 }
 
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-fn from_axes(pos: [f64; 3], right: [f64; 3], up: [f64; 3], fwd: [f64; 3]) -> Mat4 {
-    [
-        [right[0], up[0], -fwd[0], pos[0]],
-        [right[1], up[1], -fwd[1], pos[1]],
-        [right[2], up[2], -fwd[2], pos[2]],
-        [0.0, 0.0, 0.0, 1.0],
-    ]
+/// The camera-to-world pose with these axes: columns right, up, −forward (OpenGL cameras look along −z), position.
+fn from_axes(pos: DVec3, right: DVec3, up: DVec3, fwd: DVec3) -> Mat4 {
+    from_dmat4(&DMat4::from_cols(right.extend(0.0), up.extend(0.0), (-fwd).extend(0.0), pos.extend(1.0)))
 }
 
 /// Pose at `pos` with horizontal unit heading `h` = (hx, hy) and gimbal tilt `tilt_deg`.
 pub fn heading_pose(pos: [f64; 3], h: [f64; 2], tilt_deg: f64) -> Mat4 {
     let (st, ct) = tilt_deg.to_radians().sin_cos();
-    let fwd = norm([ct * h[0], ct * h[1], st]);
-    let right = [h[1], -h[0], 0.0];
-    let up = cross(right, fwd);
-    from_axes(pos, right, up, fwd)
+    let fwd = norm(DVec3::new(ct * h[0], ct * h[1], st));
+    let right = DVec3::new(h[1], -h[0], 0.0);
+    let up = right.cross(fwd);
+    from_axes(pos.into(), right, up, fwd)
 }
 
 /// Pose at `pos` looking at `target` with `up` hint (+z when `None`; +y when looking straight along it).
 pub fn look_at(pos: [f64; 3], target: [f64; 3], up: Option<[f64; 3]>) -> Mat4 {
-    let fwd = norm([target[0] - pos[0], target[1] - pos[1], target[2] - pos[2]]);
-    let mut hint = up.unwrap_or([0.0, 0.0, 1.0]);
-    let c = cross(fwd, hint);
-    if c.iter().map(|x| x * x).sum::<f64>() < 1e-12 {
-        hint = [0.0, 1.0, 0.0];
+    let pos = DVec3::from(pos);
+    let fwd = norm(DVec3::from(target) - pos);
+    let mut hint = up.map_or(DVec3::Z, DVec3::from);
+    if fwd.cross(hint).length_squared() < 1e-12 {
+        hint = DVec3::Y;
     }
-    let right = norm(cross(fwd, hint));
-    let upv = cross(right, fwd);
+    let right = norm(fwd.cross(hint));
+    let upv = right.cross(fwd);
     from_axes(pos, right, upv, fwd)
 }
 

@@ -30,6 +30,7 @@
 // Range checks are written `!(x > 0.0)` on purpose: they must also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+use glam::DVec3;
 use serde::Deserialize;
 
 use super::bands::resolve_bands;
@@ -283,28 +284,24 @@ pub fn sun_direction(s: &SunDesc) -> [f64; 3] {
     [el.cos() * az.sin(), el.cos() * az.cos(), el.sin()]
 }
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 /// The sun-and-sky light factor L (module doc) for unit normal `n`, sun direction `s`, direct factor
 /// `brdf` (1 for Lambertian) and visibility `vis`.
 pub fn sun_sky_light(n: [f64; 3], s: [f64; 3], sky_fraction: f64, brdf: f64, visible: bool) -> f64 {
-    let cos_i = dot(n, s);
+    let cos_i = DVec3::from(n).dot(DVec3::from(s));
     let direct = if visible && cos_i > 0.0 { brdf * cos_i / s[2] } else { 0.0 };
     (1.0 - sky_fraction) * direct + sky_fraction * (1.0 + n[2]) * 0.5
 }
 
 /// RPV factor relative to nadir view under zenith light (module doc). `n`, `l`, `v` unit vectors.
 pub fn rpv_factor(b: &BrdfDesc, n: [f64; 3], l: [f64; 3], v: [f64; 3]) -> f64 {
-    let ci = dot(n, l).clamp(1e-6, 1.0);
-    let cv = dot(n, v).clamp(1e-6, 1.0);
-    let tl = [l[0] - ci * n[0], l[1] - ci * n[1], l[2] - ci * n[2]];
-    let tv = [v[0] - cv * n[0], v[1] - cv * n[1], v[2] - cv * n[2]];
+    let (n, l, v) = (DVec3::from(n), DVec3::from(l), DVec3::from(v));
+    let ci = n.dot(l).clamp(1e-6, 1.0);
+    let cv = n.dot(v).clamp(1e-6, 1.0);
+    let tl = l - ci * n;
+    let tv = v - cv * n;
     // tanθ · (unit tangent) = t / cosθ.
-    let gv = [tl[0] / ci - tv[0] / cv, tl[1] / ci - tv[1] / cv, tl[2] / ci - tv[2] / cv];
-    let g_big = dot(gv, gv).sqrt();
-    let cos_g = dot(l, v).clamp(-1.0, 1.0);
+    let g_big = (tl / ci - tv / cv).length();
+    let cos_g = l.dot(v).clamp(-1.0, 1.0);
     rpv(b, ci, cv, cos_g, g_big) / rpv(b, 1.0, 1.0, 1.0, 0.0)
 }
 

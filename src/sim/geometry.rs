@@ -6,14 +6,12 @@
 //! ground hits something at a finite distance. Objects are tested brute force behind a per-object AABB
 //! slab test (a scene has tens to a few hundred objects). Normals are unit and face the incoming ray.
 
+use glam::DVec3;
+
 use super::scene::{RegionDesc, SceneDesc};
 
+/// A point or direction as stored (hits, ground-truth points); the vector maths below is glam's [`DVec3`].
 pub type V3 = [f64; 3];
-
-#[inline]
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
 
 /// What a ray hit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -188,20 +186,20 @@ impl World {
             }
         }
         if let Some(mut h) = best {
-            if dot(h.normal, d) > 0.0 {
+            if DVec3::from(h.normal).dot(DVec3::from(d)) > 0.0 {
                 h.normal = h.normal.map(|x| -x);
             }
             return h;
         }
         // Backdrop: far root of the sphere of radius `extent` about (centre, 0).
-        let oc = [o[0] - self.ground_center[0], o[1] - self.ground_center[1], o[2]];
-        let b = dot(oc, d);
-        let c = dot(oc, oc) - self.extent * self.extent;
+        let d = DVec3::from(d);
+        let oc = DVec3::new(o[0] - self.ground_center[0], o[1] - self.ground_center[1], o[2]);
+        let b = oc.dot(d);
+        let c = oc.length_squared() - self.extent * self.extent;
         let t = -b + (b * b - c).max(0.0).sqrt();
         let t = t.max(0.0);
-        let p = [oc[0] + t * d[0], oc[1] + t * d[1], oc[2] + t * d[2]];
-        let n = p.map(|x| -x / self.extent);
-        Hit { t, normal: n, material: self.horizon_material, kind: HitKind::Horizon }
+        let n = -(oc + t * d) / self.extent;
+        Hit { t, normal: n.to_array(), material: self.horizon_material, kind: HitKind::Horizon }
     }
 
     /// Whether an object blocks the ray from `o` towards `d` (shadow rays; the ground and dome never do).
@@ -340,11 +338,12 @@ fn intersect(s: &Shape, o: V3, d: V3) -> Option<Hit> {
             Some(Hit { t: tn, normal, material, kind: HitKind::Object })
         }
         Shape::Ellipsoid { c, r, material } => {
-            let oc = [(o[0] - c[0]) / r[0], (o[1] - c[1]) / r[1], (o[2] - c[2]) / r[2]];
-            let dd = [d[0] / r[0], d[1] / r[1], d[2] / r[2]];
-            let a = dot(dd, dd);
-            let b = dot(oc, dd);
-            let cc = dot(oc, oc) - 1.0;
+            let (o, d, c, r) = (DVec3::from(o), DVec3::from(d), DVec3::from(c), DVec3::from(r));
+            let oc = (o - c) / r;
+            let dd = d / r;
+            let a = dd.length_squared();
+            let b = oc.dot(dd);
+            let cc = oc.length_squared() - 1.0;
             let disc = b * b - a * cc;
             if disc < 0.0 {
                 return None;
@@ -361,10 +360,9 @@ fn intersect(s: &Shape, o: V3, d: V3) -> Option<Hit> {
             } else {
                 return None;
             };
-            let p = [o[0] + t * d[0] - c[0], o[1] + t * d[1] - c[1], o[2] + t * d[2] - c[2]];
-            let g = [p[0] / (r[0] * r[0]), p[1] / (r[1] * r[1]), p[2] / (r[2] * r[2])];
-            let gl = dot(g, g).sqrt();
-            Some(Hit { t, normal: g.map(|x| x / gl), material, kind: HitKind::Object })
+            let p = o + t * d - c;
+            let g = p / (r * r);
+            Some(Hit { t, normal: (g / g.length()).to_array(), material, kind: HitKind::Object })
         }
         Shape::Cylinder { c, r, h, material } => {
             let mut best: Option<Hit> = None;
