@@ -435,11 +435,6 @@ impl Context {
         result
     }
 
-    /// Waits until the device is idle.
-    pub fn wait_idle(&self) -> GpuResult<()> {
-        unsafe { self.shared.device.device_wait_idle() }.vk("vkDeviceWaitIdle")
-    }
-
     /// Gives `handle` a debug name that validation messages and capture tools show.
     pub(crate) fn name_object<H: vk::Handle>(&self, handle: H, name: &str) {
         if let Some(du) = &self.shared.debug_utils {

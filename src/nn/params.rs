@@ -392,10 +392,6 @@ impl ParamStore {
         &self.groups
     }
 
-    pub fn group_index(&self, name: &str) -> Option<usize> {
-        self.groups.iter().position(|g| g.name == name)
-    }
-
     pub fn params(&self) -> &LargeArray<f32> {
         &self.params
     }

@@ -17,9 +17,4 @@ pub mod opensfm;
 pub use apply::{apply_poses, apply_poses_to, read_transforms, transforms_path, PoseImportReport};
 pub use model::PoseModel;
 
-/// Reads a COLMAP model folder and puts it into the dataset.
-pub fn import_colmap(model_dir: &std::path::Path, dataset: &std::path::Path) -> Result<PoseImportReport, PoseError> {
-    let m = colmap::read_model(model_dir)?;
-    apply_poses(&colmap::to_pose_model(&m, model_dir)?, model_dir, dataset)
-}
 pub use error::PoseError;

@@ -66,12 +66,3 @@ pub fn resolve_bands(desc: &SceneDesc) -> Vec<SimBand> {
         })
         .collect()
 }
-
-/// PLY property names `refl_<centre nm>`, made unique with `_<index>` where centres round alike.
-pub fn ply_names(bands: &[SimBand]) -> Vec<String> {
-    let base: Vec<String> = bands.iter().map(|b| format!("refl_{}", b.center_nm.round() as i64)).collect();
-    base.iter()
-        .enumerate()
-        .map(|(i, n)| if base.iter().filter(|o| *o == n).count() > 1 { format!("{n}_{i}") } else { n.clone() })
-        .collect()
-}

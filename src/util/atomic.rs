@@ -45,11 +45,6 @@ impl AtomicFile {
         Ok((AtomicFile { tmp, target: target.to_path_buf(), committed: false }, file))
     }
 
-    /// The temporary path (for writers that insist on opening a path themselves).
-    pub fn tmp_path(&self) -> &Path {
-        &self.tmp
-    }
-
     /// Renames the temporary file onto the target.
     pub fn commit(mut self) -> Result<()> {
         std::fs::rename(&self.tmp, &self.target).map_err(|e| WriteError::new(&self.target, e))?;
