@@ -169,6 +169,9 @@ fn compile(
     opts.set_source_language(shaderc::SourceLanguage::GLSL);
     opts.set_optimization_level(shaderc::OptimizationLevel::Performance);
     opts.set_warnings_as_errors();
+    // Debug info keeps OpName / OpMemberName (shaderc strips all debug instructions when optimising without it):
+    // `Kernel::new` compares the push-constant members and specialisation constants with the Rust side by name.
+    opts.set_generate_debug_info();
     for (k, v) in defines {
         opts.add_macro_definition(k, Some(v));
     }
@@ -190,5 +193,39 @@ fn compile(
     if art.get_num_warnings() > 0 {
         return Err(art.get_warning_messages());
     }
-    Ok(art.as_binary_u8().to_vec())
+    Ok(strip_source_info(art.as_binary()))
+}
+
+/// Drops the source-level debug instructions `set_generate_debug_info` adds (OpSource*, OpString, OpLine,
+/// OpNoLine, OpModuleProcessed) and keeps the names: the code is the same as without debug info, plus OpName and
+/// OpMemberName.
+fn strip_source_info(words: &[u32]) -> Vec<u8> {
+    const OP_SOURCE_CONTINUED: u32 = 2;
+    const OP_SOURCE: u32 = 3;
+    const OP_SOURCE_EXTENSION: u32 = 4;
+    const OP_STRING: u32 = 7;
+    const OP_LINE: u32 = 8;
+    const OP_NO_LINE: u32 = 317;
+    const OP_MODULE_PROCESSED: u32 = 330;
+    let mut out: Vec<u32> = words[..5.min(words.len())].to_vec();
+    let mut i = 5;
+    while i < words.len() {
+        let wc = ((words[i] >> 16) as usize).max(1).min(words.len() - i);
+        let op = words[i] & 0xffff;
+        let drop = matches!(
+            op,
+            OP_SOURCE_CONTINUED
+                | OP_SOURCE
+                | OP_SOURCE_EXTENSION
+                | OP_STRING
+                | OP_LINE
+                | OP_NO_LINE
+                | OP_MODULE_PROCESSED
+        );
+        if !drop {
+            out.extend_from_slice(&words[i..i + wc]);
+        }
+        i += wc;
+    }
+    out.iter().flat_map(|w| w.to_le_bytes()).collect()
 }

@@ -3,18 +3,26 @@
 
 mod common;
 
-use bytemuck::{Pod, Zeroable};
 use common::gpu;
+use msnerf::gpu::spirv::{PushMember, Scalar, ScalarKind, SpecConstant};
 use msnerf::gpu::{BufferDesc, GpuBuffer, GpuError, Kernel, MemoryCategory};
 use msnerf::{ops, shaders};
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct FillPush {
-    n: u32,
-    offset: u32,
-    value: u32,
+msnerf::push_constants! {
+    /// `fill_u32`'s block (glsl/util/fill.comp).
+    struct FillPush { n: u32, offset: u32, value: u32 }
+    /// `copy_u32`'s block.
+    struct CopyPush { n: u32, src_offset: u32, dst_offset: u32 }
+    /// 4 bytes against fill's 12.
+    struct ShortPush { n: u32 }
+    /// Fill's members with `offset` and `value` swapped: the same size and types, so only the names tell.
+    struct SwappedFillPush { n: u32, value: u32, offset: u32 }
+    /// Fill's members with `value` a float: the same names, offsets and sizes, only the type tells.
+    struct FloatFillPush { n: u32, offset: u32, value: f32 }
 }
+
+/// `fill_u32`'s one specialisation constant, set as `ops::fill` sets it for an unaligned range.
+const FILL_SPEC: &[(&str, u32)] = &[("VEC", 1)];
 
 #[test]
 fn caps_are_read_and_sane() {
@@ -36,15 +44,107 @@ fn caps_are_read_and_sane() {
 fn kernel_creation_checks_push_constants_and_caches_pipelines() {
     let g = gpu();
     // Wrong push-constant type: 4 bytes against the shader's 12.
-    let err = Kernel::<u32>::new(&g, &shaders::FILL_U32).err().expect("size mismatch must be refused");
+    let err = Kernel::<ShortPush>::with_spec(&g, &shaders::FILL_U32, FILL_SPEC).err().expect("size mismatch refused");
     assert!(matches!(err, GpuError::Shader { .. }), "{err}");
     assert!(err.to_string().contains("12 bytes"), "{err}");
     let before = g.pipeline_count();
-    let k1 = Kernel::<FillPush>::new(&g, &shaders::FILL_U32).expect("kernel");
-    let k2 = Kernel::<FillPush>::new(&g, &shaders::FILL_U32).expect("kernel");
+    let k1 = Kernel::<FillPush>::with_spec(&g, &shaders::FILL_U32, FILL_SPEC).expect("kernel");
+    let k2 = Kernel::<FillPush>::with_spec(&g, &shaders::FILL_U32, FILL_SPEC).expect("kernel");
     assert_eq!(g.pipeline_count(), before + 1, "the second creation is a cache hit");
     assert_eq!(k1.arity(), 1);
     assert_eq!(k2.local_size(), [256, 1, 1]);
+}
+
+#[test]
+fn push_members_are_compared_by_name_offset_and_type() {
+    let g = gpu();
+    // Two swapped u32 fields: the size matches, the member names do not. Refused before a pipeline is built (VEC = 3
+    // is used nowhere else, so this is the cache-miss path) ...
+    let before = g.pipeline_count();
+    let err = Kernel::<SwappedFillPush>::with_spec(&g, &shaders::FILL_U32, &[("VEC", 3)]).err().expect("refused");
+    assert!(matches!(err, GpuError::Shader { .. }), "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("fill_u32") && msg.contains("`offset` at offset 4") && msg.contains("`value` at offset 4"),
+        "{msg}"
+    );
+    assert_eq!(g.pipeline_count(), before, "nothing built for a refused layout");
+    // ... and on a cache hit, after the right type built the same pipeline.
+    Kernel::<FillPush>::with_spec(&g, &shaders::FILL_U32, FILL_SPEC).expect("kernel");
+    let err = Kernel::<SwappedFillPush>::with_spec(&g, &shaders::FILL_U32, FILL_SPEC).err().expect("refused on a hit");
+    assert!(err.to_string().contains("`offset` at offset 4"), "{err}");
+    // The same names at the same offsets, but a float where the shader has a uint.
+    let err = Kernel::<FloatFillPush>::with_spec(&g, &shaders::FILL_U32, FILL_SPEC).err().expect("type refused");
+    assert!(
+        err.to_string().contains("`value` (offset 8) is 4 bytes of u32 in the shader, 4 bytes of f32 in Rust"),
+        "{err}"
+    );
+    // Another kernel's block of the same size and types.
+    let err = Kernel::<FillPush>::new(&g, &shaders::COPY_U32).err().expect("copy's block has other names");
+    assert!(err.to_string().contains("copy_u32") && err.to_string().contains("`src_offset`"), "{err}");
+}
+
+#[test]
+fn specialisation_constants_are_set_by_name() {
+    let g = gpu();
+    let err = Kernel::<FillPush>::with_spec(&g, &shaders::FILL_U32, &[("VECTOR", 1)]).err().expect("unknown name");
+    assert!(matches!(err, GpuError::Shader { .. }), "{err}");
+    let msg = err.to_string();
+    assert!(msg.contains("fill_u32") && msg.contains("`VECTOR`") && msg.contains("declares VEC"), "{msg}");
+    let err = Kernel::<FillPush>::new(&g, &shaders::FILL_U32).err().expect("VEC left unset");
+    assert!(err.to_string().contains("`VEC`") && err.to_string().contains("not set"), "{err}");
+    let err = Kernel::<CopyPush>::with_spec(&g, &shaders::COPY_U32, FILL_SPEC).err().expect("copy has no constants");
+    assert!(err.to_string().contains("declares none"), "{err}");
+    // A kernel without constants needs none; the pipeline cache keys on the resolved (SpecId, value) pairs.
+    Kernel::<CopyPush>::new(&g, &shaders::COPY_U32).expect("no constants: new");
+    let before = g.pipeline_count();
+    Kernel::<FillPush>::with_spec(&g, &shaders::FILL_U32, &[("VEC", 2)]).expect("kernel");
+    Kernel::<FillPush>::with_spec(&g, &shaders::FILL_U32, &[("VEC", 4), ("VEC", 2)]).expect("the last value wins");
+    assert_eq!(g.pipeline_count(), before + 1);
+}
+
+#[test]
+fn reflection_reads_push_members_and_specialisation_constants() {
+    let words = ash::util::read_spv(&mut std::io::Cursor::new(shaders::HASHGRID_FWD.spirv)).expect("SPIR-V words");
+    let info = msnerf::gpu::spirv::reflect(&words, &[]).expect("reflect");
+    let (u32_, u64_, f32_) = (
+        Scalar { kind: ScalarKind::Uint, bytes: 4 },
+        Scalar { kind: ScalarKind::Uint, bytes: 8 },
+        Scalar { kind: ScalarKind::Float, bytes: 4 },
+    );
+    let m = |name: &str, offset, size, s| PushMember { name: name.into(), offset, size, scalar: Some(s) };
+    // glsl/encoding/hashgrid_fwd.comp: uint64_t params; uint shift; uint param_offset; uint n; uint out_stride;
+    // uint out_col; float pad_value; float scale; uint res; uint entries; uint pad;
+    let expected = [
+        m("params", 0, 8, u64_),
+        m("shift", 8, 4, u32_),
+        m("param_offset", 12, 4, u32_),
+        m("n", 16, 4, u32_),
+        m("out_stride", 20, 4, u32_),
+        m("out_col", 24, 4, u32_),
+        m("pad_value", 28, 4, f32_),
+        m("scale", 32, 4, f32_),
+        m("res", 36, 4, u32_),
+        m("entries", 40, 4, u32_),
+        m("pad", 44, 4, u32_),
+    ];
+    assert_eq!(info.push_members, expected);
+    assert_eq!(info.push_constant_bytes, 48);
+    let c = |id, name: &str, default| SpecConstant { id, name: name.into(), default };
+    let expected = [c(0, "F", 2), c(1, "HASHED", 1), c(2, "HASH_CHUNKED", 0), c(3, "PAD", 0), c(4, "VEC_OUT", 1)];
+    assert_eq!(info.spec_constants, expected);
+    // Every kernel's names survive the build (build.rs keeps OpName / OpMemberName).
+    for blob in shaders::ALL {
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(blob.spirv)).expect("SPIR-V words");
+        let info = msnerf::gpu::spirv::reflect(&words, &[]).expect("reflect");
+        assert!(!info.push_members.is_empty(), "{}: every kernel has push constants", blob.name);
+        for p in &info.push_members {
+            assert!(!p.name.is_empty() && p.scalar.is_some(), "{}: {p:?}", blob.name);
+        }
+        for s in &info.spec_constants {
+            assert!(!s.name.is_empty(), "{}: {s:?}", blob.name);
+        }
+    }
 }
 
 #[test]
@@ -61,7 +161,7 @@ fn every_shipped_variant_builds_a_pipeline() {
 #[test]
 fn dispatch_asserts_binding_count_and_range() {
     let g = gpu();
-    let k = Kernel::<FillPush>::new(&g, &shaders::FILL_U32).expect("kernel");
+    let k = Kernel::<FillPush>::with_spec(&g, &shaders::FILL_U32, FILL_SPEC).expect("kernel");
     let a =
         GpuBuffer::<u32>::new(&g, &BufferDesc { name: "a", len: 64, category: MemoryCategory::Other }).expect("buffer");
     let mut rec = g.recorder("bad").expect("recorder");
@@ -76,8 +176,9 @@ fn dispatch_asserts_binding_count_and_range() {
     let max = g.caps().max_storage_buffer_range as usize;
     let big = GpuBuffer::<u8>::new(&g, &BufferDesc { name: "big", len: max + 256, category: MemoryCategory::Other })
         .expect("buffer");
-    let k_copy = Kernel::<FillPush>::new(&g, &shaders::COPY_U32).expect("kernel");
+    let k_copy = Kernel::<CopyPush>::new(&g, &shaders::COPY_U32).expect("kernel");
     let mut rec = g.recorder("too big").expect("recorder");
+    let push = CopyPush { n: 1, src_offset: 0, dst_offset: 0 };
     let err = rec.dispatch(&k_copy, &[big.binding(), a.binding()], &push, 1).expect_err("over the binding limit");
     assert!(err.to_string().contains("maxStorageBufferRange"), "{err}");
 }

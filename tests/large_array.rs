@@ -3,19 +3,12 @@
 
 mod common;
 
-use bytemuck::{Pod, Zeroable};
 use common::gpu;
 use msnerf::gpu::{Kernel, LargeArray, MemoryCategory};
 use msnerf::shaders;
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct IotaPush {
-    table: u64,
-    n: u32,
-    shift: u32,
-    seed: u32,
-    _pad: u32,
+msnerf::push_constants! {
+    struct IotaPush { table: u64, n: u32, shift: u32, seed: u32, pad: u32 }
 }
 
 fn pattern(i: u32, seed: u32) -> u32 {
@@ -33,7 +26,7 @@ fn chunked_array_over_128_mib_round_trips_exactly() {
     assert!(arr.chunks().iter().all(|c| c.size_bytes() <= max as u64));
     let k = Kernel::<IotaPush>::new(&g, &shaders::LARGE_ARRAY_IOTA).expect("kernel");
     let push =
-        IotaPush { table: arr.table_address().expect("bda"), n: n as u32, shift: arr.chunk_shift(), seed: 77, _pad: 0 };
+        IotaPush { table: arr.table_address().expect("bda"), n: n as u32, shift: arr.chunk_shift(), seed: 77, pad: 0 };
     let mut rec = g.recorder("iota").expect("recorder");
     rec.dispatch_named("large_array_iota", &k, &[], &arr.deps(), &push, n as u64).expect("dispatch");
     rec.submit_and_wait().expect("submit");

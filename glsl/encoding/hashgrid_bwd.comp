@@ -26,7 +26,7 @@ layout(buffer_reference, std430, buffer_reference_align = 4) buffer HashGradF1 {
 layout(std430, binding = 0) readonly buffer Positions { float pos[]; };
 ROWS_DECLARE(1, dy, readonly)
 layout(push_constant) uniform Push {
-    uint64_t grads; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col;
+    uint64_t table; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; // table: the gradients
     float scale; uint res; uint entries; uint pad;
 } pc;
 
@@ -48,7 +48,7 @@ void main() {
         uint e = pc.param_offset + hash_index_known(lv, corner_vertex(c, cell), HASHED != 0u) * F;
         uint64_t a;
         uint o;
-        hash_locate(pc.grads, pc.shift, e, a, o);
+        hash_locate(pc.table, pc.shift, e, a, o);
         [[unroll]] for (uint f = 0u; f < F; ++f) atomicAdd(HashGradF1(a).v[o + f], w * g[f]);
     }
 }

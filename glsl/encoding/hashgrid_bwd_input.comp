@@ -27,7 +27,7 @@ layout(std430, binding = 0) readonly buffer Positions { float pos[]; };
 ROWS_DECLARE(1, dy, readonly)
 layout(std430, binding = 2) buffer DLdp { float dp[]; };
 layout(push_constant) uniform Push {
-    uint64_t params; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col;
+    uint64_t table; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; // table: the parameters
     float scale; uint res; uint entries; uint pad;
 } pc;
 
@@ -49,7 +49,7 @@ void main() {
             uint e = pc.param_offset + hash_index_known(lv, corner_vertex(c, cell), HASHED != 0u) * F;
             float theta[F];
             [[unroll]] for (uint f = 0u; f < F; ++f) theta[f] = 0.0;
-            HASH_ACCUMULATE_ENTRY(pc.params, pc.shift, e, 1.0, theta)
+            HASH_ACCUMULATE_ENTRY(pc.table, pc.shift, e, 1.0, theta)
             float gtheta = 0.0; // sum_f dL/dy[l,f] * theta_c[f]
             [[unroll]] for (uint f = 0u; f < F; ++f) gtheta += g[f] * theta[f];
             [[unroll]] for (uint d = 0u; d < 3u; ++d) {

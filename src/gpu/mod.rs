@@ -3,7 +3,9 @@
 //! - [`Context`]: instance, validation messenger, device selection, queue, allocator, pipeline cache ([`context`]).
 //! - [`DeviceCaps`]: the device limits and features read once and logged on one line ([`caps`]).
 //! - [`GpuBuffer`] and [`LargeArray`]: named, categorised allocations tracked by the [`MemoryLedger`].
-//! - [`Kernel`]: a SPIR-V blob plus its push-constant type, with the dispatch asserts ([`kernel`]).
+//! - [`Kernel`]: a SPIR-V blob plus its push-constant type, with the dispatch asserts ([`kernel`]); the push
+//!   structs are declared with [`push_constants!`](crate::push_constants) and compared member by member with the
+//!   shader's block, specialisation constants are set by name ([`push`], [`spirv`]).
 //! - [`Recorder`]: records dispatches with automatic barriers and per-dispatch GPU timestamps ([`recorder`]).
 //! - [`HostTimes`]: host time spent recording, waiting on submissions and in transfers ([`host_clock`]).
 //!
@@ -19,6 +21,7 @@ pub mod instance;
 pub mod kernel;
 pub mod large_array;
 pub mod memory;
+pub mod push;
 pub mod recorder;
 pub mod spirv;
 pub mod staging;
@@ -32,5 +35,6 @@ pub use host_clock::HostTimes;
 pub use kernel::{Kernel, ShaderBlob};
 pub use large_array::LargeArray;
 pub use memory::{MemoryCategory, MemoryLedger, MemoryReport};
+pub use push::{PushField, PushLayout};
 pub use recorder::Recorder;
 pub use timing::{KernelTime, TimingReport};

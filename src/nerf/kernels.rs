@@ -4,7 +4,6 @@
 pub use super::config::DepthLoss;
 use crate::gpu::{Binding, Context, GpuBuffer, GpuError, GpuResult, Kernel, Recorder};
 use crate::shaders;
-use bytemuck::{Pod, Zeroable};
 
 /// Sampling geometry shared by the kernels.
 #[derive(Copy, Clone, Debug)]
@@ -24,130 +23,130 @@ pub struct RayBuffers<'a> {
     pub ray_offset: u32,
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct RayGenPush {
-    n_rays: u32,
+crate::push_constants! {
+    struct RayGenPush {
+        n_rays: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct SampleInitialPush {
-    n_rays: u32,
-    n: u32,
-    near: f32,
-    far: f32,
-    seed: u32,
-    step: u32,
-    level: u32,
-    jitter: u32,
-    contraction: u32,
-    ray_offset: u32,
+crate::push_constants! {
+    struct SampleInitialPush {
+        n_rays: u32,
+        n: u32,
+        near: f32,
+        far: f32,
+        seed: u32,
+        step: u32,
+        level: u32,
+        jitter: u32,
+        contraction: u32,
+        ray_offset: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct WeightsPush {
-    n_rays: u32,
-    n: u32,
-    near: f32,
-    far: f32,
-    raw_stride: u32,
-    density_scale: f32,
-    contraction: u32,
+crate::push_constants! {
+    struct WeightsPush {
+        n_rays: u32,
+        n: u32,
+        near: f32,
+        far: f32,
+        raw_stride: u32,
+        density_scale: f32,
+        contraction: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct PdfPush {
-    n_rays: u32,
-    n: u32,
-    m: u32,
-    near: f32,
-    far: f32,
-    anneal: f32,
-    seed: u32,
-    step: u32,
-    level: u32,
-    jitter: u32,
-    contraction: u32,
-    ray_offset: u32,
+crate::push_constants! {
+    struct PdfPush {
+        n_rays: u32,
+        n: u32,
+        m: u32,
+        near: f32,
+        far: f32,
+        anneal: f32,
+        seed: u32,
+        step: u32,
+        level: u32,
+        jitter: u32,
+        contraction: u32,
+        ray_offset: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct ColourInputPush {
-    n_samples: u32,
-    n: u32,
-    geo_dim: u32,
-    app_dim: u32,
-    in_pad: u32,
-    density_stride: u32,
-    app_mode: u32,
-    mean_row: u32,
+crate::push_constants! {
+    struct ColourInputPush {
+        n_samples: u32,
+        n: u32,
+        geo_dim: u32,
+        app_dim: u32,
+        in_pad: u32,
+        density_stride: u32,
+        app_mode: u32,
+        mean_row: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct CompositePush {
-    n_rays: u32,
-    n: u32,
-    bands: u32,
-    near: f32,
-    far: f32,
-    density_stride: u32,
-    density_scale: f32,
-    background: u32,
-    bg_value: f32,
-    rgb_norm: f32,
-    dist_norm: f32,
-    train: u32,
-    contraction: u32,
-    grad_scaling: u32,
-    seed: u32,
-    step: u32,
-    ray_offset: u32,
-    depth_mode: u32,
-    depth_norm: f32,
+crate::push_constants! {
+    struct CompositePush {
+        n_rays: u32,
+        n: u32,
+        bands: u32,
+        near: f32,
+        far: f32,
+        density_stride: u32,
+        density_scale: f32,
+        background: u32,
+        bg_value: f32,
+        rgb_norm: f32,
+        dist_norm: f32,
+        train: u32,
+        contraction: u32,
+        grad_scaling: u32,
+        seed: u32,
+        step: u32,
+        ray_offset: u32,
+        depth_mode: u32,
+        depth_norm: f32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct InterlevelPush {
-    n_rays: u32,
-    n_nerf: u32,
-    n_prop: u32,
-    near: f32,
-    far: f32,
-    raw_stride: u32,
-    density_scale: f32,
-    norm: f32,
-    contraction: u32,
+crate::push_constants! {
+    struct InterlevelPush {
+        n_rays: u32,
+        n_nerf: u32,
+        n_prop: u32,
+        near: f32,
+        far: f32,
+        raw_stride: u32,
+        density_scale: f32,
+        norm: f32,
+        contraction: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct AppearanceGradPush {
-    grads: u64,
-    shift: u32,
-    emb_offset: u32,
-    n_samples: u32,
-    n: u32,
-    dim: u32,
-    dx_stride: u32,
-    dx_col: u32,
-    pad: u32,
+crate::push_constants! {
+    struct AppearanceGradPush {
+        grads: u64,
+        shift: u32,
+        emb_offset: u32,
+        n_samples: u32,
+        n: u32,
+        dim: u32,
+        dx_stride: u32,
+        dx_col: u32,
+        pad: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct CopyColsPush {
-    n: u32,
-    cols: u32,
-    src_stride: u32,
-    src_col: u32,
-    dst_stride: u32,
-    dst_col: u32,
+crate::push_constants! {
+    struct CopyColsPush {
+        n: u32,
+        cols: u32,
+        src_stride: u32,
+        src_col: u32,
+        dst_stride: u32,
+        dst_col: u32,
+    }
 }
 
 /// Random-stream and jitter settings of one sampling level.

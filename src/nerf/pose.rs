@@ -12,53 +12,52 @@
 use super::kernels::{Geometry, RayBuffers};
 use crate::gpu::{Context, GpuBuffer, GpuResult, Kernel, LargeArray, Recorder};
 use crate::shaders;
-use bytemuck::{Pod, Zeroable};
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct ApplyPush {
-    params: u64,
-    shift: u32,
-    pose_offset: u32,
-    n_rays: u32,
-    pad: u32,
+crate::push_constants! {
+    struct ApplyPush {
+        params: u64,
+        shift: u32,
+        pose_offset: u32,
+        n_rays: u32,
+        pad: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct RayGradPush {
-    n_rays: u32,
-    n: u32,
-    near: f32,
-    far: f32,
-    contraction: u32,
-    accumulate: u32,
-    sh: u32,
-    dx_stride: u32,
+crate::push_constants! {
+    struct RayGradPush {
+        n_rays: u32,
+        n: u32,
+        near: f32,
+        far: f32,
+        contraction: u32,
+        accumulate: u32,
+        sh: u32,
+        dx_stride: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct ReducePush {
-    params: u64,
-    grads: u64,
-    shift: u32,
-    pose_offset: u32,
-    n_rays: u32,
-    pad: u32,
+crate::push_constants! {
+    struct ReducePush {
+        params: u64,
+        grads: u64,
+        shift: u32,
+        pose_offset: u32,
+        n_rays: u32,
+        pad: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct RegularizerPush {
-    params: u64,
-    grads: u64,
-    shift: u32,
-    pose_offset: u32,
-    n_cams: u32,
-    inv_n_train: f32,
-    trans_weight: f32,
-    rot_weight: f32,
+crate::push_constants! {
+    struct RegularizerPush {
+        params: u64,
+        grads: u64,
+        shift: u32,
+        pose_offset: u32,
+        n_cams: u32,
+        inv_n_train: f32,
+        trans_weight: f32,
+        rot_weight: f32,
+    }
 }
 
 /// Where the pose corrections live: the store's parameter and gradient arrays and the slot's first float.

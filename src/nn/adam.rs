@@ -24,7 +24,6 @@
 use crate::gpu::{GpuError, GpuResult, Kernel, Recorder};
 use crate::nn::params::ParamStore;
 use crate::shaders;
-use bytemuck::{Pod, Zeroable};
 
 /// Adam hyper-parameters of one parameter group.
 #[derive(Copy, Clone, Debug, PartialEq)]
@@ -43,21 +42,22 @@ impl Default for AdamHyper {
     }
 }
 
-/// `adam_step`'s push constants (see the module documentation).
-#[repr(C)]
-#[derive(Copy, Clone, Debug, Pod, Zeroable)]
-pub struct AdamPush {
-    n: u32,
-    offset: u32,
-    step_size: f32,
-    bc2_sqrt: f32,
-    beta1: f32,
-    one_minus_beta1: f32,
-    beta2: f32,
-    one_minus_beta2: f32,
-    eps: f32,
-    weight_decay: f32,
-    grad_scale: f32,
+crate::push_constants! {
+    /// `adam_step`'s push constants (see the module documentation).
+    #[derive(Debug)]
+    pub struct AdamPush {
+        n: u32,
+        offset: u32,
+        step_size: f32,
+        bc2_sqrt: f32,
+        beta1: f32,
+        one_minus_beta1: f32,
+        beta2: f32,
+        one_minus_beta2: f32,
+        eps: f32,
+        weight_decay: f32,
+        grad_scale: f32,
+    }
 }
 
 /// Elements one `adam_step` invocation updates where the range allows (read and written 8 floats at a time).
@@ -66,8 +66,8 @@ const ADAM_VEC: usize = 8;
 /// The `adam_step` pipelines [`step`] uses (8 elements per invocation, and 1), created on first use.
 pub fn kernels(ctx: &crate::gpu::Context) -> GpuResult<[Kernel<AdamPush>; 2]> {
     Ok([
-        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[(0, ADAM_VEC as u32)])?,
-        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[(0, 1)])?,
+        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[("VEC", ADAM_VEC as u32)])?,
+        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[("VEC", 1)])?,
     ])
 }
 

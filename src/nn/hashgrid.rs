@@ -130,48 +130,49 @@ pub struct OutputSlot {
     pub pad_value: f32,
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct FwdPush {
-    params: u64,
-    shift: u32,
-    param_offset: u32,
-    n: u32,
-    out_stride: u32,
-    out_col: u32,
-    pad_value: f32,
-    scale: f32,
-    res: u32,
-    entries: u32,
-    pad: u32,
+crate::push_constants! {
+    struct FwdPush {
+        params: u64,
+        shift: u32,
+        param_offset: u32,
+        n: u32,
+        out_stride: u32,
+        out_col: u32,
+        pad_value: f32,
+        scale: f32,
+        res: u32,
+        entries: u32,
+        pad: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct LevelBwdPush {
-    /// The gradient array (hashgrid_bwd) or the parameters (hashgrid_bwd_input).
-    grads: u64,
-    shift: u32,
-    param_offset: u32,
-    n: u32,
-    dy_stride: u32,
-    dy_col: u32,
-    scale: f32,
-    res: u32,
-    entries: u32,
-    pad: [u32; 2],
+crate::push_constants! {
+    struct LevelBwdPush {
+        /// Chunk table of the gradient array (hashgrid_bwd) or of the parameters (hashgrid_bwd_input).
+        table: u64,
+        shift: u32,
+        param_offset: u32,
+        n: u32,
+        dy_stride: u32,
+        dy_col: u32,
+        scale: f32,
+        res: u32,
+        entries: u32,
+        pad: u32,
+        pad2: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct BwdPush {
-    grads: u64,
-    shift: u32,
-    param_offset: u32,
-    n: u32,
-    dy_stride: u32,
-    dy_col: u32,
-    pad: u32,
+crate::push_constants! {
+    struct BwdPush {
+        grads: u64,
+        shift: u32,
+        param_offset: u32,
+        n: u32,
+        dy_stride: u32,
+        dy_col: u32,
+        pad: u32,
+    }
 }
 
 pub struct HashGrid {
@@ -244,7 +245,11 @@ impl HashGrid {
         Ok(Self {
             config: config.clone(),
             levels,
-            bwd_runs: Kernel::with_spec(ctx, &shaders::HASHGRID_BWD_RUNS, &[(0, config.features_per_level), (1, run)])?,
+            bwd_runs: Kernel::with_spec(
+                ctx,
+                &shaders::HASHGRID_BWD_RUNS,
+                &[("F", config.features_per_level), ("RUN", run)],
+            )?,
             bwd_run: run,
         })
     }
@@ -285,11 +290,11 @@ impl HashGrid {
             let col = slot.col + l * f;
             let pad = if l + 1 == c.n_levels as usize { slot.pad_to - c.n_output() } else { 0 };
             let spec = [
-                (0, c.features_per_level),
-                (1, lv.hashed),
-                (2, u32::from(chunked)),
-                (3, pad as u32),
-                (4, vec_width(&[slot.stride, col])),
+                ("F", c.features_per_level),
+                ("HASHED", lv.hashed),
+                ("HASH_CHUNKED", u32::from(chunked)),
+                ("PAD", pad as u32),
+                ("VEC_OUT", vec_width(&[slot.stride, col])),
             ];
             let kernel = Kernel::<FwdPush>::with_spec(rec.context(), &shaders::HASHGRID_FWD, &spec)?;
             let push = FwdPush {
@@ -375,7 +380,7 @@ impl HashGrid {
     }
 
     /// One dispatch per level of a kernel that reads the level's F columns of `dy` and the level's table entries of
-    /// `array` (spec: F, HASHED, HASH_CHUNKED, VEC_DY, and FIRST = first level when `dp` is given, bound third).
+    /// `array` (constants F, HASHED, HASH_CHUNKED, VEC_DY, and FIRST = first level when `dp` is given, bound third).
     #[allow(clippy::too_many_arguments)]
     fn record_level_backward(
         &self,
@@ -393,19 +398,19 @@ impl HashGrid {
         for LevelRead { l, lv, base, offset, chunked } in self.level_reads(array, param_offset)? {
             let col = dy.col + l * f;
             let mut spec = vec![
-                (0, c.features_per_level),
-                (1, lv.hashed),
-                (2, u32::from(chunked)),
-                (3, vec_width(&[dy.stride, col])),
+                ("F", c.features_per_level),
+                ("HASHED", lv.hashed),
+                ("HASH_CHUNKED", u32::from(chunked)),
+                ("VEC_DY", vec_width(&[dy.stride, col])),
             ];
             let mut bindings = vec![positions.binding(), dy.buf.binding()];
             if let Some(dp) = dp {
-                spec.push((4, u32::from(l == 0)));
+                spec.push(("FIRST", u32::from(l == 0)));
                 bindings.push(dp.binding());
             }
             let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), blob, &spec)?;
             let push = LevelBwdPush {
-                grads: base,
+                table: base,
                 shift: array.chunk_shift(),
                 param_offset: offset as u32,
                 n: n as u32,
@@ -414,7 +419,8 @@ impl HashGrid {
                 scale: lv.scale,
                 res: lv.res,
                 entries: lv.entries,
-                pad: [0; 2],
+                pad: 0,
+                pad2: 0,
             };
             rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;
         }

@@ -33,7 +33,6 @@ use super::SettingError;
 use super::{vec_width, ParamSlice, RowSlice};
 use crate::gpu::{Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder};
 use crate::shaders;
-use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
@@ -279,57 +278,57 @@ fn tile(total: usize, max: usize) -> usize {
     t
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct LayerFwdPush {
-    w_addr: u64,
-    n: u32,
-    in_stride: u32,
-    in_col: u32,
-    out_stride: u32,
-    out_col: u32,
-    pad: u32,
+crate::push_constants! {
+    struct LayerFwdPush {
+        w_addr: u64,
+        n: u32,
+        in_stride: u32,
+        in_col: u32,
+        out_stride: u32,
+        out_col: u32,
+        pad: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct LayerBwdPush {
-    w_addr: u64,
-    n: u32,
-    d_stride: u32,
-    d_col: u32,
-    a_stride: u32,
-    a_col: u32,
-    out_stride: u32,
-    out_col: u32,
-    pad: u32,
+crate::push_constants! {
+    struct LayerBwdPush {
+        w_addr: u64,
+        n: u32,
+        d_stride: u32,
+        d_col: u32,
+        a_stride: u32,
+        a_col: u32,
+        out_stride: u32,
+        out_col: u32,
+        pad: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct OutDeltaPush {
-    n: u32,
-    y_stride: u32,
-    y_col: u32,
-    dy_stride: u32,
-    dy_col: u32,
-    d_stride: u32,
-    d_col: u32,
+crate::push_constants! {
+    struct OutDeltaPush {
+        n: u32,
+        y_stride: u32,
+        y_col: u32,
+        dy_stride: u32,
+        dy_col: u32,
+        d_stride: u32,
+        d_col: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct WgradPush {
-    n: u32,
-    out_w: u32,
-    in_w: u32,
-    d_stride: u32,
-    d_col: u32,
-    a_stride: u32,
-    a_col: u32,
-    rows_per_split: u32,
-    splits: u32,
-    tiles_k: u32,
+crate::push_constants! {
+    struct WgradPush {
+        n: u32,
+        out_w: u32,
+        in_w: u32,
+        d_stride: u32,
+        d_col: u32,
+        a_stride: u32,
+        a_col: u32,
+        rows_per_split: u32,
+        splits: u32,
+        tiles_k: u32,
+    }
 }
 
 impl WgradPush {
@@ -356,34 +355,34 @@ impl WgradPush {
     }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct ReducePush {
-    grads: u64,
-    shift: u32,
-    g_offset: u32,
-    count: u32,
-    splits: u32,
-    pad: u32,
-    pad2: u32,
+crate::push_constants! {
+    struct ReducePush {
+        grads: u64,
+        shift: u32,
+        g_offset: u32,
+        count: u32,
+        splits: u32,
+        pad: u32,
+        pad2: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct TileLayerPush {
-    w_addr: u64,
-    n: u32,
-    k_dim: u32,
-    cols: u32,
-    ws_t: u32,
-    ws_c: u32,
-    a_stride: u32,
-    a_col: u32,
-    m_stride: u32,
-    m_col: u32,
-    c_stride: u32,
-    c_col: u32,
-    col_tiles: u32,
+crate::push_constants! {
+    struct TileLayerPush {
+        w_addr: u64,
+        n: u32,
+        k_dim: u32,
+        cols: u32,
+        ws_t: u32,
+        ws_c: u32,
+        a_stride: u32,
+        a_col: u32,
+        m_stride: u32,
+        m_col: u32,
+        c_stride: u32,
+        c_col: u32,
+        col_tiles: u32,
+    }
 }
 
 /// What `mlp_tile_layer` computes: a layer's forward (activation `act`) or its backward to the input (masked by the
@@ -513,13 +512,13 @@ impl Mlp {
             }
             for b in blocks(out_w, self.tiling.mac_budget / in_w) {
                 let spec = [
-                    (0, in_w as u32),
-                    (1, b.len() as u32),
-                    (2, act.code()),
-                    (3, row_vec(half_in, &[src.stride, src.col])),
-                    (4, row_vec(half_out, &[dst.stride, dst.col + b.start])),
-                    (5, u32::from(half_in)),
-                    (6, u32::from(half_out)),
+                    ("IN_W", in_w as u32),
+                    ("JB", b.len() as u32),
+                    ("ACT", act.code()),
+                    ("VEC_IN", row_vec(half_in, &[src.stride, src.col])),
+                    ("VEC_OUT", row_vec(half_out, &[dst.stride, dst.col + b.start])),
+                    ("HALF_IN", u32::from(half_in)),
+                    ("HALF_OUT", u32::from(half_out)),
                 ];
                 let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_FWD, &spec)?;
                 let push = LayerFwdPush {
@@ -568,10 +567,10 @@ impl Mlp {
         let acts = |m: usize| RowSlice { buf: bufs.acts, stride: width, col: m * n * width };
 
         let spec = [
-            (0, c.n_output as u32),
-            (1, out_cols as u32),
-            (2, c.output_activation.code()),
-            (3, vec_width(&[out_cols, hidden_total])),
+            ("N_OUT", c.n_output as u32),
+            ("N_COLS", out_cols as u32),
+            ("ACT", c.output_activation.code()),
+            ("VEC_D", vec_width(&[out_cols, hidden_total])),
         ];
         let k = Kernel::with_spec(ctx, &shaders::MLP_OUT_DELTA, &spec)?;
         let push = OutDeltaPush {
@@ -610,14 +609,14 @@ impl Mlp {
             let a = mask.unwrap_or(d_in);
             for b in blocks(in_w, self.tiling.mac_budget / d_w) {
                 let spec = [
-                    (0, d_w as u32),
-                    (1, in_w as u32),
-                    (2, b.len() as u32),
-                    (3, u32::from(mask.is_some())),
-                    (4, vec_width(&[d_in.stride, d_in.col])),
-                    (5, if mask.is_some() { row_vec(half_mask, &[a.stride, a.col + b.start]) } else { 1 }),
-                    (6, vec_width(&[target.stride, target.col + b.start])),
-                    (7, u32::from(half_mask)),
+                    ("OUT_W", d_w as u32),
+                    ("IN_W", in_w as u32),
+                    ("KB", b.len() as u32),
+                    ("MASK", u32::from(mask.is_some())),
+                    ("VEC_D", vec_width(&[d_in.stride, d_in.col])),
+                    ("VEC_A", if mask.is_some() { row_vec(half_mask, &[a.stride, a.col + b.start]) } else { 1 }),
+                    ("VEC_OUT", vec_width(&[target.stride, target.col + b.start])),
+                    ("HALF_A", u32::from(half_mask)),
                 ];
                 let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_BWD, &spec)?;
                 let push = LayerBwdPush {
@@ -688,7 +687,14 @@ impl Mlp {
             TileOp::Backward(Some(m)) => (1, 0, Some(m), "mlp_bwd", (cols, 1)),
             TileOp::Backward(None) => (2, 0, None, "mlp_bwd", (cols, 1)),
         };
-        let spec = [(0, bn as u32), (1, epi), (2, act), (3, half_a.into()), (4, half_m.into()), (5, half_c.into())];
+        let spec = [
+            ("BN", bn as u32),
+            ("EPI", epi),
+            ("ACT", act),
+            ("HALF_A", half_a.into()),
+            ("HALF_M", half_m.into()),
+            ("HALF_C", half_c.into()),
+        ];
         let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_LAYER, &spec)?;
         let m = mask.unwrap_or(a);
         let col_tiles = cols.div_ceil(bn);
@@ -727,19 +733,19 @@ impl Mlp {
         let (k, tiles_j, tiles_k, threads) = if self.tiling.shared_tiles {
             let tj = tile_columns(out_w);
             let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
-            let spec = [(0, tj as u32), (1, tk as u32), (2, half_a.into())];
+            let spec = [("TJ", tj as u32), ("TK", tk as u32), ("HALF_A", half_a.into())];
             let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &spec)?;
             (k, out_w.div_ceil(tj), in_w.div_ceil(tk), TILE_THREADS)
         } else {
             let (jt, kt) = register_wgrad_tile(&self.tiling, (out_w, in_w), splits);
             let spec = [
-                (0, jt as u32),
-                (1, kt as u32),
-                (2, vec_width(&[d.stride, d.col, jt])),
-                (3, row_vec(half_a, &[a.stride, a.col, kt])),
-                (4, vec_width(&[in_w, kt])),
-                (5, self.tiling.wgrad_rows as u32),
-                (6, half_a.into()),
+                ("JT", jt as u32),
+                ("KT", kt as u32),
+                ("VEC_D", vec_width(&[d.stride, d.col, jt])),
+                ("VEC_A", row_vec(half_a, &[a.stride, a.col, kt])),
+                ("VEC_P", vec_width(&[in_w, kt])),
+                ("ROWS", self.tiling.wgrad_rows as u32),
+                ("HALF_A", half_a.into()),
             ];
             (Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?, out_w / jt, in_w / kt, 1)
         };

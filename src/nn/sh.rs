@@ -10,7 +10,6 @@
 
 use crate::gpu::{GpuBuffer, GpuError, GpuResult, Kernel, Recorder};
 use crate::shaders;
-use bytemuck::{Pod, Zeroable};
 
 /// Values per direction.
 pub const SH_DIM: usize = 16;
@@ -43,21 +42,21 @@ impl RowLayout {
     }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct FwdPush {
-    n: u32,
-    row_stride: u32,
-    col: u32,
+crate::push_constants! {
+    struct FwdPush {
+        n: u32,
+        row_stride: u32,
+        col: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct BwdPush {
-    n: u32,
-    row_stride: u32,
-    col: u32,
-    accumulate: u32,
+crate::push_constants! {
+    struct BwdPush {
+        n: u32,
+        row_stride: u32,
+        col: u32,
+        accumulate: u32,
+    }
 }
 
 fn check_dirs(dirs: &GpuBuffer<f32>, n: usize) -> GpuResult<()> {

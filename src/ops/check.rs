@@ -3,13 +3,12 @@
 
 use crate::gpu::{GpuBuffer, GpuError, GpuResult, Kernel, Recorder};
 use crate::shaders;
-use bytemuck::{Pod, Zeroable};
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct CheckPush {
-    n: u32,
-    stride: u32,
+crate::push_constants! {
+    struct CheckPush {
+        n: u32,
+        stride: u32,
+    }
 }
 
 /// Elements each invocation reads (the dispatch has n / this many invocations, at least one group).

@@ -2,22 +2,22 @@
 
 use crate::gpu::{GpuBuffer, GpuError, GpuResult, Kernel, Recorder};
 use crate::shaders;
-use bytemuck::{Pod, Zeroable};
+use bytemuck::Pod;
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct FillPush {
-    n: u32,
-    offset: u32,
-    value: u32,
+crate::push_constants! {
+    struct FillPush {
+        n: u32,
+        offset: u32,
+        value: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct CopyPush {
-    n: u32,
-    src_offset: u32,
-    dst_offset: u32,
+crate::push_constants! {
+    struct CopyPush {
+        n: u32,
+        src_offset: u32,
+        dst_offset: u32,
+    }
 }
 
 fn check_word<T>(name: &str) -> GpuResult<()> {
@@ -49,7 +49,7 @@ pub fn fill<T: Pod>(rec: &mut Recorder, buf: &GpuBuffer<T>, value: T, start: usi
         if range.is_empty() {
             continue;
         }
-        let k = Kernel::<FillPush>::with_spec(rec.context(), &shaders::FILL_U32, &[(0, per as u32)])?;
+        let k = Kernel::<FillPush>::with_spec(rec.context(), &shaders::FILL_U32, &[("VEC", per as u32)])?;
         let push = FillPush { n: range.len() as u32, offset: range.start as u32, value };
         rec.dispatch(&k, &[buf.binding()], &push, (range.len() / per) as u64)?;
     }

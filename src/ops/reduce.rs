@@ -2,12 +2,11 @@
 
 use super::{ScanValue, BLOCK};
 use crate::gpu::{Binding, BufferDesc, Context, GpuBuffer, GpuResult, Kernel, MemoryCategory, Recorder};
-use bytemuck::{Pod, Zeroable};
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct ReducePush {
-    n: u32,
+crate::push_constants! {
+    struct ReducePush {
+        n: u32,
+    }
 }
 
 /// Records `out[0] = sum(input[0..n])`. Temporaries live until the recorder's work completes.

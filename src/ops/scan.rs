@@ -3,12 +3,15 @@
 
 use super::{ScanValue, BLOCK};
 use crate::gpu::{Binding, BufferDesc, GpuBuffer, GpuError, GpuResult, Kernel, MemoryCategory, Recorder};
-use bytemuck::{Pod, Zeroable};
 
-#[repr(C)]
-#[derive(Copy, Clone, Pod, Zeroable)]
-struct ScanPush {
-    n: u32,
+crate::push_constants! {
+    struct ScanPush {
+        n: u32,
+    }
+
+    struct SegmentedScanPush {
+        n_segments: u32,
+    }
 }
 
 /// Records `output[i] = sum(input[0..i])` for i < n. `output` may be `input` (in place).
@@ -65,7 +68,7 @@ pub fn segmented_exclusive_scan<V: ScanValue>(
             msg: format!("{n_segments} segments need {} starts and totals", n_segments + 1),
         });
     }
-    let k = Kernel::<ScanPush>::new(rec.context(), V::SCAN_SEGMENTED)?;
+    let k = Kernel::<SegmentedScanPush>::new(rec.context(), V::SCAN_SEGMENTED)?;
     let bindings = [values.binding(), starts.binding(), output.binding(), totals.binding()];
-    rec.dispatch(&k, &bindings, &ScanPush { n: n_segments as u32 }, n_segments as u64)
+    rec.dispatch(&k, &bindings, &SegmentedScanPush { n_segments: n_segments as u32 }, n_segments as u64)
 }
