@@ -258,7 +258,7 @@ fn seed_repeats_measure_the_noise_the_report_uses() {
     let m = machine();
     let md = report_markdown(&report_context(&g, &m, "2026-11-26"), &r);
     assert!(
-        md.contains("Seed noise, measured: #0 (field.hidden_dim=16), #3") && md.contains("0.40 dB at 30 s"),
+        md.contains("Seed noise, measured: #0 (field.hidden_dim=16, 600 steps), #3") && md.contains("0.40 dB at 30 s"),
         "the measured spread is stated: {md}"
     );
     // At 30 s the pick is cell 3 (22.3); cell 0 (22.0) and cell 4 (21.9) lie within 0.4 dB of it, cell 1 (21.0) not.

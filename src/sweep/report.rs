@@ -77,11 +77,13 @@ fn noise_line(results: &[CellResult], noise: Option<&SeedNoise>) -> String {
         );
     };
     let label = |i: usize| results.iter().find(|r| r.index == i).map_or(String::new(), |r| r.label.clone());
-    let cells: Vec<String> = n.cells.iter().map(|&i| format!("#{i} ({})", label(i))).collect();
+    let steps = |i: usize| results.iter().find(|r| r.index == i).map_or(0, |r| r.steps);
+    let cells: Vec<String> = n.cells.iter().map(|&i| format!("#{i} ({}, {} steps)", label(i), steps(i))).collect();
     let spread: Vec<String> = n.spread_db.iter().map(|&(t, d)| format!("{d:.2} dB at {}", secs(t))).collect();
     format!(
         "- Seed noise, measured: {} are one configuration with other seeds; their held-out PSNR spread (max - min) \
-         is {}. Differences under {:.2} dB are called ties; at a fixed wall-clock time the machine's load adds more.",
+         is {}. Differences under {:.2} dB are called ties. Under a wall-clock budget the spread includes the machine's \
+         load as well as the seed: compare the repeats' step counts.",
         cells.join(", "),
         if spread.is_empty() { "not comparable (no shared evaluation point)".to_owned() } else { spread.join(", ") },
         n.max_db()
