@@ -178,8 +178,8 @@ crate::push_constants! {
 pub struct HashGrid {
     pub config: HashGridConfig,
     levels: GpuBuffer<HashLevel>,
-    /// `hashgrid_bwd_runs`, used when `bwd_run` > 1.
-    bwd_runs: Kernel<BwdPush>,
+    /// `hashgrid_bwd_runs`, built only when `bwd_run` > 1 (a benchmark setting: it measured slower).
+    bwd_runs: Option<Kernel<BwdPush>>,
     /// Consecutive points one `hashgrid_bwd` invocation combines (1: one point per invocation).
     bwd_run: u32,
 }
@@ -245,17 +245,21 @@ impl HashGrid {
         Ok(Self {
             config: config.clone(),
             levels,
-            bwd_runs: Kernel::with_spec(
-                ctx,
-                &shaders::HASHGRID_BWD_RUNS,
-                &[("F", config.features_per_level), ("RUN", run)],
-            )?,
+            bwd_runs: if run > 1 {
+                Some(Kernel::with_spec(
+                    ctx,
+                    &shaders::HASHGRID_BWD_RUNS,
+                    &[("F", config.features_per_level), ("RUN", run)],
+                )?)
+            } else {
+                None
+            },
             bwd_run: run,
         })
     }
 
-    fn grid(&self, rec: &Recorder, n: usize) -> GpuResult<[u32; 3]> {
-        let groups = self.bwd_runs.groups_for(n as u64);
+    fn grid(&self, rec: &Recorder, kernel: &Kernel<BwdPush>, n: usize) -> GpuResult<[u32; 3]> {
+        let groups = kernel.groups_for(n as u64);
         let caps = rec.context().caps();
         let [x, y, _] = crate::gpu::kernel::fold_groups(groups, caps.max_workgroup_count).ok_or_else(|| {
             GpuError::Dispatch { kernel: "hashgrid".into(), msg: format!("{n} points need too many groups") }
@@ -331,7 +335,7 @@ impl HashGrid {
         if n == 0 {
             return Ok(());
         }
-        if self.bwd_run > 1 {
+        if let Some(runs) = &self.bwd_runs {
             let bindings = [positions.binding(), self.levels.binding(), dy.binding()];
             let push = BwdPush {
                 grads: grads.table_address()?,
@@ -342,8 +346,8 @@ impl HashGrid {
                 dy_col: dy_col as u32,
                 pad: 0,
             };
-            let grid = self.grid(rec, n.div_ceil(self.bwd_run as usize))?;
-            return rec.dispatch_groups("hashgrid_bwd", &self.bwd_runs, &bindings, &grads.deps(), &push, grid);
+            let grid = self.grid(rec, runs, n.div_ceil(self.bwd_run as usize))?;
+            return rec.dispatch_groups("hashgrid_bwd", runs, &bindings, &grads.deps(), &push, grid);
         }
         let dy = RowSlice { buf: dy, stride: dy_stride, col: dy_col };
         self.record_level_backward(
