@@ -5,7 +5,7 @@
 #   - gdal-bin: `gdalinfo`, `gdalsrsinfo`, `gdaltransform`, which the tests run to check msnerf's GeoTIFFs, LAS CRS
 #     records and projections against GDAL/PROJ; python3-gdal: GDAL's Cloud-Optimized GeoTIFF validator, which
 #     the survey-export tests run on the DSM and orthomosaic
-#   - colmap (3.8, no CUDA): `msnerf sfm` runs it, and tests/sfm_colmap.rs runs that
+#   - colmap (3.8, no CUDA): `msnerf sfm` runs it, and tests/data/sfm_colmap.rs runs that
 # Runs apt-get as root or through sudo; otherwise prints the command to run. Idempotent: a second run does nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."

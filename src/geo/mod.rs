@@ -5,7 +5,7 @@
 //! table `proj4rs`' own authors point to) gives every EPSG code a WKT for LAS and a PROJ.4 definition; `proj4rs`
 //! (a pure-Rust port of proj4js by 3Liz, the QGIS-server company) does the projection maths, so a bare Debian needs
 //! no libproj and the same numbers come out on every machine. Its Transverse Mercator agrees with GDAL/PROJ's
-//! `gdaltransform` to 1e-6 m (tests/geo_crs.rs).
+//! `gdaltransform` to 1e-6 m (tests/data/geo_crs.rs).
 
 pub mod crs;
 pub mod error;

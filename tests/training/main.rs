@@ -1,0 +1,18 @@
+//! The training test binary: training end to end, the planner, sweeps and benchmarks. One binary per layer, each former test file a module
+//! (issue 24: five test binaries to link instead of one per file).
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod bench_cli;
+mod depth_supervision;
+mod plan_cli;
+mod plan_ledger;
+mod sweep_bands;
+mod sweep_grid;
+mod sweep_outputs;
+mod sweep_pareto;
+mod sweep_resume;
+mod train_e2e;
+mod train_pose_refinement;
+mod train_step;
