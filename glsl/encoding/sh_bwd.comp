@@ -21,8 +21,8 @@ void main() {
     if (i >= pc.n) return;
     vec3 d = vec3(dirs[3u * i], dirs[3u * i + 1u], dirs[3u * i + 2u]);
     uint o = i * pc.row_stride + pc.col;
-    float g[16];
-    for (uint k = 0u; k < 16u; ++k) g[k] = d_sh[o + k];
+    float g[SH_DIM];
+    for (uint k = 0u; k < SH_DIM; ++k) g[k] = d_sh[o + k];
     vec3 gd = sh_direction_grad(d, g);
     if (pc.accumulate != 0u) gd += vec3(d_dirs[3u * i], d_dirs[3u * i + 1u], d_dirs[3u * i + 2u]);
     d_dirs[3u * i] = gd.x;

@@ -1,6 +1,8 @@
 // sh_constants.glsl: coefficients of the degree-4 real SH basis in tiny-cuda-nn's convention (nerfacto.md §2.16),
 // shared by sh_fwd and sh_bwd and mirrored in src/reference/sh.rs. Products used by the backward are folded
 // here from the f64 values.
+// Values per direction (degree 4); equals `nn::sh::SH_DIM`, which a unit test there checks.
+const uint SH_DIM = 16u;
 const float SH_C0 = 0.28209479177387814;
 const float SH_C1 = 0.48860251190291987;
 const float SH_C4 = 1.0925484305920792;

@@ -16,8 +16,8 @@ layout(push_constant) uniform Push { uint n; uint row_stride; uint col; } pc;
 void main() {
     uint i = global_index();
     if (i >= pc.n) return;
-    float sh[16];
+    float sh[SH_DIM];
     sh_eval(vec3(dirs[3u * i], dirs[3u * i + 1u], dirs[3u * i + 2u]), sh);
     uint o = i * pc.row_stride + pc.col;
-    for (uint k = 0u; k < 16u; ++k) out_values[o + k] = sh[k];
+    for (uint k = 0u; k < SH_DIM; ++k) out_values[o + k] = sh[k];
 }

@@ -24,12 +24,12 @@ void main() {
     uint s = global_index();
     if (s >= pc.n_samples) return;
     uint r = s / pc.n;
-    float sh[16];
+    float sh[SH_DIM];
     sh_eval(vec3(dirs[3u * r], dirs[3u * r + 1u], dirs[3u * r + 2u]), sh);
     uint o = s * pc.in_pad;
-    for (uint k = 0u; k < 16u; ++k) rows[o + k] = sh[k];
-    for (uint k = 0u; k < pc.geo_dim; ++k) rows[o + 16u + k] = density[s * pc.density_stride + 1u + k];
-    uint a0 = 16u + pc.geo_dim;
+    for (uint k = 0u; k < SH_DIM; ++k) rows[o + k] = sh[k];
+    for (uint k = 0u; k < pc.geo_dim; ++k) rows[o + SH_DIM + k] = density[s * pc.density_stride + 1u + k];
+    uint a0 = SH_DIM + pc.geo_dim;
     if (pc.app_dim > 0u) {
         uint e = (pc.app_mode == 0u ? cam_idx[r] : pc.mean_row) * pc.app_dim;
         for (uint k = 0u; k < pc.app_dim; ++k) rows[o + a0 + k] = emb[e + k];

@@ -106,3 +106,23 @@ pub fn sh_bwd(
     };
     rec.dispatch(&k, &[dirs.binding(), d_sh.binding(), d_dirs.binding()], &push, n as u64)
 }
+
+#[cfg(test)]
+mod sh_dim_tests {
+    /// The GLSL kernels' `SH_DIM` (glsl/encoding/sh_constants.glsl) is this module's.
+    #[test]
+    fn glsl_sh_dim_is_the_rust_constant() {
+        let text = include_str!("../../glsl/encoding/sh_constants.glsl");
+        let line = text.lines().find(|l| l.starts_with("const uint SH_DIM")).expect("SH_DIM declared");
+        let value: usize = line
+            .split('=')
+            .nth(1)
+            .expect("= value")
+            .trim()
+            .trim_end_matches(';')
+            .trim_end_matches('u')
+            .parse()
+            .expect("a number");
+        assert_eq!(value, super::SH_DIM);
+    }
+}
