@@ -18,9 +18,15 @@ pub struct SeedNoise {
 }
 
 impl SeedNoise {
-    /// The largest spread over the evaluation points: the tie threshold.
+    /// The largest spread over the evaluation points.
     pub fn max_db(&self) -> f64 {
         self.spread_db.iter().map(|&(_, d)| d).fold(0.0, f64::max)
+    }
+
+    /// The tie threshold at evaluation point `target_s`: the spread measured there, or the largest one when the
+    /// repeats were not evaluated at that point.
+    pub fn at(&self, target_s: f64) -> f64 {
+        self.spread_db.iter().find(|(t, _)| (t - target_s).abs() < 1e-9).map_or_else(|| self.max_db(), |&(_, d)| d)
     }
 }
 

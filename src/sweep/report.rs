@@ -82,11 +82,10 @@ fn noise_line(results: &[CellResult], noise: Option<&SeedNoise>) -> String {
     let spread: Vec<String> = n.spread_db.iter().map(|&(t, d)| format!("{d:.2} dB at {}", secs(t))).collect();
     format!(
         "- Seed noise, measured: {} are one configuration with other seeds; their held-out PSNR spread (max - min) \
-         is {}. Differences under {:.2} dB are called ties. Under a wall-clock budget the spread includes the machine's \
-         load as well as the seed: compare the repeats' step counts.",
+         is {}. A difference smaller than the spread at the same evaluation point is called a tie. Under a wall-clock \
+         budget the spread includes the machine's load as well as the seed: compare the repeats' step counts.",
         cells.join(", "),
         if spread.is_empty() { "not comparable (no shared evaluation point)".to_owned() } else { spread.join(", ") },
-        n.max_db()
     )
 }
 
@@ -173,9 +172,10 @@ pub fn report_markdown(ctx: &ReportContext, results: &[CellResult]) -> String {
                     format!("measured at {:.0} s", p.elapsed_s)
                 };
                 if let Some(n) = &noise {
-                    let close = near_ties(results, b, i, p.psnr, n.max_db());
+                    let threshold = n.at(p.target_s);
+                    let close = near_ties(results, b, i, p.psnr, threshold);
                     if !close.is_empty() {
-                        let _ = write!(note, "; within the seed noise ({:.2} dB): {}", n.max_db(), close.join(", "));
+                        let _ = write!(note, "; within the seed noise ({threshold:.2} dB): {}", close.join(", "));
                     }
                 }
                 let _ = writeln!(

@@ -253,6 +253,7 @@ fn seed_repeats_measure_the_noise_the_report_uses() {
         assert!(*t == wt && (d - wd).abs() < 1e-9, "spread at {t} s: {d}, want {wd}");
     }
     assert!((noise.max_db() - 0.4).abs() < 1e-9);
+    assert!((noise.at(60.0) - 0.1).abs() < 1e-9 && (noise.at(45.0) - 0.4).abs() < 1e-9, "per point, else the largest");
     let g = grid();
     let m = machine();
     let md = report_markdown(&report_context(&g, &m, "2026-11-26"), &r);
@@ -263,6 +264,9 @@ fn seed_repeats_measure_the_noise_the_report_uses() {
     // At 30 s the pick is cell 3 (22.3); cell 0 (22.0) and cell 4 (21.9) lie within 0.4 dB of it, cell 1 (21.0) not.
     let row = md.lines().find(|l| l.starts_with("| 30 s |")).expect("30 s row");
     assert!(row.contains("within the seed noise (0.40 dB): #0, #4") && !row.contains("#1"), "{row}");
+    // At 60 s the threshold is the spread there, 0.1 dB: cell 1 (26.0) is the pick, nothing lies within 0.1 dB.
+    let row = md.lines().find(|l| l.starts_with("| 1 min |")).expect("1 min row");
+    assert!(row.contains("#1") && !row.contains("within the seed noise"), "{row}");
     // Without a seed override nothing is a repeat, even with equal settings.
     let mut same = results();
     let mut c = same[0].clone();
