@@ -15,7 +15,8 @@ use super::push::{check_push_layout, PushLayout};
 use super::spirv::{reflect, ShaderInfo, SpecConstant};
 use ash::vk;
 use bytemuck::Pod;
-use std::collections::HashMap;
+use std::any::TypeId;
+use std::collections::{HashMap, HashSet};
 use std::marker::PhantomData;
 use std::sync::Arc;
 
@@ -41,6 +42,9 @@ pub(crate) struct PipelineCache {
     map: HashMap<PipelineKey, CachedPipeline>,
     /// Each variant's specialisation constants (SpecId, name, default), reflected once.
     spec_constants: HashMap<&'static str, Vec<SpecConstant>>,
+    /// (variant, Rust push type) pairs whose layouts have passed [`check_push`]: a pipeline fetched again from the
+    /// cache (kernels are looked up per dispatch) costs a hash lookup, not a member-by-member comparison.
+    checked: HashSet<(&'static str, TypeId)>,
 }
 
 impl PipelineCache {
@@ -80,7 +84,8 @@ impl<P: PushLayout> Kernel<P> {
         let shader_err = |msg: String| GpuError::Shader { name: blob.name.to_owned(), msg };
         let words =
             || ash::util::read_spv(&mut std::io::Cursor::new(blob.spirv)).map_err(|e| shader_err(e.to_string()));
-        // The push layout is checked on every creation, cache hit or not: the cache key does not include `P`.
+        // The push layout is checked for every (variant, `P`) pair, cache hit or not: the cache key does not include
+        // `P`, so another Rust type fetching a cached pipeline is checked too (once).
         let check = |info: &ShaderInfo| {
             check_push(info, std::mem::size_of::<P>() as u32, std::mem::align_of::<P>() as u32, P::FIELDS)
                 .map_err(shader_err)
@@ -94,8 +99,12 @@ impl<P: PushLayout> Kernel<P> {
             let merged = resolve_spec(&cache.spec_constants[blob.name], spec).map_err(shader_err)?;
             let key = (blob.name, merged);
             if let Some(p) = cache.map.get(&key) {
-                check(&p.info)?;
-                return Ok(Self { name: blob.name, pipeline: p.pipeline, info: p.info.clone(), _p: PhantomData });
+                let (pipeline, info) = (p.pipeline, p.info.clone());
+                if !cache.checked.contains(&(blob.name, TypeId::of::<P>())) {
+                    check(&info)?;
+                    cache.checked.insert((blob.name, TypeId::of::<P>()));
+                }
+                return Ok(Self { name: blob.name, pipeline, info, _p: PhantomData });
             }
             key
         };
@@ -104,6 +113,7 @@ impl<P: PushLayout> Kernel<P> {
         check(&info)?;
         let pipeline = create_pipeline(ctx, blob, &words, &key.1, &info)?;
         let mut cache = lock(&ctx.shared.pipelines);
+        cache.checked.insert((blob.name, TypeId::of::<P>()));
         // Another thread may have built the same pipeline meanwhile: keep the first, drop ours.
         let entry = cache.map.entry(key).or_insert(CachedPipeline { pipeline, info: Arc::new(info) });
         if entry.pipeline != pipeline {
