@@ -9,10 +9,12 @@
 // 32-byte access per lane costs about what a float access costs); the host dispatches the range's multiple of VEC
 // with VEC = 8 and the rest with VEC = 1.
 // Bindings: 0 params (float[], read-write), 1 grads (float[], read), 2 m (float[], read-write),
-//           3 v (float[], read-write); all four the same chunk of their LargeArray.
+//           3 v (float[], read-write); all four the same chunk of their LargeArray; 4 gate (uint[1], read when
+//           GATED: a set flag (the training step's NaN/Inf guard) skips the update, so a step is skipped on the
+//           device without the host waiting for the verdict).
 // Push:     n (elements), offset (a multiple of VEC), step_size, bc2_sqrt, beta1, one_minus_beta1, beta2,
 //           one_minus_beta2, eps, weight_decay, grad_scale (44 bytes).
-// Spec:     0 VEC (8 or 1).
+// Spec:     0 VEC (8 or 1), 1 GATED (0 or 1).
 // Threads:  one invocation per VEC elements, 64 per group, 1D folded to 2D past 65535 groups.
 #version 460
 #define WG_SIZE 64
@@ -20,10 +22,12 @@
 #include "network/row_io.glsl"
 layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint VEC = 8;
+layout(constant_id = 1) const uint GATED = 0;
 ROWS_DECLARE(0, params, )
 ROWS_DECLARE(1, grads, readonly)
 ROWS_DECLARE(2, m1, )
 ROWS_DECLARE(3, m2, )
+layout(std430, binding = 4) readonly buffer Gate { uint gate[]; };
 layout(push_constant) uniform Push {
     uint n;
     uint offset;
@@ -41,6 +45,7 @@ layout(push_constant) uniform Push {
 void main() {
     uint i = global_index() * VEC;
     if (i >= pc.n) return;
+    if (GATED != 0u && gate[0] != 0u) return;
     uint j = pc.offset + i;
     float p[VEC], g[VEC], m[VEC], v[VEC];
     ROWS_LOAD(params, VEC, j, p, 0u, VEC)

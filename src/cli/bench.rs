@@ -32,6 +32,10 @@ pub enum BenchWhat {
         /// first steps of a run, where every step updates the proposals)
         #[arg(long)]
         at_step: Option<u64>,
+        /// Steps submitted before the host waits for the oldest, comma separated to compare (default: the
+        /// profile's `trainer.steps_in_flight`)
+        #[arg(long, value_delimiter = ',')]
+        steps_in_flight: Vec<usize>,
         #[arg(long)]
         json: bool,
     },
@@ -81,8 +85,20 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
     }
     let ctx = Context::new(&cli.context_desc())?;
     match args.what {
-        BenchWhat::Train { ref models, ref bands, rays_per_batch, rays_per_chunk, steps, at_step, json } => {
+        BenchWhat::Train {
+            ref models,
+            ref bands,
+            rays_per_batch,
+            rays_per_chunk,
+            steps,
+            at_step,
+            ref steps_in_flight,
+            json,
+        } => {
             anyhow::ensure!(steps > 0, "--steps must be > 0");
+            if let Some(k) = steps_in_flight.iter().find(|k| !(1..=3).contains(*k)) {
+                anyhow::bail!("--steps-in-flight must be 1, 2 or 3, got {k}");
+            }
             let mut all = Vec::new();
             for m in models {
                 let mut cfg = crate::nerf::config::ModelConfig::resolve(m)?;
@@ -95,12 +111,20 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
                     }
                     cfg.trainer.set_rays_per_chunk(c);
                 }
+                let depths = if steps_in_flight.is_empty() {
+                    vec![cfg.trainer.steps_in_flight]
+                } else {
+                    steps_in_flight.clone()
+                };
                 for &b in bands {
-                    let r = crate::bench::train::run(&ctx, &cfg, b, steps, 2, at_step)?;
-                    if !json {
-                        print!("{}", r.table());
+                    for &k in &depths {
+                        cfg.trainer.steps_in_flight = k;
+                        let r = crate::bench::train::run(&ctx, &cfg, b, steps, 2, at_step)?;
+                        if !json {
+                            print!("{}", r.table());
+                        }
+                        all.push(r);
                     }
-                    all.push(r);
                 }
             }
             if json {

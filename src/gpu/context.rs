@@ -417,6 +417,11 @@ impl Context {
         unsafe { self.shared.device.wait_semaphores(&info, u64::MAX) }.vk("vkWaitSemaphores")
     }
 
+    /// The timeline value of the latest completed submission (never blocks).
+    pub(crate) fn completed_value(&self) -> GpuResult<u64> {
+        unsafe { self.shared.device.get_semaphore_counter_value(self.shared.timeline) }.vk("vkGetSemaphoreCounterValue")
+    }
+
     /// The host-time totals so far ([`super::host_clock`]).
     pub fn host_times(&self) -> super::HostTimes {
         self.shared.host_clock.snapshot()

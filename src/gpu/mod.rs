@@ -7,6 +7,7 @@
 //!   structs are declared with [`push_constants!`](crate::push_constants) and compared member by member with the
 //!   shader's block, specialisation constants are set by name ([`push`], [`spirv`]).
 //! - [`Recorder`]: records dispatches with automatic barriers and per-dispatch GPU timestamps ([`recorder`]).
+//! - [`HostBuffer`]: persistent host-visible buffers a recorded sequence copies from and into ([`host_buffer`]).
 //! - [`HostTimes`]: host time spent recording, waiting on submissions and in transfers ([`host_clock`]).
 //!
 //! Uploads and readbacks go only through staging buffers ([`staging`]): lavapipe can map device memory,
@@ -16,6 +17,7 @@ pub mod buffer;
 pub mod caps;
 pub mod context;
 pub mod error;
+pub mod host_buffer;
 pub mod host_clock;
 pub mod instance;
 pub mod kernel;
@@ -31,10 +33,11 @@ pub use buffer::{Binding, BufferDesc, GpuBuffer};
 pub use caps::DeviceCaps;
 pub use context::{Context, ContextDesc, Validation};
 pub use error::{GpuError, GpuResult};
+pub use host_buffer::{HostBuffer, HostDirection};
 pub use host_clock::HostTimes;
 pub use kernel::{Kernel, ShaderBlob};
 pub use large_array::LargeArray;
 pub use memory::{MemoryCategory, MemoryLedger, MemoryReport};
 pub use push::{PushField, PushLayout};
-pub use recorder::Recorder;
+pub use recorder::{InFlight, Recorder};
 pub use timing::{KernelTime, TimingReport};

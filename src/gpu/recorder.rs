@@ -1,15 +1,24 @@
-//! `Recorder`: records a sequence of kernel dispatches into one command buffer, then submits and waits.
+//! `Recorder`: records a sequence of kernel dispatches (and copies between [`HostBuffer`]s and device buffers) into
+//! one command buffer, then submits it: [`Recorder::submit_and_wait`] blocks, [`Recorder::submit`] returns an
+//! [`InFlight`] that owns the command buffer and everything it uses until [`InFlight::wait`] (so the host can
+//! record the next sequence while this one runs).
 //! - Barriers: a compute-to-compute memory barrier goes in before a dispatch that binds a buffer an earlier
 //!   dispatch since the last barrier also bound (every binding counts as read-write: conservative and simple).
 //!   Independent dispatches run without one.
 //! - Descriptors: pushed with VK_KHR_push_descriptor, or allocated from per-recorder pools when the device
 //!   lacks it (or `MSNERF_DISABLE_PUSH_DESCRIPTOR=1`).
-//! - Timing: a GPU timestamp after every dispatch, reported per named dispatch ([`TimingReport`]).
+//! - Timing: a GPU timestamp after every dispatch, reported per named dispatch ([`TimingReport`]); on by default
+//!   where the queue has timestamps, off with [`Context::recorder_timed`] (`false`) for steps not being profiled.
+//! - Copies: [`Recorder::copy_in`] (host buffer to device buffer, before the dispatches that read it) and
+//!   [`Recorder::copy_out`] (device buffer to host buffer). Copies recorded back to back form a group between two
+//!   barriers (so the copies of one group must not depend on each other); a submission with copies out ends with a
+//!   barrier that makes them visible to the host.
 //! - Temporaries handed to [`Recorder::keep_alive`] live until the work completes.
 
 use super::buffer::Binding;
 use super::context::{Context, MAX_BINDINGS};
 use super::error::{GpuError, GpuResult, VkCheck};
+use super::host_buffer::HostBuffer;
 use super::host_clock::HostWork;
 use super::kernel::{fold_groups, Kernel};
 use super::timing::{DispatchTime, TimingReport};
@@ -35,14 +44,39 @@ pub struct Recorder<'a> {
     keep: Vec<Box<dyn Any>>,
     timing: bool,
     finished: bool,
+    /// A copy into a host buffer was recorded: the submission ends with a transfer-to-host barrier.
+    copies_out: bool,
+    /// The last command recorded was a copy: the next dispatch (or a copy after one) needs the closing barrier.
+    in_copies: bool,
     created: Instant,
+}
+
+/// A submitted sequence: owns its command buffer, query and descriptor pools and kept-alive values until
+/// [`InFlight::wait`] (or its drop, which waits too: the device may not be using what it frees).
+pub struct InFlight {
+    ctx: Context,
+    cmd: vk::CommandBuffer,
+    label: String,
+    ticket: u64,
+    barriers: u32,
+    names: Vec<&'static str>,
+    query_pools: Vec<vk::QueryPool>,
+    desc_pools: Vec<vk::DescriptorPool>,
+    keep: Vec<Box<dyn Any>>,
+    submitted: Instant,
+    done: bool,
 }
 
 impl Context {
     /// Starts recording; `label` names the sequence in timing reports.
     pub fn recorder(&self, label: &str) -> GpuResult<Recorder<'_>> {
+        self.recorder_timed(label, true)
+    }
+
+    /// Starts recording, with per-dispatch timestamps only if `timing` (and the queue has them).
+    pub fn recorder_timed(&self, label: &str, timing: bool) -> GpuResult<Recorder<'_>> {
         let cmd = self.alloc_command_buffer()?;
-        let timing = self.caps().timestamp_period_ns.is_some();
+        let timing = timing && self.caps().timestamp_period_ns.is_some();
         let mut rec = Recorder {
             ctx: self,
             cmd,
@@ -56,6 +90,8 @@ impl Context {
             keep: Vec::new(),
             timing,
             finished: false,
+            copies_out: false,
+            in_copies: false,
             created: Instant::now(),
         };
         // Earlier submissions (uploads, other sequences) finish their writes before this one reads.
@@ -123,6 +159,10 @@ impl<'a> Recorder<'a> {
         if groups.contains(&0) {
             return Ok(());
         }
+        if self.in_copies {
+            self.copy_barrier();
+            self.in_copies = false;
+        }
         let deps = bindings.iter().map(|b| b.buffer).chain(extra_deps.iter().copied());
         if deps.clone().any(|b| self.touched.contains(&b)) {
             self.global_barrier(vk::PipelineStageFlags2::COMPUTE_SHADER, vk::AccessFlags2::SHADER_STORAGE_WRITE, true);
@@ -187,42 +227,141 @@ impl<'a> Recorder<'a> {
         self.barriers
     }
 
+    /// Copies `n` elements from `src` (byte offset `src_at`) into `dst` from element `dst_at`, ordered after
+    /// every earlier dispatch and copy of this recorder and before every later one.
+    pub fn copy_in<T: Pod>(
+        &mut self,
+        src: &HostBuffer,
+        src_at: u64,
+        dst: &super::GpuBuffer<T>,
+        dst_at: usize,
+        n: usize,
+    ) -> GpuResult<()> {
+        let sz = std::mem::size_of::<T>() as u64;
+        let bytes = n as u64 * sz;
+        if dst_at + n > dst.len() || src_at + bytes > src.bytes() {
+            return Err(GpuError::Buffer {
+                name: dst.name().to_owned(),
+                msg: format!(
+                    "copy of {n} elements to {dst_at} (of {}) from byte {src_at} of {:?} ({} bytes)",
+                    dst.len(),
+                    src.inner.name,
+                    src.bytes()
+                ),
+            });
+        }
+        self.copy(src.raw(), src_at, dst.raw(), dst_at as u64 * sz, bytes);
+        Ok(())
+    }
+
+    /// Copies elements `[start, end)` of `src` into `dst` at byte offset `dst_at`; readable by the host once
+    /// the submission has signalled.
+    pub fn copy_out<T: Pod>(
+        &mut self,
+        src: &super::GpuBuffer<T>,
+        start: usize,
+        end: usize,
+        dst: &HostBuffer,
+        dst_at: u64,
+    ) -> GpuResult<()> {
+        let sz = std::mem::size_of::<T>() as u64;
+        let bytes = (end.saturating_sub(start)) as u64 * sz;
+        if start > end || end > src.len() || dst_at + bytes > dst.bytes() {
+            return Err(GpuError::Buffer {
+                name: src.name().to_owned(),
+                msg: format!(
+                    "copy of elements {start}..{end} (of {}) to byte {dst_at} of {:?} ({} bytes)",
+                    src.len(),
+                    dst.inner.name,
+                    dst.bytes()
+                ),
+            });
+        }
+        self.copies_out = true;
+        self.copy(src.raw(), start as u64 * sz, dst.raw(), dst_at, bytes);
+        Ok(())
+    }
+
+    /// One buffer copy in the current group of copies: the group opens with a barrier after earlier work
+    /// (including reads of what it overwrites) and closes with one before the next dispatch.
+    fn copy(&mut self, src: vk::Buffer, src_at: u64, dst: vk::Buffer, dst_at: u64, bytes: u64) {
+        if bytes == 0 {
+            return;
+        }
+        if !self.in_copies {
+            self.copy_barrier();
+            self.in_copies = true;
+        }
+        let region = vk::BufferCopy { src_offset: src_at, dst_offset: dst_at, size: bytes };
+        unsafe { self.ctx.device().cmd_copy_buffer(self.cmd, src, dst, &[region]) };
+    }
+
+    /// Shader and transfer writes before it are visible to shader and transfer accesses after it.
+    fn copy_barrier(&mut self) {
+        let all = vk::PipelineStageFlags2::COMPUTE_SHADER | vk::PipelineStageFlags2::COPY;
+        let barrier = vk::MemoryBarrier2::default()
+            .src_stage_mask(all)
+            .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE | vk::AccessFlags2::TRANSFER_WRITE)
+            .dst_stage_mask(all)
+            .dst_access_mask(
+                vk::AccessFlags2::SHADER_STORAGE_READ
+                    | vk::AccessFlags2::SHADER_STORAGE_WRITE
+                    | vk::AccessFlags2::TRANSFER_READ
+                    | vk::AccessFlags2::TRANSFER_WRITE,
+            );
+        unsafe {
+            self.ctx
+                .device()
+                .cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().memory_barriers(&[barrier]))
+        };
+        self.barriers += 1;
+        self.touched.clear();
+    }
+
     /// Submits, waits for completion and returns the timing report.
-    pub fn submit_and_wait(mut self) -> GpuResult<TimingReport> {
+    pub fn submit_and_wait(self) -> GpuResult<TimingReport> {
+        self.submit()?.wait()
+    }
+
+    /// Submits without waiting; the returned [`InFlight`] is waited on (or dropped) later.
+    pub fn submit(mut self) -> GpuResult<InFlight> {
         self.finished = true;
+        if self.copies_out {
+            let b = [vk::MemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::COPY)
+                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+                .dst_access_mask(vk::AccessFlags2::HOST_READ)];
+            unsafe {
+                self.ctx.device().cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().memory_barriers(&b))
+            };
+        }
         self.ctx.add_host_time(HostWork::Record, self.created);
         let start = Instant::now();
-        let ticket = self.ctx.submit(self.cmd)?;
-        self.ctx.wait(ticket)?;
-        self.ctx.add_host_time(HostWork::SubmitWait, start);
-        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
-        let mut report =
-            TimingReport { label: self.label.clone(), wall_ms, barriers: self.barriers, ..Default::default() };
-        if self.timing && !self.names.is_empty() {
-            let n = self.names.len() as u32 + 1;
-            let mut ticks = vec![0u64; n as usize];
-            for (p, pool) in self.query_pools.iter().enumerate() {
-                let first = p as u32 * QUERIES_PER_POOL;
-                let count = (n - first).min(QUERIES_PER_POOL);
-                let dst = &mut ticks[first as usize..(first + count) as usize];
-                unsafe {
-                    self.ctx.device().get_query_pool_results(
-                        *pool,
-                        0,
-                        dst,
-                        vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
-                    )
-                }
-                .vk("vkGetQueryPoolResults")?;
-            }
-            let period = self.ctx.caps().timestamp_period_ns.unwrap_or(1.0) as f64;
-            for (i, name) in self.names.iter().enumerate() {
-                let ms = ticks[i + 1].saturating_sub(ticks[i]) as f64 * period * 1e-6;
-                report.gpu_ms += ms;
-                report.dispatches.push(DispatchTime { name: (*name).to_owned(), ms });
+        let cmd = std::mem::replace(&mut self.cmd, vk::CommandBuffer::null());
+        let mut flight = InFlight {
+            ctx: self.ctx.clone(),
+            cmd,
+            label: std::mem::take(&mut self.label),
+            ticket: 0,
+            barriers: self.barriers,
+            names: if self.timing { std::mem::take(&mut self.names) } else { Vec::new() },
+            query_pools: std::mem::take(&mut self.query_pools),
+            desc_pools: std::mem::take(&mut self.desc_pools),
+            keep: std::mem::take(&mut self.keep),
+            submitted: start,
+            done: false,
+        };
+        match self.ctx.submit(cmd) {
+            Ok(t) => flight.ticket = t,
+            Err(e) => {
+                // Never submitted: nothing to wait for.
+                flight.done = true;
+                return Err(e);
             }
         }
-        Ok(report)
+        self.ctx.add_host_time(HostWork::SubmitWait, start);
+        Ok(flight)
     }
 
     fn global_barrier(&mut self, src_stage: vk::PipelineStageFlags2, src_access: vk::AccessFlags2, count: bool) {
@@ -284,20 +423,92 @@ impl<'a> Recorder<'a> {
 
 impl Drop for Recorder<'_> {
     fn drop(&mut self) {
+        if self.cmd == vk::CommandBuffer::null() {
+            return; // handed to an InFlight
+        }
         let d = self.ctx.device();
         if !self.finished {
             // Never submitted (an error while recording): end the buffer so it can be freed.
             let _ = unsafe { d.end_command_buffer(self.cmd) };
         }
-        self.ctx.free_command_buffer(self.cmd);
-        unsafe {
-            for p in self.query_pools.drain(..) {
-                d.destroy_query_pool(p, None);
+        free_resources(self.ctx, self.cmd, &mut self.query_pools, &mut self.desc_pools);
+        self.keep.clear();
+    }
+}
+
+fn free_resources(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    query_pools: &mut Vec<vk::QueryPool>,
+    desc_pools: &mut Vec<vk::DescriptorPool>,
+) {
+    let d = ctx.device();
+    ctx.free_command_buffer(cmd);
+    unsafe {
+        for p in query_pools.drain(..) {
+            d.destroy_query_pool(p, None);
+        }
+        for p in desc_pools.drain(..) {
+            d.destroy_descriptor_pool(p, None);
+        }
+    }
+}
+
+impl InFlight {
+    /// Whether the device has finished this submission (never blocks).
+    pub fn is_done(&self) -> GpuResult<bool> {
+        Ok(self.done || self.ctx.completed_value()? >= self.ticket)
+    }
+
+    /// Blocks until the submission has completed; returns its timing report (`wall_ms`: from submission to
+    /// completion as the host saw it).
+    pub fn wait(mut self) -> GpuResult<TimingReport> {
+        let start = Instant::now();
+        self.ctx.wait(self.ticket)?;
+        self.done = true;
+        self.ctx.add_host_time(HostWork::SubmitWait, start);
+        let wall_ms = self.submitted.elapsed().as_secs_f64() * 1e3;
+        let mut report = TimingReport {
+            label: std::mem::take(&mut self.label),
+            wall_ms,
+            barriers: self.barriers,
+            ..Default::default()
+        };
+        if !self.names.is_empty() {
+            let n = self.names.len() as u32 + 1;
+            let mut ticks = vec![0u64; n as usize];
+            for (p, pool) in self.query_pools.iter().enumerate() {
+                let first = p as u32 * QUERIES_PER_POOL;
+                let count = (n - first).min(QUERIES_PER_POOL);
+                let dst = &mut ticks[first as usize..(first + count) as usize];
+                unsafe {
+                    self.ctx.device().get_query_pool_results(
+                        *pool,
+                        0,
+                        dst,
+                        vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                    )
+                }
+                .vk("vkGetQueryPoolResults")?;
             }
-            for p in self.desc_pools.drain(..) {
-                d.destroy_descriptor_pool(p, None);
+            let period = self.ctx.caps().timestamp_period_ns.unwrap_or(1.0) as f64;
+            for (i, name) in self.names.iter().enumerate() {
+                let ms = ticks[i + 1].saturating_sub(ticks[i]) as f64 * period * 1e-6;
+                report.gpu_ms += ms;
+                report.dispatches.push(DispatchTime { name: (*name).to_owned(), ms });
             }
         }
+        Ok(report)
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        if !self.done {
+            // The device may still use the command buffer and what it binds.
+            let _ = self.ctx.wait(self.ticket);
+        }
+        free_resources(&self.ctx, self.cmd, &mut self.query_pools, &mut self.desc_pools);
         self.keep.clear();
     }
 }

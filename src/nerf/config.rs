@@ -319,6 +319,24 @@ pub struct TrainerConfig {
     pub steps_per_eval: u64,
     pub steps_per_save: u64,
     pub seed: u64,
+    /// Training steps submitted to the device before the host waits for the oldest (1: every step waits for its
+    /// own result; 2, the default: the host samples and records the next step while the device runs this one; at
+    /// most 3). Losses and the NaN guard's verdict arrive that many steps late; the guard still skips a poisoned
+    /// step on the device, in the step's own submission (`nerf::guard`).
+    #[serde(default = "default_steps_in_flight")]
+    pub steps_in_flight: usize,
+    /// Per-dispatch GPU timestamps on one training step in this many (0: never); the summary's GPU time and
+    /// kernel breakdown average over those steps. Timestamps cost GPU time on NVIDIA and host time everywhere.
+    #[serde(default = "default_profile_every")]
+    pub profile_every: u64,
+}
+
+fn default_steps_in_flight() -> usize {
+    2
+}
+
+fn default_profile_every() -> u64 {
+    10
 }
 
 /// The batch/chunk rule, defined once: a training chunk never exceeds its batch (a batch smaller than the chunk is
@@ -442,6 +460,12 @@ impl ModelConfig {
             return Err(ConfigError::key(
                 "trainer: rays_per_batch, rays_per_chunk and eval_rays_per_chunk must be > 0",
             ));
+        }
+        if !(1..=3).contains(&t.steps_in_flight) {
+            return Err(ConfigError::key(format!(
+                "trainer.steps_in_flight must be 1, 2 or 3, got {}",
+                t.steps_in_flight
+            )));
         }
         Ok(())
     }

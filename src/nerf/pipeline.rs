@@ -1,14 +1,21 @@
 //! One nerfacto training step and the evaluation render, on the GPU (spec/nerfacto.md §2.14, §2.17).
-//! A batch of rays is processed in chunks of `rays_per_chunk` (each its own submission); gradients of all chunks add up
-//! in the parameter store, then Adam steps the groups that received gradients (proposals only on update steps).
+//! A batch of rays is processed in chunks of `rays_per_chunk`; gradients of all chunks add up in the parameter store,
+//! then Adam steps the groups that received gradients (proposals only on update steps).
 //!
-//! Per chunk: upload pixels and targets -> `ray_gen` -> for each proposal level: sample (initial or PDF) -> hash grid ->
+//! A training step is one submission (issue 22): the batch is written into a persistent host buffer
+//! ([`super::step_io`]), and the command buffer copies each chunk's inputs in, runs it, copies its outputs out, then
+//! runs the pose regulariser, the NaN/Inf guard ([`super::guard`]) and Adam, gated on the guard's flag. Up to
+//! `trainer.steps_in_flight` steps are submitted before the host waits for the oldest ([`Pipeline::submit_step`],
+//! [`Pipeline::completed`], [`Pipeline::flush`]); [`Pipeline::train_step`] is one step, waited for.
+//!
+//! Per chunk: copy pixels and targets in -> `ray_gen` -> for each proposal level: sample (initial or PDF) -> hash grid ->
 //! MLP -> weights -> NeRF level: PDF sample -> hash grid -> density MLP -> colour input -> colour MLP -> `composite`
 //! (loss and dL/draw, dL/dc) -> colour MLP backward -> geometric-feature and appearance gradients -> density MLP
 //! backward -> hash grid backward; on proposal-update steps `interlevel` -> proposal MLP and hash grid backward.
 
 use super::buffers::{Backward, ChunkBuffers, GpuAlloc, RayOut, RAY_OUT_FIXED};
 use super::config::Background;
+use super::guard::Guard;
 use super::kernels::{
     BackgroundMode, CompositeBuffers, CompositeParams, Geometry, InterlevelBuffers, Jitter, RayBuffers, RenderKernels,
 };
@@ -16,9 +23,11 @@ use super::model::Model;
 use super::pose::{LevelGrad, PoseKernels, PoseSlot};
 use super::rays::GpuCamera;
 use super::schedule::{anneal_at, ProposalSchedule};
+use super::step_io::{StepIo, StepLayout};
 use crate::gpu::staging::Part;
-use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, MemoryCategory, Recorder, TimingReport};
+use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, InFlight, MemoryCategory, Recorder, TimingReport};
 use crate::nn::{ParamSlice, RowSlice};
+use std::collections::VecDeque;
 
 /// A training batch: per ray (camera, row, col) and B target values plus a ray weight (0 masks the ray out); with
 /// depth supervision on, per ray (target distance, sigma) in the normalised frame, (0, 1) for no target.
@@ -53,8 +62,22 @@ pub struct StepStats {
     /// The step was skipped by the NaN/Inf guard; `poisoned` names the first non-finite buffer.
     pub skipped: bool,
     pub poisoned: Option<String>,
+    /// The step carried per-dispatch timestamps (`timing.gpu_ms` and the dispatch list are filled).
+    pub profiled: bool,
     #[serde(skip)]
     pub timing: TimingReport,
+}
+
+/// A submitted training step waiting for its results.
+struct PendingStep {
+    io: usize,
+    flight: InFlight,
+    stats: StepStats,
+    n_rays: usize,
+    total_w: f64,
+    n_reg: usize,
+    /// What Adam's host counters did (taken back if the guard skipped the step).
+    adam: Vec<crate::nn::adam::GroupStep>,
 }
 
 /// Rendered rays (evaluation).
@@ -81,8 +104,17 @@ pub struct Pipeline {
     /// Present when the camera optimiser is on.
     pose_kernels: Option<PoseKernels>,
     cameras: GpuBuffer<GpuCamera>,
-    /// The NaN/Inf guard's flag (1 when a gradient chunk holds a non-finite value).
-    guard_flag: GpuBuffer<u32>,
+    /// The NaN/Inf guard's flags (allocated with the training buffers).
+    guard: Option<Guard>,
+    /// One set of step host buffers per step in flight (a ring).
+    io: Vec<StepIo>,
+    next_io: usize,
+    pending: VecDeque<PendingStep>,
+    finished: VecDeque<StepStats>,
+    /// Steps submitted before the host waits for the oldest (`trainer.steps_in_flight`).
+    pub steps_in_flight: usize,
+    /// Per-dispatch timestamps on one step in this many (0: never; 1: every step).
+    pub profile_every: u64,
     train_bufs: Option<ChunkBuffers<GpuAlloc>>,
     eval_bufs: Option<ChunkBuffers<GpuAlloc>>,
     pub schedule: ProposalSchedule,
@@ -93,6 +125,14 @@ pub struct Pipeline {
     /// nerfstudio does; eval frames' rows never receive a gradient and stay at their random initialisation.
     /// None: every row.
     pub appearance_rows: Option<Vec<usize>>,
+}
+
+impl Drop for Pipeline {
+    /// Steps still in flight use the model's buffers and the step host buffers: wait for them before any field
+    /// is freed (fields drop in declaration order, `pending` after those).
+    fn drop(&mut self) {
+        self.pending.clear();
+    }
 }
 
 fn need<T>(o: &Option<T>) -> &T {
@@ -112,14 +152,20 @@ impl Pipeline {
         let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;
         let pose_kernels = if model.cfg.camera_optimizer.enabled() { Some(PoseKernels::new(ctx)?) } else { None };
         let n_train_cameras = model.n_cameras;
-        let guard_flag = GpuBuffer::from_slice(ctx, "NaN guard flag", MemoryCategory::Other, &[0u32])?;
+        let steps_in_flight = model.cfg.trainer.steps_in_flight.clamp(1, 3);
         Ok(Self {
             ctx: ctx.clone(),
             model,
             kernels,
             pose_kernels,
             cameras,
-            guard_flag,
+            guard: None,
+            io: Vec::new(),
+            next_io: 0,
+            pending: VecDeque::new(),
+            finished: VecDeque::new(),
+            steps_in_flight,
+            profile_every: 1,
             train_bufs: None,
             eval_bufs: None,
             schedule: ProposalSchedule::default(),
@@ -174,6 +220,29 @@ impl Pipeline {
                 .map_err(|e| GpuError::Config { what: "band weights".into(), msg: e.to_string() })?;
             self.ctx.upload(&b.band_weights, 0, &bw)?;
             *slot = Some(b);
+        }
+        if train && self.guard.is_none() {
+            let chunks = self.model.store.grads().chunks().len();
+            self.guard = Some(Guard::new(&self.ctx, self.model.proposals.len(), chunks)?);
+        }
+        Ok(())
+    }
+
+    /// The layout of a step's host buffers for `rays` rays.
+    fn step_layout(&self, rays: usize) -> StepLayout {
+        let words = self.guard.as_ref().map_or(1, |g| g.words());
+        StepLayout::new(rays, self.model.bands, self.model.proposals.len(), words, self.model.n_cameras)
+    }
+
+    /// The ring of step host buffers: `steps_in_flight` of them, each for a full batch (`rays` if larger).
+    /// Only called with no step in flight, or for the slot about to be used.
+    fn ensure_io(&mut self, slot: usize, rays: usize) -> GpuResult<()> {
+        let want = self.step_layout(rays.max(self.model.cfg.trainer.rays_per_batch));
+        while self.io.len() < self.steps_in_flight {
+            self.io.push(StepIo::new(&self.ctx, want)?);
+        }
+        if self.io[slot].layout.rays < rays {
+            self.io[slot] = StepIo::new(&self.ctx, self.step_layout(rays))?;
         }
         Ok(())
     }
@@ -447,28 +516,6 @@ impl Pipeline {
         Ok(n)
     }
 
-    /// The end of a step's gradient work, in one submission and one readback: the pose regulariser, then the
-    /// NaN/Inf check of every gradient chunk (`check_finite`). Returns the regulariser's loss (0 without pose
-    /// refinement) and whether every gradient is finite.
-    fn finish_gradients(&self, b: &ChunkBuffers<GpuAlloc>, timing: &mut TimingReport) -> GpuResult<(f64, bool)> {
-        let mut rec = self.ctx.recorder("regulariser and gradient check")?;
-        let n_reg = self.record_pose_regularizer(&mut rec, b)?;
-        crate::ops::fill(&mut rec, &self.guard_flag, 0u32, 0, 1)?;
-        for c in self.model.store.grads().chunks() {
-            crate::ops::record_check_finite(&mut rec, c, c.len(), &self.guard_flag)?;
-        }
-        timing.accumulate(&rec.submit_and_wait()?);
-        let mut parts = vec![Part::download(&self.guard_flag, 0, 1)?];
-        if let Some(pb) = b.pose.as_ref().filter(|_| n_reg > 0) {
-            parts.push(Part::download(&pb.reg_losses, 0, n_reg)?);
-        }
-        let got = self.ctx.download_parts(&parts)?;
-        let flag: Vec<u32> = bytemuck::pod_collect_to_vec(&got[0]);
-        let reg: f64 =
-            got.get(1).map_or(0.0, |v| bytemuck::pod_collect_to_vec::<u8, f32>(v).iter().map(|&x| x as f64).sum());
-        Ok((reg, flag[0] == 0))
-    }
-
     /// The chunk's pixels, cameras and targets (zeros when rendering) and, with depth supervision, its depth targets
     /// (none given: no ray has one), in one submission.
     fn upload_rays(
@@ -506,7 +553,57 @@ impl Pipeline {
         self.ctx.upload_parts(&parts)
     }
 
-    /// Runs every kernel of a training step (with and without a proposal update, the gradient check and the pose
+    /// Records one training step's work on `n_rays` rays whose inputs are in `io`: the guard's reset, zeroed
+    /// gradients, then per chunk the input copies, forward, backward, the chunk's guard checks and its output
+    /// copies; then the pose regulariser, the guard's end checks and the flag copy. Returns the number of pose
+    /// regulariser losses copied out. Adam is recorded by the caller.
+    #[allow(clippy::too_many_arguments)]
+    fn record_step(
+        &self,
+        rec: &mut Recorder,
+        b: &ChunkBuffers<GpuAlloc>,
+        io: &StepIo,
+        n_rays: usize,
+        norms: (f32, f32, f32, f32),
+        update_props: bool,
+    ) -> GpuResult<usize> {
+        let guard = self.guard.as_ref().expect("the guard is allocated with the training buffers");
+        let l = io.layout;
+        let bands = self.model.bands;
+        let row = l.ray_out_row();
+        guard.record_reset(rec)?;
+        self.model.store.zero_grads(rec)?;
+        let mut last = 0;
+        for c0 in (0..n_rays).step_by(b.rays) {
+            let r = b.rays.min(n_rays - c0);
+            last = r;
+            rec.copy_in(&io.input, l.pixels + 12 * c0 as u64, &b.pixels, 0, 3 * r)?;
+            rec.copy_in(&io.input, l.cams + 4 * c0 as u64, &b.cam_idx, 0, r)?;
+            rec.copy_in(&io.input, l.targets + 4 * (c0 * (bands + 1)) as u64, &b.targets, 0, r * (bands + 1))?;
+            if let Some(d) = &b.depth_targets {
+                rec.copy_in(&io.input, l.depth + 8 * c0 as u64, d, 0, 2 * r)?;
+            }
+            self.record_forward(rec, b, (r, c0), true, update_props)?;
+            self.record_backward(rec, b, (r, c0), norms, update_props)?;
+            guard.record_chunk(rec, b, r, update_props)?;
+            rec.copy_out(&b.ray_out, 0, r * row, &io.output, l.ray_out + 4 * (c0 * row) as u64)?;
+            if update_props {
+                for (p, pl) in b.proposals.iter().enumerate() {
+                    let at = l.interlevel + 4 * (p * l.rays + c0) as u64;
+                    rec.copy_out(need(&pl.losses), 0, r, &io.output, at)?;
+                }
+            }
+        }
+        let n_reg = self.record_pose_regularizer(rec, b)?;
+        guard.record_end(rec, b, last, &self.model.store, n_reg)?;
+        rec.copy_out(&guard.flags, 0, guard.words(), &io.output, l.flags)?;
+        if let Some(pb) = b.pose.as_ref().filter(|_| n_reg > 0) {
+            rec.copy_out(&pb.reg_losses, 0, n_reg, &io.output, l.reg)?;
+        }
+        Ok(n_reg)
+    }
+
+    /// Runs every kernel of a training step (with and without a proposal update, the guard and the pose
     /// regulariser; the optimiser's pipelines are created) and of inference once, on one ray (pixel (0, 0) of the
     /// first camera), so that all pipelines are created and compiled before a training clock starts: lavapipe
     /// compiles each pipeline with LLVM at its first dispatch (a second or more for the unrolled MLP tiles).
@@ -514,40 +611,47 @@ impl Pipeline {
     pub fn warm_up(&mut self) -> GpuResult<()> {
         let pixels = [0u32, 0, 0];
         self.render(&pixels)?;
+        self.flush()?;
         self.ensure_buffers(true)?;
-        let b = self.train_bufs.take().expect("ensured above");
+        self.ensure_io(0, 1)?;
         let targets = vec![0.0f32; self.model.bands + 1];
+        self.io[0].write_batch(&pixels, &targets, &[])?;
+        let b = self.train_bufs.take().expect("ensured above");
         let res = (|| {
-            self.upload_rays(&b, &pixels, Some(&targets), None)?;
-            let mut timing = TimingReport::default();
             for update_props in [true, false] {
                 let mut rec = self.ctx.recorder("warm-up")?;
-                self.model.store.zero_grads(&mut rec)?;
-                self.record_forward(&mut rec, &b, (1, 0), true, update_props)?;
-                self.record_backward(&mut rec, &b, (1, 0), (0.0, 0.0, 0.0, 0.0), update_props)?;
+                self.record_step(&mut rec, &b, &self.io[0], 1, (0.0, 0.0, 0.0, 0.0), update_props)?;
                 rec.submit_and_wait()?;
             }
-            self.finish_gradients(&b, &mut timing)?;
-            crate::nn::adam::kernels(&self.ctx)?;
+            crate::nn::adam::kernels(&self.ctx, true)?;
             Ok(())
         })();
         self.train_bufs = Some(b);
         res
     }
 
-    /// One training step on `batch`.
+    /// One training step on `batch`, waited for (steps submitted earlier with [`Pipeline::submit_step`] finish
+    /// first; their results are dropped: use [`Pipeline::flush`] before calling this when they matter).
     pub fn train_step(&mut self, batch: &Batch) -> Result<StepStats, GpuError> {
+        self.flush()?;
+        self.submit_step(batch)?;
+        let mut done = self.flush()?;
+        Ok(done.pop().expect("the step just submitted"))
+    }
+
+    /// Steps submitted and not yet collected.
+    pub fn in_flight(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// Records and submits one training step on `batch` without waiting for it; waits first for the oldest step
+    /// when `steps_in_flight` are already submitted. Collect results with [`Pipeline::completed`] or
+    /// [`Pipeline::flush`].
+    pub fn submit_step(&mut self, batch: &Batch) -> Result<(), GpuError> {
         self.ensure_buffers(true)?;
         let bands = self.model.bands;
         let n_rays = batch.rays();
-        let total_w: f64 = (0..n_rays).map(|i| batch.targets[i * (bands + 1) + bands] as f64).sum();
         let cfg = &self.model.cfg;
-        let norms = (
-            (1.0 / (total_w.max(1.0) * bands as f64)) as f32,
-            (cfg.loss.distortion_at(self.step) as f64 / total_w.max(1.0)) as f32,
-            (cfg.loss.interlevel_mult as f64 / (n_rays * cfg.sampling.num_nerf_samples) as f64) as f32,
-            cfg.loss.depth.map_or(0.0, |d| (d.mult as f64 / total_w.max(1.0)) as f32),
-        );
         if cfg.loss.depth.is_some() && batch.depth.len() != 2 * n_rays {
             return Err(GpuError::Dispatch {
                 kernel: "train step".into(),
@@ -557,129 +661,139 @@ impl Pipeline {
                 ),
             });
         }
-        let update_props = self.schedule.decide(&cfg.sampling, self.step) && !self.model.proposals.is_empty();
-        let mut stats = StepStats { step: self.step, proposals_updated: update_props, ..Default::default() };
-        if n_rays == 0 {
-            let mut rec = self.ctx.recorder("zero grads")?;
-            self.model.store.zero_grads(&mut rec)?;
-            stats.timing.accumulate(&rec.submit_and_wait()?);
+        if batch.pixels.len() != 3 * n_rays || batch.targets.len() != n_rays * (bands + 1) {
+            return Err(GpuError::Dispatch {
+                kernel: "train step".into(),
+                msg: format!(
+                    "a batch of {} pixel values has {} targets ({} bands + a weight per ray expected)",
+                    batch.pixels.len(),
+                    batch.targets.len(),
+                    bands
+                ),
+            });
         }
+        let total_w: f64 = (0..n_rays).map(|i| batch.targets[i * (bands + 1) + bands] as f64).sum();
+        let norms = (
+            (1.0 / (total_w.max(1.0) * bands as f64)) as f32,
+            (cfg.loss.distortion_at(self.step) as f64 / total_w.max(1.0)) as f32,
+            (cfg.loss.interlevel_mult as f64 / (n_rays.max(1) * cfg.sampling.num_nerf_samples) as f64) as f32,
+            cfg.loss.depth.map_or(0.0, |d| (d.mult as f64 / total_w.max(1.0)) as f32),
+        );
+        // A change of `steps_in_flight` takes effect with an empty ring.
+        if self.io.len() != self.steps_in_flight.clamp(1, 3) {
+            self.flush_into_finished()?;
+            self.steps_in_flight = self.steps_in_flight.clamp(1, 3);
+            self.io.clear();
+            self.next_io = 0;
+        }
+        while self.pending.len() >= self.steps_in_flight {
+            self.harvest_oldest()?;
+        }
+        let slot = self.next_io;
+        self.ensure_io(slot, n_rays)?;
+        self.io[slot].write_batch(&batch.pixels, &batch.targets, &batch.depth)?;
+        let update_props =
+            self.schedule.decide(&self.model.cfg.sampling, self.step) && !self.model.proposals.is_empty();
+        let profiled = self.profile_every > 0 && self.step % self.profile_every == 0;
+        let stats = StepStats { step: self.step, proposals_updated: update_props, profiled, ..Default::default() };
         let b = self.train_bufs.take().expect("ensured above");
-        let chunk = b.rays;
-        let mut sq = 0.0f64;
-        let mut result = Ok(());
-        for c0 in (0..n_rays).step_by(chunk) {
-            let r = chunk.min(n_rays - c0);
-            // Everything fallible for this chunk runs in here, so an error never leaves `train_bufs` taken (the next
-            // step would otherwise allocate them again without a word).
-            let run = || -> GpuResult<(TimingReport, Vec<Vec<u8>>)> {
-                self.upload_rays(
-                    &b,
-                    &batch.pixels[3 * c0..3 * (c0 + r)],
-                    Some(&batch.targets[c0 * (bands + 1)..(c0 + r) * (bands + 1)]),
-                    batch.depth.get(2 * c0..2 * (c0 + r)),
-                )?;
-                let mut rec = self.ctx.recorder("train chunk")?;
-                if c0 == 0 {
-                    self.model.store.zero_grads(&mut rec)?;
-                }
-                self.record_forward(&mut rec, &b, (r, c0), true, update_props)?;
-                self.record_backward(&mut rec, &b, (r, c0), norms, update_props)?;
-                let timing = rec.submit_and_wait()?;
-                // The chunk's per-ray outputs and, on proposal-update steps, the interlevel losses: one readback.
-                let mut parts = vec![Part::download(&b.ray_out, 0, r * (RAY_OUT_FIXED + bands))?];
-                if update_props {
-                    for pl in &b.proposals {
-                        parts.push(Part::download(need(&pl.losses), 0, r)?);
-                    }
-                }
-                Ok((timing, self.ctx.download_parts(&parts)?))
-            };
-            let got = match run() {
-                Ok((t, got)) => {
-                    stats.timing.accumulate(&t);
-                    got
-                }
-                Err(e) => {
-                    result = Err(e);
-                    break;
-                }
-            };
-            let out: Vec<f32> = bytemuck::pod_collect_to_vec(&got[0]);
-            for row in out.chunks(RAY_OUT_FIXED + bands) {
-                stats.loss_rgb += RayOut::LossRgb.of(row) as f64;
-                stats.loss_distortion += RayOut::LossDistortion.of(row) as f64;
-                sq += RayOut::SquaredError.of(row) as f64;
-                stats.loss_depth += RayOut::LossDepth.of(row) as f64;
-            }
-            for l in &got[1..] {
-                stats.loss_interlevel +=
-                    bytemuck::pod_collect_to_vec::<u8, f32>(l).iter().map(|&v| v as f64).sum::<f64>();
-            }
-        }
-        let mut grads_ok = false;
-        if result.is_ok() {
-            match self.finish_gradients(&b, &mut stats.timing) {
-                Ok((l, ok)) => (stats.loss_pose, grads_ok) = (l, ok),
-                Err(e) => result = Err(e),
-            }
-        }
-        // NaN/Inf guard: a non-finite loss or gradient skips the step and names the first poisoned buffer.
-        let finite = result.is_ok()
-            && stats.loss_rgb.is_finite()
-            && stats.loss_distortion.is_finite()
-            && stats.loss_interlevel.is_finite()
-            && stats.loss_depth.is_finite()
-            && stats.loss_pose.is_finite();
-        let grads_finite = finite && grads_ok;
-        if result.is_ok() && !grads_finite {
-            stats.skipped = true;
-            match self.first_poisoned(&b) {
-                Ok(name) => stats.poisoned = Some(name),
-                Err(e) => result = Err(e),
-            }
-        }
+        // Everything fallible runs in here, so an error never leaves `train_bufs` taken (the next step would
+        // otherwise allocate them again without a word).
+        let ctx = self.ctx.clone();
+        let recorded = (|| {
+            let mut rec = ctx.recorder_timed("train step", profiled)?;
+            let n_reg = self.record_step(&mut rec, &b, &self.io[slot], n_rays, norms, update_props)?;
+            Ok((rec, n_reg))
+        })();
         self.train_bufs = Some(b);
-        result?;
-        stats.loss =
-            stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel + stats.loss_depth + stats.loss_pose;
-        stats.psnr = -10.0 * (sq / (total_w.max(1.0) * bands as f64)).max(1e-20).log10();
-        if !stats.skipped {
-            let mut rec = self.ctx.recorder("adam")?;
-            // Fields and camera corrections get gradients every step, the proposals on update steps.
-            let has_grad: Vec<bool> =
-                self.model.store.groups().iter().map(|g| g.name != "proposals" || update_props).collect();
-            crate::nn::adam::step(&mut rec, &mut self.model.store, &has_grad, 1.0)?;
-            stats.timing.accumulate(&rec.submit_and_wait()?);
-        }
+        let (mut rec, n_reg) = recorded?;
+        // Fields and camera corrections get gradients every step, the proposals on update steps.
+        let has_grad: Vec<bool> =
+            self.model.store.groups().iter().map(|g| g.name != "proposals" || update_props).collect();
+        let gate = &self.guard.as_ref().expect("allocated with the training buffers").flags;
+        let adam = crate::nn::adam::step_gated(&mut rec, &mut self.model.store, &has_grad, 1.0, Some(gate))?;
+        let flight = match rec.submit() {
+            Ok(f) => f,
+            Err(e) => {
+                self.model.store.undo_step(&adam);
+                return Err(e);
+            }
+        };
+        self.pending.push_back(PendingStep { io: slot, flight, stats, n_rays, total_w, n_reg, adam });
+        self.next_io = (slot + 1) % self.steps_in_flight;
         self.step += 1;
-        Ok(stats)
+        Ok(())
     }
 
-    /// Name of the first buffer, in pipeline order, that holds a NaN or Inf.
-    fn first_poisoned(&self, b: &ChunkBuffers<GpuAlloc>) -> GpuResult<String> {
-        let mut named: Vec<(String, &GpuBuffer<f32>)> = vec![("ray directions".into(), &b.dirs)];
-        for (i, pl) in b.proposals.iter().enumerate() {
-            named.push((format!("proposal {i} encoding"), &pl.enc));
-            named.push((format!("proposal {i} density"), &pl.raw));
-            named.push((format!("proposal {i} weights"), &pl.weights));
+    /// The results of every submitted step the device has finished, oldest first (never blocks).
+    pub fn completed(&mut self) -> GpuResult<Vec<StepStats>> {
+        while let Some(p) = self.pending.front() {
+            if !p.flight.is_done()? {
+                break;
+            }
+            self.harvest_oldest()?;
         }
-        named.push(("nerf encoding".into(), &b.nerf.enc));
-        named.push(("nerf density".into(), &b.nerf.raw));
-        named.push(("colour output".into(), &b.colour.out));
-        named.push(("nerf weights".into(), &b.nerf.weights));
-        named.push(("ray outputs".into(), &b.ray_out));
-        for (name, buf) in named {
-            if self.ctx.download(buf)?.iter().any(|v| !v.is_finite()) {
-                return Ok(name);
+        Ok(self.finished.drain(..).collect())
+    }
+
+    /// Waits for every submitted step; returns the results not collected yet, oldest first.
+    pub fn flush(&mut self) -> GpuResult<Vec<StepStats>> {
+        self.flush_into_finished()?;
+        Ok(self.finished.drain(..).collect())
+    }
+
+    fn flush_into_finished(&mut self) -> GpuResult<()> {
+        while !self.pending.is_empty() {
+            self.harvest_oldest()?;
+        }
+        Ok(())
+    }
+
+    /// Waits for the oldest submitted step and reads its losses and guard flags.
+    fn harvest_oldest(&mut self) -> GpuResult<()> {
+        let Some(p) = self.pending.pop_front() else { return Ok(()) };
+        let mut stats = p.stats;
+        stats.timing = p.flight.wait()?;
+        let io = &self.io[p.io];
+        let l = io.layout;
+        let bands = self.model.bands;
+        let out: Vec<f32> = io.output.read(l.ray_out, p.n_rays * l.ray_out_row())?;
+        let mut sq = 0.0f64;
+        for row in out.chunks(l.ray_out_row()) {
+            stats.loss_rgb += RayOut::LossRgb.of(row) as f64;
+            stats.loss_distortion += RayOut::LossDistortion.of(row) as f64;
+            sq += RayOut::SquaredError.of(row) as f64;
+            stats.loss_depth += RayOut::LossDepth.of(row) as f64;
+        }
+        if stats.proposals_updated {
+            for q in 0..l.proposals {
+                let v: Vec<f32> = io.output.read(l.interlevel + 4 * (q * l.rays) as u64, p.n_rays)?;
+                stats.loss_interlevel += v.iter().map(|&x| x as f64).sum::<f64>();
             }
         }
-        for (i, c) in self.model.store.grads().chunks().iter().enumerate() {
-            if self.ctx.download(c)?.iter().any(|v| !v.is_finite()) {
-                return Ok(format!("parameter gradients (chunk {i})"));
-            }
+        if p.n_reg > 0 {
+            let v: Vec<f32> = io.output.read(l.reg, p.n_reg)?;
+            stats.loss_pose = v.iter().map(|&x| x as f64).sum();
         }
-        Ok("parameter gradients".into())
+        let guard = self.guard.as_ref().expect("allocated with the training buffers");
+        let words: Vec<u32> = io.output.read(l.flags, guard.words())?;
+        stats.poisoned = guard.first_named(&words);
+        let finite = [stats.loss_rgb, stats.loss_distortion, stats.loss_interlevel, stats.loss_depth, stats.loss_pose]
+            .iter()
+            .all(|x| x.is_finite());
+        if stats.poisoned.is_none() && !finite {
+            // Every loss buffer is checked on the device, so this cannot happen; say so if it does.
+            stats.poisoned = Some("ray outputs (non-finite loss sum; the device saw none)".into());
+        }
+        if stats.poisoned.is_some() {
+            stats.skipped = true;
+            self.model.store.undo_step(&p.adam);
+        }
+        stats.loss =
+            stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel + stats.loss_depth + stats.loss_pose;
+        stats.psnr = -10.0 * (sq / (p.total_w.max(1.0) * bands as f64)).max(1e-20).log10();
+        self.finished.push_back(stats);
+        Ok(())
     }
 
     /// Renders rays (pixels as (camera, row, col) triples) in evaluation mode.

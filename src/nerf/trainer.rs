@@ -267,15 +267,11 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     };
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.trainer.seed.wrapping_add(state.step.wrapping_mul(0x9e37_79b9)));
     let metrics_path = run.join("metrics.jsonl");
-    let mut metrics = std::fs::OpenOptions::new()
+    let metrics = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
         .open(&metrics_path)
         .map_err(|e| NerfError::file(&metrics_path, e))?;
-    let mut log = |v: serde_json::Value| -> NerfResult<()> {
-        writeln!(metrics, "{v}").and_then(|_| metrics.flush()).map_err(|e| NerfError::file(&metrics_path, e))
-    };
-
     let max_steps = cfg.trainer.max_steps;
     let bar = opts.progress.then(|| {
         let b = indicatif::ProgressBar::new(max_steps);
@@ -288,17 +284,18 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     });
     // Pipeline compilation (lavapipe: at each kernel's first dispatch) happens here, before the clock starts.
     pipe.warm_up().map_err(NerfError::gpu("kernel warm-up"))?;
+    pipe.profile_every = cfg.trainer.profile_every;
     ctx.with_ledger(|l| l.reset_peaks());
     let start = Instant::now();
     let elapsed0 = state.elapsed_s;
     let mut summary = TrainSummary { run_dir: run.clone(), best_eval_psnr: state.best_eval_psnr, ..Default::default() };
-    let mut poisoned_in_a_row = 0u32;
-    let mut rays_done = 0u64;
-    let mut last = StepStats::default();
-    let mut kernel_totals: Vec<KernelTime> = Vec::new();
-    let (mut step_ms_total, mut gpu_ms_total, mut timed_steps) = (0.0f64, 0.0f64, 0u64);
+    let mut steps =
+        StepLog::new(metrics, metrics_path, bar, run.join("checkpoints"), (cfg.trainer.rays_per_batch, max_steps));
+    let mut step_ms_total = 0.0f64;
     let r = cfg.trainer.rays_per_batch;
-    while state.step < max_steps {
+    // Steps submitted; `state.step` counts the completed ones (they differ by the steps in flight).
+    let mut submitted = state.step;
+    while submitted < max_steps {
         if opts.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed)) {
             summary.stopped_early = Some("interrupted (Ctrl-C)".into());
             break;
@@ -326,49 +323,22 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
             }
         }
         let t0 = Instant::now();
-        let stats = pipe.train_step(&batch).map_err(NerfError::gpu(format!("step {}", state.step)))?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        step_ms_total += ms;
-        gpu_ms_total += stats.timing.gpu_ms;
-        timed_steps += 1;
-        add_kernel_times(&mut kernel_totals, &stats.timing);
-        rays_done += batch.rays() as u64;
-        state.step += 1;
-        state.schedule = pipe.schedule;
-        if stats.skipped {
-            poisoned_in_a_row += 1;
-            let what = stats.poisoned.clone().unwrap_or_default();
-            log(serde_json::json!({"step": stats.step, "skipped": true, "poisoned_buffer": what}))?;
-            if poisoned_in_a_row >= MAX_POISONED_STEPS {
-                return Err(NerfError::NonFinite {
-                    step: stats.step,
-                    buffer: what,
-                    count: MAX_POISONED_STEPS,
-                    checkpoints: run.join("checkpoints"),
-                });
-            }
-            continue;
-        }
-        poisoned_in_a_row = 0;
-        let rays_per_s = r as f64 / (ms / 1e3);
-        if stats.step % 10 == 0 || state.step == max_steps {
-            log(serde_json::json!({
-                "step": stats.step, "loss": stats.loss, "loss_rgb": stats.loss_rgb, "loss_distortion": stats.loss_distortion,
-                "loss_interlevel": stats.loss_interlevel, "loss_depth": stats.loss_depth, "psnr": stats.psnr, "step_ms": ms, "rays_per_s": rays_per_s,
-                "proposals_updated": stats.proposals_updated, "loss_pose": stats.loss_pose,
-            }))?;
-        }
-        if let Some(b) = &bar {
-            b.set_position(state.step);
-            b.set_message(format!("{rays_per_s:.0} rays/s loss {:.4} psnr {:.2}", stats.loss, stats.psnr));
-        }
-        let is_last = state.step == max_steps;
+        pipe.submit_step(&batch).map_err(NerfError::gpu(format!("step {submitted}")))?;
+        submitted += 1;
+        steps.rays_done += batch.rays() as u64;
+        let is_last = submitted == max_steps;
         let out_of_time = opts.time_budget_s.is_some_and(|t| elapsed0 + start.elapsed().as_secs_f64() >= t);
-        if !eval.pixels.is_empty()
-            && (state.step % cfg.trainer.steps_per_eval == 0 || is_last || state.step == 1 || out_of_time)
-        {
-            // `out_of_time`: the loop stops before the next step, so the model it leaves is evaluated too and the
-            // best held-out PSNR of a time-budgeted run includes where it ended.
+        // `out_of_time`: the loop stops before the next step, so the model it leaves is evaluated too and the best
+        // held-out PSNR of a time-budgeted run includes where it ended.
+        let want_eval = !eval.pixels.is_empty()
+            && (submitted % cfg.trainer.steps_per_eval == 0 || is_last || submitted == 1 || out_of_time);
+        let want_save = submitted % cfg.trainer.steps_per_save == 0 && !is_last;
+        // Evaluations and checkpoints see exactly the steps submitted so far: wait for them first.
+        let done = if want_eval || want_save { pipe.flush() } else { pipe.completed() };
+        let done = done.map_err(NerfError::gpu(format!("step {}", submitted - 1)))?;
+        step_ms_total += t0.elapsed().as_secs_f64() * 1e3;
+        steps.take(done, &mut state)?;
+        if want_eval {
             let p = eval_psnr(&mut pipe, &eval)?;
             summary.first_eval_psnr.get_or_insert(p);
             summary.eval_history.push((state.step, p));
@@ -376,34 +346,41 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
                 state.best_eval_psnr = Some(p);
                 summary.best_eval_step = Some(state.step);
             }
-            log(
+            steps.log(
                 serde_json::json!({"step": state.step, "eval_psnr": p, "elapsed_s": elapsed0 + start.elapsed().as_secs_f64()}),
             )?;
         }
-        if state.step % cfg.trainer.steps_per_save == 0 && !is_last {
+        if want_save {
+            state.schedule = pipe.schedule;
             state.elapsed_s = elapsed0 + start.elapsed().as_secs_f64();
             save_checkpoint(&pipe, run, &state, &ds)?;
         }
-        last = stats;
     }
-    if let Some(b) = &bar {
+    let t0 = Instant::now();
+    let done = pipe.flush().map_err(NerfError::gpu(format!("step {}", submitted.saturating_sub(1))))?;
+    step_ms_total += t0.elapsed().as_secs_f64() * 1e3;
+    steps.take(done, &mut state)?;
+    state.schedule = pipe.schedule;
+    if let Some(b) = &steps.bar {
         b.finish_and_clear();
     }
     state.elapsed_s = elapsed0 + start.elapsed().as_secs_f64();
     save_checkpoint(&pipe, run, &state, &ds)?;
+    let last = &steps.last;
     summary.steps = state.step;
     summary.final_loss = last.loss;
     summary.final_train_psnr = last.psnr;
     summary.best_eval_psnr = state.best_eval_psnr;
     summary.elapsed_s = state.elapsed_s;
-    summary.rays_per_s = rays_done as f64 / start.elapsed().as_secs_f64().max(1e-9);
+    summary.rays_per_s = steps.rays_done as f64 / start.elapsed().as_secs_f64().max(1e-9);
     summary.peak_gpu_bytes = ctx.with_ledger(|l| l.total_peak());
     summary.peak_cache_bytes = cache.peak_bytes();
-    let n = timed_steps.max(1) as f64;
-    summary.mean_step_ms = step_ms_total / n;
-    summary.gpu_ms_per_step = gpu_ms_total / n;
+    summary.mean_step_ms = step_ms_total / steps.completed.max(1) as f64;
+    let profiled = steps.profiled_steps.max(1) as f64;
+    summary.gpu_ms_per_step = steps.gpu_ms_total / profiled;
+    let mut kernel_totals = std::mem::take(&mut steps.kernel_totals);
     for k in &mut kernel_totals {
-        k.total_ms /= n;
+        k.total_ms /= profiled;
     }
     kernel_totals.sort_by(|a, b| b.total_ms.total_cmp(&a.total_ms).then(a.name.cmp(&b.name)));
     summary.kernels = kernel_totals;
@@ -413,6 +390,105 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let s = serde_json::to_string_pretty(&summary).expect("json");
     write_atomic_str(&run.join("summary.json"), s.as_bytes())?;
     Ok(summary)
+}
+
+/// What the trainer does with each completed step's results: the metrics log, the NaN guard's count, the progress
+/// bar and the GPU-time totals of the profiled steps.
+struct StepLog {
+    metrics: std::fs::File,
+    path: PathBuf,
+    bar: Option<indicatif::ProgressBar>,
+    checkpoints: PathBuf,
+    rays_per_batch: usize,
+    max_steps: u64,
+    poisoned_in_a_row: u32,
+    last: StepStats,
+    completed: u64,
+    rays_done: u64,
+    kernel_totals: Vec<KernelTime>,
+    gpu_ms_total: f64,
+    profiled_steps: u64,
+    /// When the previous results arrived (the per-step time logged is the time between arrivals).
+    last_arrival: Instant,
+}
+
+impl StepLog {
+    fn new(
+        metrics: std::fs::File,
+        path: PathBuf,
+        bar: Option<indicatif::ProgressBar>,
+        checkpoints: PathBuf,
+        (rays_per_batch, max_steps): (usize, u64),
+    ) -> Self {
+        Self {
+            metrics,
+            path,
+            bar,
+            checkpoints,
+            rays_per_batch,
+            max_steps,
+            poisoned_in_a_row: 0,
+            last: StepStats::default(),
+            completed: 0,
+            rays_done: 0,
+            kernel_totals: Vec::new(),
+            gpu_ms_total: 0.0,
+            profiled_steps: 0,
+            last_arrival: Instant::now(),
+        }
+    }
+
+    fn log(&mut self, v: serde_json::Value) -> NerfResult<()> {
+        writeln!(self.metrics, "{v}").and_then(|_| self.metrics.flush()).map_err(|e| NerfError::file(&self.path, e))
+    }
+
+    /// Takes completed steps in order; MAX_POISONED_STEPS poisoned steps in a row stop training with an error that
+    /// names the step and the buffer.
+    fn take(&mut self, done: Vec<StepStats>, state: &mut TrainerState) -> NerfResult<()> {
+        if done.is_empty() {
+            return Ok(());
+        }
+        let ms = self.last_arrival.elapsed().as_secs_f64() * 1e3 / done.len() as f64;
+        self.last_arrival = Instant::now();
+        for stats in done {
+            state.step = stats.step + 1;
+            self.completed += 1;
+            if stats.profiled {
+                self.profiled_steps += 1;
+                self.gpu_ms_total += stats.timing.gpu_ms;
+                add_kernel_times(&mut self.kernel_totals, &stats.timing);
+            }
+            if stats.skipped {
+                self.poisoned_in_a_row += 1;
+                let what = stats.poisoned.clone().unwrap_or_default();
+                self.log(serde_json::json!({"step": stats.step, "skipped": true, "poisoned_buffer": what}))?;
+                if self.poisoned_in_a_row >= MAX_POISONED_STEPS {
+                    return Err(NerfError::NonFinite {
+                        step: stats.step,
+                        buffer: what,
+                        count: MAX_POISONED_STEPS,
+                        checkpoints: self.checkpoints.clone(),
+                    });
+                }
+                continue;
+            }
+            self.poisoned_in_a_row = 0;
+            let rays_per_s = self.rays_per_batch as f64 / (ms.max(1e-9) / 1e3);
+            if stats.step % 10 == 0 || state.step == self.max_steps {
+                self.log(serde_json::json!({
+                    "step": stats.step, "loss": stats.loss, "loss_rgb": stats.loss_rgb, "loss_distortion": stats.loss_distortion,
+                    "loss_interlevel": stats.loss_interlevel, "loss_depth": stats.loss_depth, "psnr": stats.psnr, "step_ms": ms, "rays_per_s": rays_per_s,
+                    "proposals_updated": stats.proposals_updated, "loss_pose": stats.loss_pose,
+                }))?;
+            }
+            if let Some(b) = &self.bar {
+                b.set_position(state.step);
+                b.set_message(format!("{rays_per_s:.0} rays/s loss {:.4} psnr {:.2}", stats.loss, stats.psnr));
+            }
+            self.last = stats;
+        }
+        Ok(())
+    }
 }
 
 fn write_atomic_str(path: &Path, bytes: &[u8]) -> NerfResult<()> {

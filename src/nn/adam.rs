@@ -1,11 +1,13 @@
 //! Adam (torch.optim.Adam semantics, fp32 master weights and moments) over a [`ParamStore`], one parameter
 //! group at a time. Kernel `adam_step` (`glsl/optim/adam_step.comp`); CPU twin [`crate::reference::adam`].
 //!
-//! - Bindings: 0 params, 1 grads, 2 m, 3 v — the same chunk of each of the store's four arrays, bound whole.
+//! - Bindings: 0 params, 1 grads, 2 m, 3 v — the same chunk of each of the store's four arrays, bound whole;
+//!   4 a gate flag ([`step_gated`]: a set flag skips the update on the device; ungated, binding 4 is the params
+//!   chunk again and is not read).
 //! - Push (44 bytes): `{n, offset, step_size, bc2_sqrt, beta1, one_minus_beta1, beta2, one_minus_beta2, eps,
 //!   weight_decay, grad_scale}`; the kernel updates chunk elements `[offset, offset + n)`.
 //! - Spec: VEC, elements per invocation, read and written VEC floats at a time: 8 over the 8-aligned body of a
-//!   range, 1 over its unaligned head and tail.
+//!   range, 1 over its unaligned head and tail; GATED, 0 or 1.
 //! - Threads: one invocation per VEC elements, 64 per group.
 //!
 //! [`step`] dispatches once per chunk range of each stepped group's element range (groups are contiguous, see
@@ -64,10 +66,11 @@ crate::push_constants! {
 const ADAM_VEC: usize = 8;
 
 /// The `adam_step` pipelines [`step`] uses (8 elements per invocation, and 1), created on first use.
-pub fn kernels(ctx: &crate::gpu::Context) -> GpuResult<[Kernel<AdamPush>; 2]> {
+pub fn kernels(ctx: &crate::gpu::Context, gated: bool) -> GpuResult<[Kernel<AdamPush>; 2]> {
+    let g = u32::from(gated);
     Ok([
-        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[("VEC", ADAM_VEC as u32)])?,
-        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[("VEC", 1)])?,
+        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[("VEC", ADAM_VEC as u32), ("GATED", g)])?,
+        Kernel::with_spec(ctx, &shaders::ADAM_STEP, &[("VEC", 1), ("GATED", g)])?,
     ])
 }
 
@@ -89,6 +92,19 @@ pub fn step(
     has_grad: &[bool],
     grad_scale: f32,
 ) -> GpuResult<Vec<GroupStep>> {
+    step_gated(rec, store, has_grad, grad_scale, None)
+}
+
+/// [`step`], skipped on the device when `gate[0]` is non-zero at the time the kernels run. The host's counters
+/// advance as if it ran: when the gate turns out to have been set, [`ParamStore::undo_step`] with the returned
+/// report puts them back.
+pub fn step_gated(
+    rec: &mut Recorder,
+    store: &mut ParamStore,
+    has_grad: &[bool],
+    grad_scale: f32,
+    gate: Option<&crate::gpu::GpuBuffer<u32>>,
+) -> GpuResult<Vec<GroupStep>> {
     let n_groups = store.groups().len();
     if has_grad.len() != n_groups {
         return Err(GpuError::Dispatch {
@@ -96,7 +112,7 @@ pub fn step(
             msg: format!("{} gradient flags for {n_groups} parameter groups", has_grad.len()),
         });
     }
-    let [wide, narrow] = kernels(rec.context())?;
+    let [wide, narrow] = kernels(rec.context(), gate.is_some())?;
     let schedule_step = store.schedule_step();
     let mut report = Vec::with_capacity(n_groups);
     let mut new_steps = store.group_steps().to_vec();
@@ -121,7 +137,10 @@ pub fn step(
                 grad_scale,
             };
             for (c, r) in store.layout().chunk_ranges(store.layout().group_range(g)) {
-                let bindings = [store.params(), store.grads(), store.m(), store.v()].map(|a| a.chunks()[c].binding());
+                let [p, g, m, v] =
+                    [store.params(), store.grads(), store.m(), store.v()].map(|a| a.chunks()[c].binding());
+                let gate = gate.map_or_else(|| p.clone(), |f| f.binding());
+                let bindings = [p, g, m, v, gate];
                 // ADAM_VEC elements per invocation over the aligned body, one per invocation elsewhere.
                 let [head, body, tail] = crate::ops::aligned_split(r.start, r.end, ADAM_VEC);
                 for (k, range, per) in [(&narrow, head, 1), (&wide, body, ADAM_VEC), (&narrow, tail, 1)] {

@@ -425,6 +425,17 @@ impl ParamStore {
         self.groups[g].lr_at(self.schedule_step)
     }
 
+    /// Takes back the counters of an optimiser step that the device skipped ([`crate::nn::adam::step_gated`]):
+    /// the stepped groups' step counters and the schedule step go back by one.
+    pub fn undo_step(&mut self, report: &[crate::nn::adam::GroupStep]) {
+        for (t, g) in self.group_steps.iter_mut().zip(report) {
+            if g.stepped {
+                *t = t.saturating_sub(1);
+            }
+        }
+        self.schedule_step = self.schedule_step.saturating_sub(1);
+    }
+
     pub(crate) fn counters_mut(&mut self) -> (&mut [u64], &mut u64) {
         (&mut self.group_steps, &mut self.schedule_step)
     }

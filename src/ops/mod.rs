@@ -7,7 +7,7 @@ mod fill_copy;
 mod reduce;
 mod scan;
 
-pub use check::record_check_finite;
+pub use check::{record_check_finite, record_check_finite_slot};
 pub use fill_copy::{copy, fill};
 pub use reduce::{partial_lens, reduce_sum, sum};
 pub use scan::{exclusive_scan, segmented_exclusive_scan};

@@ -8,13 +8,15 @@
 //! - The training chunk and the evaluation chunk: [`ChunkBuffers::with_shapes`] run with [`PlanAlloc`].
 //! - The two staging buffers at the size of the largest upload and readback the trainer makes
 //!   ([`staging_bytes`]): parameter pieces of [`PIECE`] elements at initialisation, checkpoint and resume,
-//!   level/chunk/camera tables, per-chunk rays, targets and outputs.
-//! - The NaN/Inf guard's flag (one u32, allocated by `Pipeline::new`).
+//!   level/chunk/camera tables, the evaluation chunks' rays and outputs (a training step moves its rays through its own host
+//!   buffers, below).
+//! - The NaN/Inf guard's flags ([`crate::nerf::guard::Guard::word_count`] u32 words) and, per step in flight
+//!   (`trainer.steps_in_flight`), the step's host input and output buffers ([`StepLayout`]), allocated with the
+//!   first training step.
 //!
 //! The total is the persistent buffers plus the largest transient set: an upper bound of the ledger's peak
 //! (the peak reaches it once a checkpoint has been written and a step follows, as in any run longer than
-//! `steps_per_save`). Not planned: the buffers `first_poisoned` reads back after a NaN (the readback staging may
-//! then grow to 64 MiB).
+//! `steps_per_save`).
 
 use super::device::{DeviceRule, DeviceRuleInfo};
 use super::error::PlanError;
@@ -24,6 +26,7 @@ use crate::gpu::MemoryCategory;
 use crate::nerf::buffers::{ChunkBuffers, PlanAlloc, RAY_OUT_FIXED};
 use crate::nerf::model::ModelShapes;
 use crate::nerf::rays::GpuCamera;
+use crate::nerf::step_io::StepLayout;
 use crate::nn::hashgrid::{HashGridConfig, HashLevel};
 use crate::nn::params::{ParamLayout, PIECE};
 use serde::Serialize;
@@ -51,7 +54,7 @@ impl Part {
             Part::TrainChunk => "training chunk",
             Part::EvalChunk => "evaluation chunk",
             Part::Staging => "staging",
-            Part::NanGuard => "NaN/Inf guard flag",
+            Part::NanGuard => "NaN/Inf guard flags",
         }
     }
 }
@@ -162,23 +165,26 @@ pub fn plan_vram(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule) -> Re
         camera_bytes,
         chunks.len() as u64 * u64s,
         grids.iter().map(|g| level_bytes(g)).max().unwrap_or(0),
-        per_chunk_up(rays.rays_per_chunk),
         per_chunk_up(rays.eval_rays_per_chunk),
         bands * f32s,
     ]
     .into_iter()
     .max()
     .unwrap_or(0);
-    let max_down = [piece, per_chunk_down(rays.rays_per_chunk), per_chunk_down(rays.eval_rays_per_chunk), f32s]
-        .into_iter()
-        .max()
-        .unwrap_or(0);
+    let max_down = [piece, per_chunk_down(rays.eval_rays_per_chunk), f32s].into_iter().max().unwrap_or(0);
     let (up, down) = staging(max_up, max_down);
     push("staging upload".into(), MemoryCategory::Staging, Part::Staging, up, false);
     push("staging readback".into(), MemoryCategory::Staging, Part::Staging, down, false);
 
-    // The NaN/Inf guard's flag (check_finite needs no scratch).
-    push("NaN guard flag".into(), MemoryCategory::Other, Part::NanGuard, 4, false);
+    // The NaN/Inf guard's flags (check_finite needs no scratch), and each step in flight's host buffers.
+    let n_props = shapes.cfg.proposals.len();
+    let words = crate::nerf::guard::Guard::word_count(n_props, chunks.len());
+    push("NaN guard flags".into(), MemoryCategory::Other, Part::NanGuard, words as u64 * 4, false);
+    let step = StepLayout::new(rays.rays_per_batch, shapes.bands, n_props, words, shapes.n_cameras);
+    for _ in 0..shapes.cfg.trainer.steps_in_flight.clamp(1, 3) {
+        push("step inputs".into(), MemoryCategory::Staging, Part::Staging, step.input_bytes, false);
+        push("step outputs".into(), MemoryCategory::Staging, Part::Staging, step.output_bytes, false);
+    }
 
     let persistent_bytes: u64 = entries.iter().filter(|e| !e.transient).map(|e| e.bytes).sum();
     let transient_bytes: u64 = entries.iter().filter(|e| e.transient).map(|e| e.bytes).sum();

@@ -300,3 +300,42 @@ fn a_slot_larger_than_one_binding_is_stepped_chunk_by_chunk() {
     assert_all_close_f32(&got, &want, "params across two chunks");
     assert_all_close_f32(&s.download_slot(s.v(), &grid).expect("v"), &v, "v across two chunks");
 }
+
+#[test]
+fn a_set_gate_skips_the_step_on_the_device_and_undo_step_restores_the_counters() {
+    // The training step's NaN guard runs Adam in the same submission as the gradient check (issue 22): a set flag
+    // must leave parameters and both moments bitwise as they were, a clear one must step exactly as ungated Adam.
+    let g = gpu();
+    let mut grp = ParamGroup::new("all", 0.01, 0.01, 0);
+    grp.adam = AdamHyper { beta1: 0.9, beta2: 0.999, eps: 1e-8, weight_decay: 0.0 };
+    let slots = vec![SlotDesc::new("w", SlotKind::Zeros { len: 1003 }, "all")];
+    let mut gated = store(&g, vec![grp.clone()], slots.clone(), None);
+    let mut plain = store(&g, vec![grp], slots, None);
+    let mut r = rng(4);
+    let p0: Vec<f32> = (0..1003).map(|_| r.random_range(-1.0f32..1.0)).collect();
+    let g0: Vec<f32> = (0..1003).map(|_| r.random_range(-1.0f32..1.0)).collect();
+    for s in [&gated, &plain] {
+        set(s, "w", false, &p0);
+        set(s, "w", true, &g0);
+    }
+    let flag =
+        msnerf::gpu::GpuBuffer::from_slice(&g, "gate", msnerf::gpu::MemoryCategory::Other, &[1u32]).expect("flag");
+    let mut rec = g.recorder("gated adam").expect("rec");
+    let report = adam::step_gated(&mut rec, &mut gated, &[true], 1.0, Some(&flag)).expect("step");
+    rec.submit_and_wait().expect("submit");
+    assert!(report[0].stepped && gated.group_steps()[0] == 1 && gated.schedule_step() == 1, "counters advance");
+    assert_eq!(get(&gated, "w", "p"), p0, "a set gate leaves the parameters");
+    assert!(get(&gated, "w", "m").iter().chain(&get(&gated, "w", "v")).all(|&x| x == 0.0), "and the moments");
+    gated.undo_step(&report);
+    assert_eq!((gated.group_steps()[0], gated.schedule_step()), (0, 0), "undo_step takes the counters back");
+
+    g.upload(&flag, 0, &[0u32]).expect("clear");
+    let mut rec = g.recorder("gated adam").expect("rec");
+    adam::step_gated(&mut rec, &mut gated, &[true], 1.0, Some(&flag)).expect("step");
+    rec.submit_and_wait().expect("submit");
+    step(&g, &mut plain, &[true], 1.0);
+    for w in ["p", "m", "v"] {
+        assert_eq!(get(&gated, "w", w), get(&plain, "w", w), "a clear gate steps as ungated Adam ({w})");
+    }
+    assert_eq!(gated.group_steps(), plain.group_steps());
+}

@@ -168,3 +168,38 @@ fn check_finite_flags_every_kind_of_non_finite_value_anywhere() {
         }
     }
 }
+
+#[test]
+fn check_finite_names_its_slot_and_a_gated_check_runs_only_after_a_hit() {
+    // The training step's guard (src/nerf/guard.rs): ungated checks set flag 0 and their own slot; gated ones look
+    // only when flag 0 is already set, so a clean step pays a few no-op dispatches and a poisoned one names its
+    // buffers in the same submission.
+    let g = gpu();
+    let mut host = vec![0.5f32; 1000];
+    host[777] = f32::NAN;
+    let poisoned = buf(&g, "poisoned", &host);
+    let clean = buf(&g, "clean", &vec![0.5f32; 1000]);
+    let flags = buf(&g, "flags", &[0u32; 4]);
+    let run = |first: &[(&GpuBuffer<f32>, usize, bool)]| -> Vec<u32> {
+        let mut rec = g.recorder("check slots").expect("rec");
+        ops::fill(&mut rec, &flags, 0u32, 0, 4).expect("zero");
+        for &(data, slot, gated) in first {
+            ops::record_check_finite_slot(&mut rec, data, 1000, &flags, slot, gated).expect("check");
+        }
+        rec.submit_and_wait().expect("submit");
+        g.download(&flags).expect("flags")
+    };
+    assert_eq!(run(&[(&poisoned, 2, true)]), [0, 0, 0, 0], "gated, flag 0 clear: not looked at");
+    assert_eq!(run(&[(&clean, 1, false), (&poisoned, 2, true)]), [0, 0, 0, 0], "a clean ungated check sets nothing");
+    assert_eq!(run(&[(&poisoned, 3, false)]), [1, 0, 0, 1], "ungated hit: flag 0 and its slot");
+    assert_eq!(
+        run(&[(&poisoned, 3, false), (&clean, 1, true), (&poisoned, 2, true)]),
+        [1, 0, 1, 1],
+        "after a hit the gated checks name only the poisoned buffer"
+    );
+    let too_far = {
+        let mut rec = g.recorder("bad slot").expect("rec");
+        ops::record_check_finite_slot(&mut rec, &clean, 1000, &flags, 4, false)
+    };
+    assert!(too_far.is_err_and(|e| e.to_string().contains("flag 4 of 4")), "a slot past the flags is refused");
+}

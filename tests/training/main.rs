@@ -14,5 +14,6 @@ mod sweep_outputs;
 mod sweep_pareto;
 mod sweep_resume;
 mod train_e2e;
+mod train_in_flight;
 mod train_pose_refinement;
 mod train_step;
