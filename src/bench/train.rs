@@ -112,6 +112,9 @@ pub fn run(
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let r = cfg.trainer.rays_per_batch;
     pipe.step = at_step.unwrap_or_else(|| steady_step(cfg));
+    // Every pipeline the steps use is created and compiled before the clock starts (the untimed steps below may
+    // all skip the proposal update, whose kernels would otherwise compile inside the timed window).
+    pipe.warm_up().map_err(NerfError::gpu("kernel warm-up"))?;
     for _ in 0..warmup {
         let batch = random_batch(&mut rng, r, cams.len(), bands);
         pipe.train_step(&batch).map_err(NerfError::gpu("warm-up step"))?;

@@ -1,6 +1,8 @@
 //! Steps in flight (issue 22): a training step is one submission, and with `steps_in_flight` = 2 or 3 the host
 //! records the next step while the device runs the last. The results must be those of one step at a time: the same
-//! losses, step by step, and the same parameters (tolerance: fp32 atomics add in any order, 1e-5 relative), and a
+//! losses, step by step (1e-5 relative), and the same parameters (no more of them more than 1e-4 apart than two runs
+//! one step at a time differ by, with a margin: fp32 atomics add in any order on a GPU, and Adam amplifies that where
+//! a gradient is near zero), and a
 //! poisoned step in the middle of a pipelined run is still skipped on the device, named, and its optimiser counters
 //! taken back.
 
@@ -81,6 +83,11 @@ fn pipelined(g: &msnerf::gpu::Context, bs: &[Batch], k: usize) -> (Pipeline, Vec
     (p, stats)
 }
 
+/// Parameters more than 1e-4 apart (relative, 1e-3 floor).
+fn differing(a: &[f32], b: &[f32]) -> usize {
+    a.iter().zip(b).filter(|(x, y)| (*x - *y).abs() > 1e-4 * (y.abs() + 1e-3)).count()
+}
+
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-5 * b.abs().max(1e-3)
 }
@@ -91,6 +98,7 @@ fn steps_in_flight_train_exactly_as_one_step_at_a_time() {
     let bs = batches(8, None);
     let (p1, s1) = one_at_a_time(&g, &bs);
     let want = p1.model.store.params().download(&g).expect("params");
+    let noise = differing(&one_at_a_time(&g, &bs).0.model.store.params().download(&g).expect("params"), &want);
     for k in [2, 3] {
         let (pk, sk) = pipelined(&g, &bs, k);
         assert_eq!(sk.iter().map(|s| s.step).collect::<Vec<_>>(), (200..208).collect::<Vec<_>>(), "in order");
@@ -105,9 +113,18 @@ fn steps_in_flight_train_exactly_as_one_step_at_a_time() {
                 assert!(close(x, y), "{k} in flight, step {}: {what} loss {x} against {y}", a.step);
             }
         }
+        // Float atomics add in a different order in every run on a GPU, and Adam turns the sign of a near-zero
+        // gradient into a whole lr-sized step: on the H100 0.2 % of the parameters differ by more than 1e-4 between
+        // two runs of the same schedule, one step at a time both. So the bound is three times what two runs one step
+        // at a time differ by here (lavapipe: nothing), and never less than 0.1 % of the parameters. A broken
+        // pipeline (a step reading another step's rays, or losing its update) moves far more.
         let got = pk.model.store.params().download(&g).expect("params");
-        let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs() / (b.abs() + 1e-3)).fold(0.0f32, f32::max);
-        assert!(worst < 1e-4, "{k} in flight: parameters off by {worst} relative");
+        let off = differing(&got, &want);
+        assert!(
+            off <= (3 * noise).max(got.len() / 1000),
+            "{k} in flight: {off} of {} parameters differ (noise {noise})",
+            got.len()
+        );
         assert_eq!(pk.model.store.group_steps(), p1.model.store.group_steps());
         assert_eq!(pk.model.store.schedule_step(), p1.model.store.schedule_step());
     }
@@ -134,5 +151,23 @@ fn a_poisoned_step_in_flight_is_skipped_named_and_its_counters_taken_back() {
     // Up to the poisoned step, both runs are the same run.
     for (a, b) in s2.iter().zip(&s1).take(3) {
         assert!(close(a.loss_rgb, b.loss_rgb), "step {}", a.step);
+    }
+}
+
+#[test]
+fn steps_in_flight_is_checked_and_older_profiles_without_it_load() {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/models/tiny.yaml")).expect("tiny");
+    let without: String = text
+        .lines()
+        .filter(|l| !l.contains("steps_in_flight") && !l.contains("profile_every"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let c = ModelConfig::parse(&without).expect("a profile written before the keys existed");
+    assert_eq!((c.trainer.steps_in_flight, c.trainer.profile_every), (2, 10), "the defaults");
+    for bad in [0, 4] {
+        let e = ModelConfig::parse(&text.replace("steps_in_flight: 2", &format!("steps_in_flight: {bad}")))
+            .expect_err("out of range")
+            .to_string();
+        assert!(e.contains("trainer.steps_in_flight must be 1, 2 or 3") && e.contains(&bad.to_string()), "{e}");
     }
 }
