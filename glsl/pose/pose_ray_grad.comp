@@ -9,9 +9,10 @@
 //           columns 0..16; unused unless sh != 0), 5 per-ray gradient (float[6R]: g_o, g_d; written, or added to when
 //           accumulate != 0).
 // Push:     n_rays, n (samples per ray), near, far, contraction, accumulate, sh, dx_stride.
-// Threads:  one invocation per ray (it loops over the ray's samples), 64 per group, folded into 2D past 65535 groups.
+// Threads:  one invocation per ray (it loops over the ray's samples), 32 per group (one warp: a 4096-ray pass spreads
+//           over 128 SMs, not 64), folded into 2D past 65535 groups.
 #version 460
-#define WG_SIZE 64
+#define WG_SIZE 32
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 #include "encoding/sh_constants.glsl"

@@ -37,9 +37,10 @@
 //           bg_value, rgb_norm, dist_norm, train, contraction, grad_scaling (1: nerfacto's optional gradient
 //           scaling, every field-output gradient times clamp(t_mid^2, 0, 1), damping near-camera samples), seed, step,
 //           ray_offset, depth_mode (0 off, 1 DS-NeRF, 2 URF), depth_norm.
-// Threads:  one invocation per ray, serial over its samples (forward, then a reverse pass), 64 per group.
+// Threads:  one invocation per ray, serial over its samples (forward, then a reverse pass), 32 per group (one warp: a
+//           4096-ray pass spreads over 128 SMs, not 64).
 #version 460
-#define WG_SIZE 64
+#define WG_SIZE 32
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 #include "render/ray_out.glsl"

@@ -4,9 +4,10 @@
 // Bindings: 0 edges (float[R][n+1]), 1 raw (rows of raw_stride, density at column 0), 2 weights (float[R][n], written),
 //           3 origins, 4 directions (only read without contraction, to zero density outside the box).
 // Push:     n_rays, n, near, far, raw_stride, density_scale, contraction.
-// Threads:  one invocation per ray (serial over its samples), 64 per group, folded into 2D past 65535 groups.
+// Threads:  one invocation per ray (serial over its samples), 32 per group (one warp: a 4096-ray pass spreads over
+//           128 SMs, not 64), folded into 2D past 65535 groups.
 #version 460
-#define WG_SIZE 64
+#define WG_SIZE 32
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 layout(local_size_x = WG_SIZE) in;

@@ -11,9 +11,10 @@
 //           3 proposal raw (rows of raw_stride), 4 proposal weights (float[R][n]; read, then overwritten),
 //           5 proposal dy (rows of raw_stride: column 0 written), 6 losses (float[R], written), 7 origins, 8 directions.
 // Push:     n_rays, n_nerf, n_prop, near, far, raw_stride, density_scale, norm, contraction.
-// Threads:  one invocation per ray, 64 per group, folded into 2D past 65535 groups.
+// Threads:  one invocation per ray, 32 per group (one warp: a 4096-ray pass spreads over 128 SMs, not 64), folded
+//           into 2D past 65535 groups.
 #version 460
-#define WG_SIZE 64
+#define WG_SIZE 32
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 layout(local_size_x = WG_SIZE) in;

@@ -5,9 +5,10 @@
 // Bindings: 0 edges in (float[R][n+1]), 1 weights (float[R][n]), 2 edges out (float[R][m+1], written),
 //           3 positions (float[R*m][3], written), 4 origins, 5 directions.
 // Push:     n_rays, n, m, near, far, anneal, seed, step, level, jitter, contraction, ray_offset.
-// Threads:  one invocation per ray (two-pointer merge over the sorted u and cdf), 64 per group, folded into 2D.
+// Threads:  one invocation per ray (two-pointer merge over the sorted u and cdf), 32 per group (one warp: a 4096-ray
+//           pass spreads over 128 SMs, not 64), folded into 2D.
 #version 460
-#define WG_SIZE 64
+#define WG_SIZE 32
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 layout(local_size_x = WG_SIZE) in;

@@ -5,9 +5,10 @@
 // Bindings: 0 origins (float[3R]), 1 directions (float[3R]), 2 edges (float[R][n+1], written),
 //           3 positions (float[R*n][3], written).
 // Push:     n_rays, n, near, far, seed, step, level, jitter, contraction, ray_offset (global index of ray 0, for the RNG).
-// Threads:  one invocation per ray, 64 per group, folded into 2D past 65535 groups.
+// Threads:  one invocation per ray, 32 per group (one warp: a 4096-ray pass spreads over 128 SMs, not 64), folded
+//           into 2D past 65535 groups.
 #version 460
-#define WG_SIZE 64
+#define WG_SIZE 32
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 layout(local_size_x = WG_SIZE) in;

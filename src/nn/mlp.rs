@@ -444,8 +444,10 @@ impl Mlp {
         check_within_chunk(p.array, p.offset, self.config.n_params())
     }
 
-    /// Inference: output rows from input rows (`in_pad` columns read, `n_output` written), in blocks of
-    /// [`INFER_BLOCK_ROWS`] rows through `scratch` (`infer_scratch_floats(n)` floats).
+    /// Inference: output rows from input rows (`in_pad` columns read, `n_output` written), through `scratch`: in
+    /// blocks of [`INFER_BLOCK_ROWS`] rows when it holds `infer_scratch_floats(n)` floats, in one block when it
+    /// holds all `n` rows' hidden layers (training's activations buffer does: a proposal MLP that is not updated
+    /// this step runs one dispatch per layer instead of one per layer and block, each block waiting on the last).
     pub fn infer(
         &self,
         rec: &mut Recorder,
@@ -456,8 +458,9 @@ impl Mlp {
         scratch: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
         need(scratch, self.config.infer_scratch_floats(n))?;
-        for start in (0..n).step_by(INFER_BLOCK_ROWS) {
-            let rows = (n - start).min(INFER_BLOCK_ROWS);
+        let block = if scratch.len() >= self.config.hidden_floats(n) { n.max(1) } else { INFER_BLOCK_ROWS };
+        for start in (0..n).step_by(block) {
+            let rows = (n - start).min(block);
             self.record_forward(rec, &params, rows_from(input, start), rows, rows_from(output, start), scratch)?;
         }
         Ok(())

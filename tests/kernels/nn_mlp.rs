@@ -266,3 +266,41 @@ fn weights_across_a_chunk_boundary_are_refused() {
     assert!(err.to_string().contains("chunk boundary"), "{err}");
     let _ = BufferDesc { name: "unused", len: 0, category: MemoryCategory::Other };
 }
+
+#[test]
+fn inference_in_one_block_or_many_gives_the_forward_pass() {
+    // More rows than one inference block: with the minimal scratch `infer` runs blocks of INFER_BLOCK_ROWS rows,
+    // with a scratch that holds every row's hidden layers (the trainer passes the activations buffer) one block.
+    // Both must equal the training forward pass bit for bit: the same kernels on the same rows.
+    use msnerf::nn::mlp::INFER_BLOCK_ROWS;
+    let g = gpu();
+    let c = cfg(10, 1, 16, 1, Activation::None);
+    let mlp = Mlp::new(&g, &c).expect("mlp");
+    let n = INFER_BLOCK_ROWS + 777;
+    let mut r = rng(12);
+    let w = weights(&c, 3);
+    let params = LargeArray::<f32>::new(&g, "params", w.len(), MemoryCategory::Parameters).expect("params");
+    params.upload(&g, 0, &w).expect("upload");
+    let x: Vec<f32> = (0..n * c.in_pad()).map(|_| r.random_range(-1.0f32..1.0)).collect();
+    let input = buf(&g, "x", &x);
+    let xin = RowSlice { buf: &input, stride: c.in_pad(), col: 0 };
+    let p = ParamSlice { array: &params, offset: 0 };
+    let outs: Vec<GpuBuffer<f32>> = (0..3).map(|i| zeros(&g, &format!("y{i}"), n)).collect();
+    let y = |i: usize| RowSlice { buf: &outs[i], stride: 1, col: 0 };
+    let acts = zeros(&g, "acts", c.hidden_floats(n));
+    let small = zeros(&g, "small scratch", c.infer_scratch_floats(n));
+    assert!(small.len() < acts.len(), "the minimal scratch holds one block only");
+    let mut rec = g.recorder("infer blocks").expect("recorder");
+    mlp.forward(&mut rec, p, xin, n, y(0), &acts).expect("forward");
+    let blocks_before = rec.barrier_count();
+    mlp.infer(&mut rec, p, xin, n, y(1), &small).expect("infer in blocks");
+    let blocks = rec.barrier_count() - blocks_before;
+    let one_before = rec.barrier_count();
+    mlp.infer(&mut rec, p, xin, n, y(2), &acts).expect("infer in one block");
+    let one = rec.barrier_count() - one_before;
+    rec.submit_and_wait().expect("submit");
+    let want = g.download(&outs[0]).expect("forward");
+    assert_eq!(g.download(&outs[1]).expect("blocks"), want, "blocks of INFER_BLOCK_ROWS rows");
+    assert_eq!(g.download(&outs[2]).expect("one block"), want, "one block");
+    assert!(one < blocks, "one block waits less: {one} barriers against {blocks}");
+}
