@@ -121,3 +121,30 @@ fn bench_train_takes_the_batch_and_chunk_sizes() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--rays-per-chunk"), "the error names the flag");
 }
+
+/// `tools/bench-vs-nerfstudio.sh` (issue 22): bad flags and a missing venv stop it with exit status 2 and a message
+/// that names the flag or says what to do, before anything heavy runs. (The comparison itself needs nerfstudio and
+/// minutes of CPU time: docs/benchmarks.md has its figures.)
+#[test]
+fn bench_vs_nerfstudio_refuses_bad_flags_and_a_missing_venv_by_name() {
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tools/bench-vs-nerfstudio.sh");
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new("bash")
+            .arg(script)
+            .args(args)
+            .env("NS_VENV", "/nonexistent/ns-venv")
+            .output()
+            .expect("bash runs");
+        (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let (code, err) = run(&["--bogus"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("unknown flag: --bogus"), "{err}");
+    let (code, err) = run(&["--steps", "0"]);
+    assert!(code == Some(2) && err.contains("--steps needs a positive integer, got '0'"), "{err}");
+    let (code, err) = run(&["--rays"]);
+    assert!(code == Some(2) && err.contains("--rays needs a value"), "{err}");
+    let (code, err) = run(&["--steps", "6"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("no Python venv at NS_VENV=/nonexistent/ns-venv") && err.contains("--install"), "{err}");
+}
