@@ -4,7 +4,8 @@
 //! record the next sequence while this one runs).
 //! - Barriers: a compute-to-compute memory barrier goes in before a dispatch that binds a buffer an earlier
 //!   dispatch since the last barrier also bound (every binding counts as read-write: conservative and simple).
-//!   Independent dispatches run without one.
+//!   Independent dispatches run without one, and so do the members of a [`Recorder::independent`] group (the
+//!   caller states they do not depend on each other, e.g. a hash grid's levels).
 //! - Descriptors: pushed with VK_KHR_push_descriptor, or allocated from per-recorder pools when the device
 //!   lacks it (or `MSNERF_DISABLE_PUSH_DESCRIPTOR=1`).
 //! - Timing: a GPU timestamp after every dispatch, reported per named dispatch ([`TimingReport`]); on by default
@@ -48,6 +49,8 @@ pub struct Recorder<'a> {
     copies_out: bool,
     /// The last command recorded was a copy: the next dispatch (or a copy after one) needs the closing barrier.
     in_copies: bool,
+    /// Inside [`Recorder::independent`]: the buffers its dispatches bound so far (no barrier among them).
+    group: Option<Vec<vk::Buffer>>,
     created: Instant,
 }
 
@@ -92,6 +95,7 @@ impl Context {
             finished: false,
             copies_out: false,
             in_copies: false,
+            group: None,
             created: Instant::now(),
         };
         // Earlier submissions (uploads, other sequences) finish their writes before this one reads.
@@ -167,7 +171,10 @@ impl<'a> Recorder<'a> {
         if deps.clone().any(|b| self.touched.contains(&b)) {
             self.global_barrier(vk::PipelineStageFlags2::COMPUTE_SHADER, vk::AccessFlags2::SHADER_STORAGE_WRITE, true);
         }
-        self.touched.extend(deps);
+        match &mut self.group {
+            Some(g) => g.extend(deps),
+            None => self.touched.extend(deps),
+        }
 
         let d = self.ctx.device();
         let layout = self.ctx.shared.pipeline_layout;
@@ -210,6 +217,25 @@ impl<'a> Recorder<'a> {
             self.names.push(label);
         }
         Ok(())
+    }
+
+    /// Records `f`'s dispatches as one group that needs no barrier among its members: they are ordered after
+    /// earlier work that touched their buffers (one barrier before the first that needs it), and later work waits
+    /// for all of them, but they may run concurrently. Only for dispatches that do not depend on each other: e.g.
+    /// the levels of a hash grid, which write disjoint columns of one output, or add atomically into disjoint
+    /// parameter ranges. Groups do not nest.
+    pub fn independent<R>(&mut self, f: impl FnOnce(&mut Self) -> GpuResult<R>) -> GpuResult<R> {
+        if self.group.is_some() {
+            return Err(GpuError::Dispatch {
+                kernel: self.label.clone(),
+                msg: "Recorder::independent groups do not nest".into(),
+            });
+        }
+        self.group = Some(Vec::new());
+        let r = f(self);
+        let members = self.group.take().unwrap_or_default();
+        self.touched.extend(members);
+        r
     }
 
     /// An explicit full compute barrier (e.g. after work that reached buffers the recorder cannot see).

@@ -4,9 +4,10 @@
 //! table, CoherentPrime hashing otherwise, entries padded to multiples of 8). [`HashGrid`] records the kernels:
 //! - `hashgrid_fwd`: one dispatch per level (its table is what the dispatch reads: tcnn's cache-friendly order), the
 //!   level's parameters in push constants (on lavapipe read once for all invocations, not once per lane), one
-//!   invocation per point; writes F features per row, and the last level the padding columns.
+//!   invocation per point; writes F features per row, and the last level the padding columns. The levels are one
+//!   [`Recorder::independent`] group: no barrier among them (they write disjoint columns).
 //! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array, one dispatch per level
-//!   as the forward; `hashgrid_bwd_runs` combines runs of consecutive points in one cell first (measured slower on
+//!   as the forward, also one independent group (each level adds into its own range); `hashgrid_bwd_runs` combines runs of consecutive points in one cell first (measured slower on
 //!   lavapipe; `MSNERF_HASH_BWD_RUN`).
 //! - `hashgrid_bwd_input`: gradient to the positions, one dispatch per level (the first writes, the others add),
 //!   one invocation per point.
@@ -290,34 +291,38 @@ impl HashGrid {
         }
         let c = &self.config;
         let f = c.features_per_level as usize;
-        for LevelRead { l, lv, base, offset, chunked } in self.level_reads(params, param_offset)? {
-            let col = slot.col + l * f;
-            let pad = if l + 1 == c.n_levels as usize { slot.pad_to - c.n_output() } else { 0 };
-            let spec = [
-                ("F", c.features_per_level),
-                ("HASHED", lv.hashed),
-                ("HASH_CHUNKED", u32::from(chunked)),
-                ("PAD", pad as u32),
-                ("VEC_OUT", vec_width(&[slot.stride, col])),
-            ];
-            let kernel = Kernel::<FwdPush>::with_spec(rec.context(), &shaders::HASHGRID_FWD, &spec)?;
-            let push = FwdPush {
-                params: base,
-                shift: params.chunk_shift(),
-                param_offset: offset as u32,
-                n: n as u32,
-                out_stride: slot.stride as u32,
-                out_col: col as u32,
-                pad_value: slot.pad_value,
-                scale: lv.scale,
-                res: lv.res,
-                entries: lv.entries,
-                pad: 0,
-            };
-            let bindings = [positions.binding(), out.binding()];
-            rec.dispatch_named("hashgrid_fwd", &kernel, &bindings, &params.deps(), &push, n as u64)?;
-        }
-        Ok(())
+        let levels = self.level_reads(params, param_offset)?;
+        // The levels write disjoint columns of `out`: no barrier among them.
+        rec.independent(|rec| {
+            for LevelRead { l, lv, base, offset, chunked } in levels {
+                let col = slot.col + l * f;
+                let pad = if l + 1 == c.n_levels as usize { slot.pad_to - c.n_output() } else { 0 };
+                let spec = [
+                    ("F", c.features_per_level),
+                    ("HASHED", lv.hashed),
+                    ("HASH_CHUNKED", u32::from(chunked)),
+                    ("PAD", pad as u32),
+                    ("VEC_OUT", vec_width(&[slot.stride, col])),
+                ];
+                let kernel = Kernel::<FwdPush>::with_spec(rec.context(), &shaders::HASHGRID_FWD, &spec)?;
+                let push = FwdPush {
+                    params: base,
+                    shift: params.chunk_shift(),
+                    param_offset: offset as u32,
+                    n: n as u32,
+                    out_stride: slot.stride as u32,
+                    out_col: col as u32,
+                    pad_value: slot.pad_value,
+                    scale: lv.scale,
+                    res: lv.res,
+                    entries: lv.entries,
+                    pad: 0,
+                };
+                let bindings = [positions.binding(), out.binding()];
+                rec.dispatch_named("hashgrid_fwd", &kernel, &bindings, &params.deps(), &push, n as u64)?;
+            }
+            Ok(())
+        })
     }
 
     /// Records grads += d(encoding)/d(params)^T dL/dy.
@@ -399,36 +404,45 @@ impl HashGrid {
     ) -> GpuResult<()> {
         let c = &self.config;
         let f = c.features_per_level as usize;
-        for LevelRead { l, lv, base, offset, chunked } in self.level_reads(array, param_offset)? {
-            let col = dy.col + l * f;
-            let mut spec = vec![
-                ("F", c.features_per_level),
-                ("HASHED", lv.hashed),
-                ("HASH_CHUNKED", u32::from(chunked)),
-                ("VEC_DY", vec_width(&[dy.stride, col])),
-            ];
-            let mut bindings = vec![positions.binding(), dy.buf.binding()];
-            if let Some(dp) = dp {
-                spec.push(("FIRST", u32::from(l == 0)));
-                bindings.push(dp.binding());
+        let levels = self.level_reads(array, param_offset)?;
+        let record = |rec: &mut Recorder| -> GpuResult<()> {
+            for LevelRead { l, lv, base, offset, chunked } in levels {
+                let col = dy.col + l * f;
+                let mut spec = vec![
+                    ("F", c.features_per_level),
+                    ("HASHED", lv.hashed),
+                    ("HASH_CHUNKED", u32::from(chunked)),
+                    ("VEC_DY", vec_width(&[dy.stride, col])),
+                ];
+                let mut bindings = vec![positions.binding(), dy.buf.binding()];
+                if let Some(dp) = dp {
+                    spec.push(("FIRST", u32::from(l == 0)));
+                    bindings.push(dp.binding());
+                }
+                let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), blob, &spec)?;
+                let push = LevelBwdPush {
+                    table: base,
+                    shift: array.chunk_shift(),
+                    param_offset: offset as u32,
+                    n: n as u32,
+                    dy_stride: dy.stride as u32,
+                    dy_col: col as u32,
+                    scale: lv.scale,
+                    res: lv.res,
+                    entries: lv.entries,
+                    pad: 0,
+                    pad2: 0,
+                };
+                rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;
             }
-            let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), blob, &spec)?;
-            let push = LevelBwdPush {
-                table: base,
-                shift: array.chunk_shift(),
-                param_offset: offset as u32,
-                n: n as u32,
-                dy_stride: dy.stride as u32,
-                dy_col: col as u32,
-                scale: lv.scale,
-                res: lv.res,
-                entries: lv.entries,
-                pad: 0,
-                pad2: 0,
-            };
-            rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;
+            Ok(())
+        };
+        match dp {
+            // The parameter gradient: each level adds atomically into its own range, so the levels need no barrier
+            // among them. The input gradient's levels add into the same dp rows in turn and keep theirs.
+            None => rec.independent(record),
+            Some(_) => record(rec),
         }
-        Ok(())
     }
 
     /// Every level's table in a grid stored at `param_offset` of `array`.

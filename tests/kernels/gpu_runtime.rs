@@ -235,6 +235,34 @@ fn barriers_only_between_dependent_dispatches() {
 }
 
 #[test]
+fn an_independent_group_waits_once_for_earlier_work_and_never_among_its_members() {
+    // `Recorder::independent` (a hash grid's levels): the members write disjoint ranges of one buffer and read
+    // one input; one barrier before the group (the input was just written), none among the members, and a later
+    // reader of their output waits for all of them.
+    let g = gpu();
+    let mk = |name| {
+        GpuBuffer::<u32>::new(&g, &BufferDesc { name, len: 1000, category: MemoryCategory::Other }).expect("buffer")
+    };
+    let (src, dst, out) = (mk("src"), mk("dst"), mk("out"));
+    let mut rec = g.recorder("group").expect("recorder");
+    ops::fill(&mut rec, &src, 7u32, 0, 1000).expect("fill src");
+    rec.independent(|rec| {
+        for part in 0..4 {
+            ops::copy(rec, &src, part * 250, &dst, part * 250, 250)?;
+        }
+        Ok(())
+    })
+    .expect("group");
+    assert_eq!(rec.barrier_count(), 1, "one barrier after the fill, none among the four copies");
+    ops::copy(&mut rec, &dst, 0, &out, 0, 1000).expect("read the group's output");
+    assert_eq!(rec.barrier_count(), 2, "the reader waits for the group");
+    let nested = rec.independent(|rec| rec.independent(|_| Ok(())));
+    assert!(nested.is_err_and(|e| e.to_string().contains("do not nest")));
+    rec.submit_and_wait().expect("submit");
+    assert!(g.download(&out).expect("download").iter().all(|&v| v == 7));
+}
+
+#[test]
 fn descriptor_pool_fallback_gives_the_same_results() {
     let g = common::gpu_with(|d| d.force_descriptor_pools = true);
     assert!(!g.caps().push_descriptor);
