@@ -107,10 +107,15 @@ impl Guard {
             let slot = self.slot("pose regulariser losses");
             record_check_finite_slot(rec, &pb.reg_losses, n_reg, &self.flags, slot, false)?;
         }
-        for (i, c) in store.grads().chunks().iter().enumerate() {
-            let slot = self.slot(&format!("parameter gradients (chunk {i})"));
-            record_check_finite_slot(rec, c, c.len(), &self.flags, slot, false)?;
-        }
+        // The checks only ever write 1 into the flag words: no barrier among those of one group. The gated group
+        // must see every ungated verdict, so it comes after a barrier.
+        rec.independent(|rec| {
+            for (i, c) in store.grads().chunks().iter().enumerate() {
+                let slot = self.slot(&format!("parameter gradients (chunk {i})"));
+                record_check_finite_slot(rec, c, c.len(), &self.flags, slot, false)?;
+            }
+            Ok(())
+        })?;
         let part = |buf: &GpuBuffer<f32>| buf.len() * r / b.rays.max(1);
         let mut named: Vec<(String, &GpuBuffer<f32>)> = vec![("ray directions".into(), &b.dirs)];
         for (i, pl) in b.proposals.iter().enumerate().take(self.n_proposals) {
@@ -122,10 +127,12 @@ impl Guard {
         named.push(("nerf density".into(), &b.nerf.raw));
         named.push(("colour output".into(), &b.colour.out));
         named.push(("nerf weights".into(), &b.nerf.weights));
-        for (name, buf) in named {
-            record_check_finite_slot(rec, buf, part(buf), &self.flags, self.slot(&name), true)?;
-        }
-        Ok(())
+        rec.independent(|rec| {
+            for (name, buf) in named {
+                record_check_finite_slot(rec, buf, part(buf), &self.flags, self.slot(&name), true)?;
+            }
+            Ok(())
+        })
     }
 
     /// The first poisoned buffer in pipeline order, from the flag words read back; `None` on a clean step.

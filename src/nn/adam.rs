@@ -116,45 +116,49 @@ pub fn step_gated(
     let schedule_step = store.schedule_step();
     let mut report = Vec::with_capacity(n_groups);
     let mut new_steps = store.group_steps().to_vec();
-    for (g, group) in store.groups().iter().enumerate() {
-        let lr = group.lr_at(schedule_step);
-        let stepped = has_grad[g] && lr != 0.0;
-        if stepped {
-            new_steps[g] += 1;
-            let t = new_steps[g].min(i32::MAX as u64) as i32;
-            let h = &group.adam;
-            let mut push = AdamPush {
-                n: 0,
-                offset: 0,
-                step_size: (lr / (1.0 - h.beta1.powi(t))) as f32,
-                bc2_sqrt: (1.0 - h.beta2.powi(t)).sqrt() as f32,
-                beta1: h.beta1 as f32,
-                one_minus_beta1: (1.0 - h.beta1) as f32,
-                beta2: h.beta2 as f32,
-                one_minus_beta2: (1.0 - h.beta2) as f32,
-                eps: h.eps as f32,
-                weight_decay: h.weight_decay as f32,
-                grad_scale,
-            };
-            for (c, r) in store.layout().chunk_ranges(store.layout().group_range(g)) {
-                let [p, g, m, v] =
-                    [store.params(), store.grads(), store.m(), store.v()].map(|a| a.chunks()[c].binding());
-                let gate = gate.map_or_else(|| p.clone(), |f| f.binding());
-                let bindings = [p, g, m, v, gate];
-                // ADAM_VEC elements per invocation over the aligned body, one per invocation elsewhere.
-                let [head, body, tail] = crate::ops::aligned_split(r.start, r.end, ADAM_VEC);
-                for (k, range, per) in [(&narrow, head, 1), (&wide, body, ADAM_VEC), (&narrow, tail, 1)] {
-                    if range.is_empty() {
-                        continue;
+    // Every dispatch updates its own element range: one group without barriers among them.
+    rec.independent(|rec| {
+        for (g, group) in store.groups().iter().enumerate() {
+            let lr = group.lr_at(schedule_step);
+            let stepped = has_grad[g] && lr != 0.0;
+            if stepped {
+                new_steps[g] += 1;
+                let t = new_steps[g].min(i32::MAX as u64) as i32;
+                let h = &group.adam;
+                let mut push = AdamPush {
+                    n: 0,
+                    offset: 0,
+                    step_size: (lr / (1.0 - h.beta1.powi(t))) as f32,
+                    bc2_sqrt: (1.0 - h.beta2.powi(t)).sqrt() as f32,
+                    beta1: h.beta1 as f32,
+                    one_minus_beta1: (1.0 - h.beta1) as f32,
+                    beta2: h.beta2 as f32,
+                    one_minus_beta2: (1.0 - h.beta2) as f32,
+                    eps: h.eps as f32,
+                    weight_decay: h.weight_decay as f32,
+                    grad_scale,
+                };
+                for (c, r) in store.layout().chunk_ranges(store.layout().group_range(g)) {
+                    let [p, g, m, v] =
+                        [store.params(), store.grads(), store.m(), store.v()].map(|a| a.chunks()[c].binding());
+                    let gate = gate.map_or_else(|| p.clone(), |f| f.binding());
+                    let bindings = [p, g, m, v, gate];
+                    // ADAM_VEC elements per invocation over the aligned body, one per invocation elsewhere.
+                    let [head, body, tail] = crate::ops::aligned_split(r.start, r.end, ADAM_VEC);
+                    for (k, range, per) in [(&narrow, head, 1), (&wide, body, ADAM_VEC), (&narrow, tail, 1)] {
+                        if range.is_empty() {
+                            continue;
+                        }
+                        push.n = range.len() as u32;
+                        push.offset = range.start as u32;
+                        rec.dispatch(k, &bindings, &push, (range.len() / per) as u64)?;
                     }
-                    push.n = range.len() as u32;
-                    push.offset = range.start as u32;
-                    rec.dispatch(k, &bindings, &push, (range.len() / per) as u64)?;
                 }
             }
+            report.push(GroupStep { lr, t: new_steps[g], stepped });
         }
-        report.push(GroupStep { lr, t: new_steps[g], stepped });
-    }
+        Ok(())
+    })?;
     let (steps, schedule) = store.counters_mut();
     steps.copy_from_slice(&new_steps);
     *schedule += 1;
