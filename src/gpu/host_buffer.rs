@@ -67,12 +67,7 @@ impl HostBuffer {
     pub fn write<T: Pod>(&mut self, at: u64, data: &[T]) -> GpuResult<()> {
         let src: &[u8] = bytemuck::cast_slice(data);
         self.range_check(at, src.len() as u64)?;
-        let slice = self
-            .inner
-            .allocation
-            .as_mut()
-            .and_then(|a| a.mapped_slice_mut())
-            .ok_or(GpuError::MissingCapability("host-mappable staging memory"))?;
+        let slice = super::staging::mapped_mut(&mut self.inner)?;
         slice[at as usize..at as usize + src.len()].copy_from_slice(src);
         Ok(())
     }
@@ -81,12 +76,7 @@ impl HostBuffer {
     pub fn read<T: Pod>(&self, at: u64, n: usize) -> GpuResult<Vec<T>> {
         let bytes = (n * std::mem::size_of::<T>()) as u64;
         self.range_check(at, bytes)?;
-        let slice = self
-            .inner
-            .allocation
-            .as_ref()
-            .and_then(|a| a.mapped_slice())
-            .ok_or(GpuError::MissingCapability("host-mappable staging memory"))?;
+        let slice = super::staging::mapped(&self.inner)?;
         Ok(bytemuck::pod_collect_to_vec(&slice[at as usize..(at + bytes) as usize]))
     }
 }

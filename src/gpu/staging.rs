@@ -248,8 +248,8 @@ impl Context {
     }
 }
 
-/// The staging buffer's bytes as the host sees them.
-fn mapped(stage: &RawBuffer) -> GpuResult<&[u8]> {
+/// A host-visible buffer's bytes as the host sees them (staging and [`super::HostBuffer`]).
+pub(crate) fn mapped(stage: &RawBuffer) -> GpuResult<&[u8]> {
     stage
         .allocation
         .as_ref()
@@ -257,7 +257,7 @@ fn mapped(stage: &RawBuffer) -> GpuResult<&[u8]> {
         .ok_or(GpuError::MissingCapability("host-mappable staging memory"))
 }
 
-fn mapped_mut(stage: &mut RawBuffer) -> GpuResult<&mut [u8]> {
+pub(crate) fn mapped_mut(stage: &mut RawBuffer) -> GpuResult<&mut [u8]> {
     stage
         .allocation
         .as_mut()
