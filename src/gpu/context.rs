@@ -73,7 +73,13 @@ pub(crate) struct DeviceShared {
     pub set_layout: vk::DescriptorSetLayout,
     pub pipeline_layout: vk::PipelineLayout,
     pub pipelines: Mutex<PipelineCache>,
-    pub command_pool: Mutex<vk::CommandPool>,
+    /// Command pools not in use, each with its one command buffer (reset). A recorder takes one for itself: a
+    /// pool may be used by one thread at a time (Vulkan's external synchronisation), and tests and the trainer
+    /// record from several threads on one context.
+    pub idle_pools: Mutex<Vec<(vk::CommandPool, vk::CommandBuffer)>>,
+    pub queue_family: u32,
+    /// Pools whose submission failed or was never waited for: destroyed with the device, after it idles.
+    pub lost_pools: Mutex<Vec<vk::CommandPool>>,
     pub timeline: vk::Semaphore,
     /// Last value signalled on the timeline (guarded with the queue).
     pub timeline_value: Mutex<u64>,
@@ -282,15 +288,6 @@ impl Context {
             )
         }
         .vk("vkCreatePipelineLayout")?;
-        let command_pool = unsafe {
-            device.create_command_pool(
-                &vk::CommandPoolCreateInfo::default()
-                    .queue_family_index(queue_family)
-                    .flags(vk::CommandPoolCreateFlags::TRANSIENT | vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
-                None,
-            )
-        }
-        .vk("vkCreateCommandPool")?;
         let mut sem_type =
             vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE).initial_value(0);
         let timeline =
@@ -312,7 +309,9 @@ impl Context {
                 set_layout,
                 pipeline_layout,
                 pipelines: Mutex::new(PipelineCache::default()),
-                command_pool: Mutex::new(command_pool),
+                idle_pools: Mutex::new(Vec::new()),
+                queue_family,
+                lost_pools: Mutex::new(Vec::new()),
                 timeline,
                 timeline_value: Mutex::new(0),
                 staging: Mutex::new(StagingBuffers::default()),
@@ -366,27 +365,46 @@ impl Context {
         req.memory_requirements.size
     }
 
-    /// Allocates a primary command buffer from the shared pool.
-    pub(crate) fn alloc_command_buffer(&self) -> GpuResult<vk::CommandBuffer> {
-        let pool = lock(&self.shared.command_pool);
-        let info = vk::CommandBufferAllocateInfo::default()
-            .command_pool(*pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        let cmd = unsafe { self.shared.device.allocate_command_buffers(&info) }.vk("vkAllocateCommandBuffers")?[0];
-        unsafe {
-            self.shared.device.begin_command_buffer(
-                cmd,
-                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-            )
+    /// A command pool of this recorder's own with its primary command buffer, begun (from the idle list, or new).
+    pub(crate) fn alloc_command_buffer(&self) -> GpuResult<(vk::CommandPool, vk::CommandBuffer)> {
+        let d = &self.shared.device;
+        let idle = lock(&self.shared.idle_pools).pop();
+        let (pool, cmd) = match idle {
+            Some(pc) => pc,
+            None => {
+                let info = vk::CommandPoolCreateInfo::default()
+                    .queue_family_index(self.shared.queue_family)
+                    .flags(vk::CommandPoolCreateFlags::TRANSIENT);
+                let pool = unsafe { d.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
+                let info = vk::CommandBufferAllocateInfo::default()
+                    .command_pool(pool)
+                    .level(vk::CommandBufferLevel::PRIMARY)
+                    .command_buffer_count(1);
+                match unsafe { d.allocate_command_buffers(&info) }.vk("vkAllocateCommandBuffers") {
+                    Ok(c) => (pool, c[0]),
+                    Err(e) => {
+                        unsafe { d.destroy_command_pool(pool, None) };
+                        return Err(e);
+                    }
+                }
+            }
+        };
+        let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        if let Err(e) = unsafe { d.begin_command_buffer(cmd, &begin) }.vk("vkBeginCommandBuffer") {
+            unsafe { d.destroy_command_pool(pool, None) };
+            return Err(e);
         }
-        .vk("vkBeginCommandBuffer")?;
-        Ok(cmd)
+        Ok((pool, cmd))
     }
 
-    pub(crate) fn free_command_buffer(&self, cmd: vk::CommandBuffer) {
-        let pool = lock(&self.shared.command_pool);
-        unsafe { self.shared.device.free_command_buffers(*pool, &[cmd]) };
+    /// Resets `pool` (its command buffer back to the initial state) and returns it to the idle list. Only once the
+    /// device is done with the command buffer.
+    pub(crate) fn free_command_buffer(&self, (pool, cmd): (vk::CommandPool, vk::CommandBuffer)) {
+        let d = &self.shared.device;
+        match unsafe { d.reset_command_pool(pool, vk::CommandPoolResetFlags::empty()) } {
+            Ok(()) => lock(&self.shared.idle_pools).push((pool, cmd)),
+            Err(_) => unsafe { d.destroy_command_pool(pool, None) },
+        }
     }
 
     /// Ends `cmd`, submits it, and returns the timeline value that signals its completion.
@@ -433,10 +451,15 @@ impl Context {
 
     /// Records `f` into a one-time command buffer, submits it and waits (uploads, readbacks).
     pub(crate) fn one_shot(&self, f: impl FnOnce(&ash::Device, vk::CommandBuffer)) -> GpuResult<()> {
-        let cmd = self.alloc_command_buffer()?;
-        f(&self.shared.device, cmd);
-        let result = self.submit(cmd).and_then(|t| self.wait(t));
-        self.free_command_buffer(cmd);
+        let pc = self.alloc_command_buffer()?;
+        f(&self.shared.device, pc.1);
+        let result = self.submit(pc.1).and_then(|t| self.wait(t));
+        if result.is_ok() {
+            self.free_command_buffer(pc);
+        } else {
+            // Possibly still in use by the device: leave the pool for the device's destruction (after its idle).
+            lock(&self.shared.lost_pools).push(pc.0);
+        }
         result
     }
 
@@ -477,7 +500,12 @@ impl Drop for DeviceShared {
             lock(&self.staging).release(&mut lock(&self.allocator), &mut lock(&self.ledger), d);
             lock(&self.pipelines).destroy(d);
             d.destroy_semaphore(self.timeline, None);
-            d.destroy_command_pool(*lock(&self.command_pool), None);
+            for (pool, _) in lock(&self.idle_pools).drain(..) {
+                d.destroy_command_pool(pool, None);
+            }
+            for pool in lock(&self.lost_pools).drain(..) {
+                d.destroy_command_pool(pool, None);
+            }
             d.destroy_pipeline_layout(self.pipeline_layout, None);
             d.destroy_descriptor_set_layout(self.set_layout, None);
             ManuallyDrop::drop(&mut self.allocator);

@@ -33,6 +33,8 @@ const SETS_PER_POOL: u32 = 256;
 
 pub struct Recorder<'a> {
     ctx: &'a Context,
+    /// This recorder's own command pool (one thread at a time may use a pool) and its command buffer.
+    pool: vk::CommandPool,
     cmd: vk::CommandBuffer,
     label: String,
     /// Buffers bound since the last barrier.
@@ -58,6 +60,7 @@ pub struct Recorder<'a> {
 /// [`InFlight::wait`] (or its drop, which waits too: the device may not be using what it frees).
 pub struct InFlight {
     ctx: Context,
+    pool: vk::CommandPool,
     cmd: vk::CommandBuffer,
     label: String,
     ticket: u64,
@@ -78,10 +81,11 @@ impl Context {
 
     /// Starts recording, with per-dispatch timestamps only if `timing` (and the queue has them).
     pub fn recorder_timed(&self, label: &str, timing: bool) -> GpuResult<Recorder<'_>> {
-        let cmd = self.alloc_command_buffer()?;
+        let (pool, cmd) = self.alloc_command_buffer()?;
         let timing = timing && self.caps().timestamp_period_ns.is_some();
         let mut rec = Recorder {
             ctx: self,
+            pool,
             cmd,
             label: label.to_owned(),
             touched: Vec::new(),
@@ -367,6 +371,7 @@ impl<'a> Recorder<'a> {
         let cmd = std::mem::replace(&mut self.cmd, vk::CommandBuffer::null());
         let mut flight = InFlight {
             ctx: self.ctx.clone(),
+            pool: self.pool,
             cmd,
             label: std::mem::take(&mut self.label),
             ticket: 0,
@@ -381,7 +386,7 @@ impl<'a> Recorder<'a> {
         match self.ctx.submit(cmd) {
             Ok(t) => flight.ticket = t,
             Err(e) => {
-                // Never submitted: nothing to wait for.
+                // Never submitted: nothing to wait for (the pool goes back to the idle list with the flight).
                 flight.done = true;
                 return Err(e);
             }
@@ -452,24 +457,20 @@ impl Drop for Recorder<'_> {
         if self.cmd == vk::CommandBuffer::null() {
             return; // handed to an InFlight
         }
-        let d = self.ctx.device();
-        if !self.finished {
-            // Never submitted (an error while recording): end the buffer so it can be freed.
-            let _ = unsafe { d.end_command_buffer(self.cmd) };
-        }
-        free_resources(self.ctx, self.cmd, &mut self.query_pools, &mut self.desc_pools);
+        // Never submitted (an error while recording): resetting the pool discards the recording.
+        free_resources(self.ctx, (self.pool, self.cmd), &mut self.query_pools, &mut self.desc_pools);
         self.keep.clear();
     }
 }
 
 fn free_resources(
     ctx: &Context,
-    cmd: vk::CommandBuffer,
+    pool_cmd: (vk::CommandPool, vk::CommandBuffer),
     query_pools: &mut Vec<vk::QueryPool>,
     desc_pools: &mut Vec<vk::DescriptorPool>,
 ) {
     let d = ctx.device();
-    ctx.free_command_buffer(cmd);
+    ctx.free_command_buffer(pool_cmd);
     unsafe {
         for p in query_pools.drain(..) {
             d.destroy_query_pool(p, None);
@@ -530,11 +531,13 @@ impl InFlight {
 
 impl Drop for InFlight {
     fn drop(&mut self) {
-        if !self.done {
-            // The device may still use the command buffer and what it binds.
-            let _ = self.ctx.wait(self.ticket);
+        if !self.done && self.ctx.wait(self.ticket).is_err() {
+            // The device may still use the command buffer and what it binds: leave them to the device's
+            // destruction, after it idles.
+            crate::gpu::context::lock(&self.ctx.shared.lost_pools).push(self.pool);
+            return;
         }
-        free_resources(&self.ctx, self.cmd, &mut self.query_pools, &mut self.desc_pools);
+        free_resources(&self.ctx, (self.pool, self.cmd), &mut self.query_pools, &mut self.desc_pools);
         self.keep.clear();
     }
 }

@@ -53,6 +53,8 @@ fn batch(rays: usize, bands: usize, n_cams: usize, seed: u64) -> Batch {
     b
 }
 
+static CALL: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 /// Trains on `cfg` as the trainer does and compares the ledger with the plan.
 fn check(cfg: ModelConfig, bands: usize, n_cams: usize) {
     let g = gpu();
@@ -72,7 +74,9 @@ fn check(cfg: ModelConfig, bands: usize, n_cams: usize) {
     let eval = batch(t.eval_rays_per_chunk + 7, bands, n_cams, 2);
     pipe.render(&eval.pixels).expect("render");
     let path =
-        std::env::temp_dir().join(format!("msnerf-plan-{}-{}-{}.msnp", cfg.name, t.rays_per_chunk, std::process::id()));
+        // Unique per call: two configurations with the same name and chunk run side by side in one process (16 test
+        // threads on the H200 found that one removed the other's checkpoint).
+        std::env::temp_dir().join(format!("msnerf-plan-{}-{}-{}-{}.msnp", cfg.name, t.rays_per_chunk, std::process::id(), CALL.fetch_add(1, std::sync::atomic::Ordering::Relaxed)));
     pipe.model.store.save(&path).expect("checkpoint");
     let _ = std::fs::remove_file(&path);
     pipe.train_step(&train).expect("step after the checkpoint");
