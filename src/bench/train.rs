@@ -53,6 +53,8 @@ pub struct TrainBench {
     pub proposal_update_steps: usize,
     /// Whether the Vulkan validation layer was on (it slows recording).
     pub validation: bool,
+    /// The device the steps ran on (`DeviceCaps::summary_line`: name, driver, limits).
+    pub device: String,
 }
 
 /// The first step past the proposal warm-up and the weight annealing (the steady state of a run).
@@ -168,6 +170,7 @@ pub fn run(
         first_step,
         proposal_update_steps: updates,
         validation: ctx.validation_enabled(),
+        device: ctx.caps().summary_line(),
     })
 }
 
@@ -188,13 +191,14 @@ impl TrainBench {
         );
         let h = &self.host;
         s += &format!(
-            "  {} steps from step {} ({} updated the proposals); validation layer {}\n  host overhead {:.2} ms/step \
+            "  {} steps from step {} ({} updated the proposals); validation layer {}; {}\n  host overhead {:.2} ms/step \
              ({:.1}% of the wall time): recording {:.2}, submit-to-signal {:.2} (GPU work included), uploads {:.2}, \
              readbacks {:.2}, batch sampling {:.2} ms; {} submissions and {} waits per step\n",
             self.steps,
             self.first_step,
             self.proposal_update_steps,
             if self.validation { "on" } else { "off" },
+            self.device,
             self.host_overhead_ms_per_step,
             100.0 * self.host_overhead_ms_per_step / self.ms_per_step.max(1e-9),
             h.record_ms,
