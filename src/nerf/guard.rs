@@ -21,10 +21,46 @@ use crate::ops::record_check_finite_slot;
 pub const ANY: usize = 0;
 
 pub struct Guard {
-    /// Word i + 1 names `names[i]`.
+    /// Word i + 1 names `names[i]`, in pipeline order.
     names: Vec<String>,
     pub flags: GpuBuffer<u32>,
     n_proposals: usize,
+}
+
+/// Where each kind of check writes: the intermediates first (slots 1 ..= 4 + 3P, in the order
+/// [`intermediates`] lists them), then these (`names` follows the same order).
+struct Slots {
+    ray_out: usize,
+    interlevel: usize,
+    pose_reg: usize,
+    grad0: usize,
+}
+
+impl Slots {
+    fn of(n_proposals: usize) -> Self {
+        let ray_out = 1 + intermediate_names(n_proposals).len();
+        Self { ray_out, interlevel: ray_out + 1, pose_reg: ray_out + 2, grad0: ray_out + 3 }
+    }
+}
+
+/// The names of the gated intermediates, in pipeline order.
+fn intermediate_names(n_proposals: usize) -> Vec<String> {
+    let mut names = vec!["ray directions".to_owned()];
+    for i in 0..n_proposals {
+        names.extend(["encoding", "density", "weights"].map(|w| format!("proposal {i} {w}")));
+    }
+    names.extend(["nerf encoding", "nerf density", "colour output", "nerf weights"].map(String::from));
+    names
+}
+
+/// The gated intermediates' buffers, in the order of [`intermediate_names`].
+fn intermediates(b: &ChunkBuffers<GpuAlloc>) -> Vec<&GpuBuffer<f32>> {
+    let mut bufs = vec![&b.dirs];
+    for pl in &b.proposals {
+        bufs.extend([&pl.enc, &pl.raw, &pl.weights]);
+    }
+    bufs.extend([&b.nerf.enc, &b.nerf.raw, &b.colour.out, &b.nerf.weights]);
+    bufs
 }
 
 impl Guard {
@@ -34,18 +70,8 @@ impl Guard {
     }
 
     fn names(n_proposals: usize, grad_chunks: usize) -> Vec<String> {
-        let mut names = vec!["ray directions".to_owned()];
-        for i in 0..n_proposals {
-            names.extend([
-                format!("proposal {i} encoding"),
-                format!("proposal {i} density"),
-                format!("proposal {i} weights"),
-            ]);
-        }
-        names.extend(
-            ["nerf encoding", "nerf density", "colour output", "nerf weights", "ray outputs"].map(String::from),
-        );
-        names.extend(["interlevel losses", "pose regulariser losses"].map(String::from));
+        let mut names = intermediate_names(n_proposals);
+        names.extend(["ray outputs", "interlevel losses", "pose regulariser losses"].map(String::from));
         names.extend((0..grad_chunks).map(|i| format!("parameter gradients (chunk {i})")));
         names
     }
@@ -64,10 +90,6 @@ impl Guard {
         self.names.len() + 1
     }
 
-    fn slot(&self, name: &str) -> usize {
-        1 + self.names.iter().position(|n| n == name).expect("a guard name")
-    }
-
     /// Zeroes every flag (first thing in a step).
     pub fn record_reset(&self, rec: &mut Recorder) -> GpuResult<()> {
         crate::ops::fill(rec, &self.flags, 0u32, 0, self.words())
@@ -81,13 +103,12 @@ impl Guard {
         r: usize,
         update_props: bool,
     ) -> GpuResult<()> {
+        let slots = Slots::of(self.n_proposals);
         let part = |len: usize| len * r / b.rays.max(1);
-        record_check_finite_slot(rec, &b.ray_out, part(b.ray_out.len()), &self.flags, self.slot("ray outputs"), false)?;
+        record_check_finite_slot(rec, &b.ray_out, part(b.ray_out.len()), &self.flags, slots.ray_out, false)?;
         if update_props {
-            for pl in &b.proposals {
-                if let Some(l) = &pl.losses {
-                    record_check_finite_slot(rec, l, r, &self.flags, self.slot("interlevel losses"), false)?;
-                }
+            for l in b.proposals.iter().filter_map(|pl| pl.losses.as_ref()) {
+                record_check_finite_slot(rec, l, r, &self.flags, slots.interlevel, false)?;
             }
         }
         Ok(())
@@ -103,33 +124,22 @@ impl Guard {
         store: &ParamStore,
         n_reg: usize,
     ) -> GpuResult<()> {
+        let slots = Slots::of(self.n_proposals);
         if let Some(pb) = b.pose.as_ref().filter(|_| n_reg > 0) {
-            let slot = self.slot("pose regulariser losses");
-            record_check_finite_slot(rec, &pb.reg_losses, n_reg, &self.flags, slot, false)?;
+            record_check_finite_slot(rec, &pb.reg_losses, n_reg, &self.flags, slots.pose_reg, false)?;
         }
         // The checks only ever write 1 into the flag words: no barrier among those of one group. The gated group
         // must see every ungated verdict, so it comes after a barrier.
         rec.independent(|rec| {
             for (i, c) in store.grads().chunks().iter().enumerate() {
-                let slot = self.slot(&format!("parameter gradients (chunk {i})"));
-                record_check_finite_slot(rec, c, c.len(), &self.flags, slot, false)?;
+                record_check_finite_slot(rec, c, c.len(), &self.flags, slots.grad0 + i, false)?;
             }
             Ok(())
         })?;
         let part = |buf: &GpuBuffer<f32>| buf.len() * r / b.rays.max(1);
-        let mut named: Vec<(String, &GpuBuffer<f32>)> = vec![("ray directions".into(), &b.dirs)];
-        for (i, pl) in b.proposals.iter().enumerate().take(self.n_proposals) {
-            named.push((format!("proposal {i} encoding"), &pl.enc));
-            named.push((format!("proposal {i} density"), &pl.raw));
-            named.push((format!("proposal {i} weights"), &pl.weights));
-        }
-        named.push(("nerf encoding".into(), &b.nerf.enc));
-        named.push(("nerf density".into(), &b.nerf.raw));
-        named.push(("colour output".into(), &b.colour.out));
-        named.push(("nerf weights".into(), &b.nerf.weights));
         rec.independent(|rec| {
-            for (name, buf) in named {
-                record_check_finite_slot(rec, buf, part(buf), &self.flags, self.slot(&name), true)?;
+            for (i, buf) in intermediates(b).into_iter().enumerate() {
+                record_check_finite_slot(rec, buf, part(buf), &self.flags, 1 + i, true)?;
             }
             Ok(())
         })
@@ -142,5 +152,25 @@ impl Guard {
         }
         let named = self.names.iter().zip(&words[1..]).find(|(_, &w)| w != 0).map(|(n, _)| n.clone());
         Some(named.unwrap_or_else(|| "parameter gradients".into()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slots_follow_the_names() {
+        for p in 0..3 {
+            let names = Guard::names(p, 2);
+            let slots = Slots::of(p);
+            let at = |n: &str| 1 + names.iter().position(|x| x == n).expect("named");
+            assert_eq!(slots.ray_out, at("ray outputs"));
+            assert_eq!(slots.interlevel, at("interlevel losses"));
+            assert_eq!(slots.pose_reg, at("pose regulariser losses"));
+            assert_eq!(slots.grad0, at("parameter gradients (chunk 0)"));
+            assert_eq!(slots.grad0 + 1, at("parameter gradients (chunk 1)"));
+            assert_eq!(at("nerf weights") + 1, slots.ray_out, "the intermediates come first");
+        }
     }
 }
