@@ -200,3 +200,21 @@ pub fn quaternion_of(r: [[f64; 3]; 3]) -> [f64; 4] {
         [(r[1][0] - r[0][1]) / s, (r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s]
     }
 }
+
+/// The `tiny` profile shrunk to a few-second whole-step test: 4 field levels (2^10 entries, max resolution 64),
+/// 3 per proposal (2^9, 32), 12 / 6 proposal samples and 5 NeRF samples. Tests set their own batch sizes.
+pub fn small_tiny_config() -> msnerf::nerf::config::ModelConfig {
+    let mut c = msnerf::nerf::config::ModelConfig::resolve("tiny").expect("tiny model");
+    c.field.grid.n_levels = 4;
+    c.field.grid.log2_hashmap_size = 10;
+    c.field.grid.max_resolution = 64;
+    for p in &mut c.proposals {
+        p.grid.n_levels = 3;
+        p.grid.log2_hashmap_size = 9;
+        p.grid.max_resolution = 32;
+    }
+    c.proposals[0].samples = 12;
+    c.proposals[1].samples = 6;
+    c.sampling.num_nerf_samples = 5;
+    c
+}

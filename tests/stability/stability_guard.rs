@@ -20,18 +20,7 @@ use msnerf::sim::{simulate, SceneDesc, SimOptions};
 use rand::Rng;
 
 fn small_config() -> ModelConfig {
-    let mut c = ModelConfig::resolve("tiny").expect("tiny model");
-    c.field.grid.n_levels = 4;
-    c.field.grid.log2_hashmap_size = 10;
-    c.field.grid.max_resolution = 64;
-    for p in &mut c.proposals {
-        p.grid.n_levels = 3;
-        p.grid.log2_hashmap_size = 9;
-        p.grid.max_resolution = 32;
-    }
-    c.proposals[0].samples = 12;
-    c.proposals[1].samples = 6;
-    c.sampling.num_nerf_samples = 5;
+    let mut c = common::small_tiny_config();
     c.trainer.rays_per_batch = 32;
     c.trainer.rays_per_chunk = 32;
     c.trainer.eval_rays_per_chunk = 64;
