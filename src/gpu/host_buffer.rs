@@ -25,7 +25,6 @@ pub enum HostDirection {
 pub struct HostBuffer {
     shared: Arc<DeviceShared>,
     pub(crate) inner: RawBuffer,
-    direction: HostDirection,
 }
 
 impl HostBuffer {
@@ -38,15 +37,11 @@ impl HostBuffer {
         if inner.allocation.as_ref().and_then(|a| a.mapped_ptr()).is_none() {
             return Err(GpuError::MissingCapability("host-mappable staging memory"));
         }
-        Ok(Self { shared: ctx.shared.clone(), inner, direction })
+        Ok(Self { shared: ctx.shared.clone(), inner })
     }
 
     pub fn bytes(&self) -> u64 {
         self.inner.bytes
-    }
-
-    pub fn direction(&self) -> HostDirection {
-        self.direction
     }
 
     pub(crate) fn raw(&self) -> vk::Buffer {

@@ -147,7 +147,7 @@ impl Guard {
 
     /// The first poisoned buffer in pipeline order, from the flag words read back; `None` on a clean step.
     pub fn first_named(&self, words: &[u32]) -> Option<String> {
-        if words.first().is_none_or(|&w| w == 0) {
+        if words.get(ANY).is_none_or(|&w| w == 0) {
             return None;
         }
         let named = self.names.iter().zip(&words[1..]).find(|(_, &w)| w != 0).map(|(n, _)| n.clone());
