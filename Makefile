@@ -5,7 +5,7 @@ export MSNERF_REQUIRE_VALIDATION ?= 1
 # Fresh GPU buffers hold NaN bits, so a read of memory nobody wrote fails a test on lavapipe as it would on NVIDIA.
 export MSNERF_POISON_BUFFERS ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep survey-report import-bench
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep survey-report import-bench rig-parallax
 
 setup:
 	@bash tools/setup-debian.sh
@@ -61,3 +61,8 @@ clean:
 # docs/bench-import-<date>.json: raw rig import speed on the real RedEdge flight capture, replicated 16 times (~2 min).
 import-bench: build
 	bash tools/import-bench.sh
+
+# docs/rig-parallax-<date>.json: rig-aware training against homography-warped (per frame and shared) and naive bands on the simulated
+# rig-low flight, 200 s of training each (~15 min on 2 cores with lavapipe; docs/radiometry.md quotes it).
+rig-parallax: build
+	bash tools/rig-parallax.sh rig-parallax-output 200

@@ -2,7 +2,9 @@
 // training their backward in closed form (spec/nerfacto.md §2.10-2.12; twin: src/reference/render.rs).
 // Forward per ray: sigma_i = scale exp(raw_i), w_i = T_i (1 - exp(-sigma_i delta_i)), A = sum w,
 //   C = sum w_i c_i + bg (1 - A) with bg = c_{N-1} (last_sample), 0 (black), 1 (white) or a given constant.
-// Loss (training): ray_weight * sum_b band_w_b (C_b - y_b)^2 * rgb_norm  (rgb_norm = 1/(rays * B));
+// Loss (training): ray_weight * sum_b band_w_b (C_b - y_b)^2 * rgb_norm over the bands whose target y_b is not NaN
+//   (NaN: the ray did not observe that band, rig-aware training); rgb_norm = 1 / (sum over rays of ray weight
+//   times observed bands), i.e. 1/(rays * B) when every band is observed;
 //   distortion in s-space, O(N): dist_norm * [2 sum w_i (m_i W_i - M_i) + 1/3 sum w_i^2 ds_i].
 // Depth supervision (optional, depth_mode; spec in docs/geometry.md "Depth supervision"): per ray a target distance d
 //   along the unit ray (normalised frame; d <= 0 or non-finite: no target) and a standard deviation s. With t_i the
@@ -28,7 +30,7 @@
 //   crossing of A = 0.5 (nerfstudio's median level; the last midpoint when A never reaches it); q25 and q75 cross
 //   0.25 A and 0.75 A, so q75 - q25 measures how spread the weights are along the ray (second pass over the weights).
 // Bindings: 0 edges (float[R][N+1]), 1 density rows (raw at column 0 of density_stride), 2 colours (float[R*N][B]),
-//           3 targets (float[R][B+1]: B values then the ray weight), 4 band weights (float[B]),
+//           3 targets (float[R][B+1]: B values (NaN: not observed) then the ray weight), 4 band weights (float[B]),
 //           5 dy_density (rows of density_stride: column 0 written), 6 dy_colour (float[R*N][B], written),
 //           7 weights (float[R][N], written), 8 ray_out (float[R][9+B], written), 9 origins, 10 directions,
 //           11 depth targets (float[R][2]: d, s; read only with depth_mode != 0, else any buffer).
@@ -177,7 +179,10 @@ void main() {
     uint ro = r * (RAY_OUT_FIXED + B);
     for (uint b = 0u; b < B; ++b) {
         float c = C[b] + bg_of(r, b) * (1.0 - A);
-        float e = c - targets[r * (B + 1u) + b];
+        float y = targets[r * (B + 1u) + b];
+        // A NaN target is a band this ray did not observe (rig-aware training): no loss, no gradient. (An infinite
+        // one is a corrupt value: it makes the loss infinite and the NaN/Inf guard skips the step.)
+        float e = isnan(y) ? 0.0 : c - y;
         loss += band_w[b] * e * e;
         sq += e * e;
         ray_out[ro + RAY_OUT_FIXED + b] = pc.train != 0u ? c : clamp(isnan(c) ? 0.0 : c, 0.0, 1.0);

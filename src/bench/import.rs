@@ -134,6 +134,7 @@ pub fn run(dir: &Path, replicate_n: usize, threads: usize) -> Result<ImportBench
                 overwrite: true,
                 threads,
                 progress: false,
+                rig_cameras: false,
             };
             Ok(import_rig(&opts)?.seconds)
         };

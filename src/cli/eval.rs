@@ -2,7 +2,8 @@
 //! output) and SSIM (scikit-image's Gaussian convention) per band, per view and overall, with the render time; JSON in
 //! nerfstudio's `ns-eval` layout plus per-band entries. LPIPS (AlexNet, on natural-colour composites) when
 //! `--lpips-weights` names a weights file; otherwise it is reported as not computed. `--depth`: the rendered median
-//! depth against the dataset's depth maps ([`crate::output::metrics::depth`]).
+//! depth against the dataset's depth maps ([`crate::output::metrics::depth`]). `--registered-truth DIR`: band
+//! agreement through the frame camera ([`crate::nerf::registered_eval`]).
 
 use super::Cli;
 use crate::data::Split;
@@ -34,6 +35,11 @@ pub struct EvalArgs {
     /// overall. An error when the frames have no depth maps.
     #[arg(long)]
     pub depth: bool,
+    /// Also compare every band, rendered through the frame camera, with the true registered images in this folder
+    /// (`<frame stem>.tif`; `msnerf simulate` writes them as truth/registered/ for `rig_parallax` scenes), apart at
+    /// depth discontinuities and elsewhere; written to RUN/eval_registered.json (or beside --output)
+    #[arg(long)]
+    pub registered_truth: Option<PathBuf>,
 }
 
 pub fn parse_split(s: &str) -> anyhow::Result<Split> {
@@ -52,6 +58,27 @@ pub fn run(cli: &Cli, a: &EvalArgs) -> anyhow::Result<()> {
     let report = evaluate(&mut run, split, None, lpips.as_ref(), a.depth)?;
     let out = a.output.clone().unwrap_or_else(|| a.run.join("eval.json"));
     report.write(&out)?;
+    if let Some(dir) = &a.registered_truth {
+        let reg = crate::nerf::registered_eval::evaluate_registered(&mut run, split, dir, None)?;
+        let path = out.with_file_name("eval_registered.json");
+        crate::util::atomic::write_bytes(&path, serde_json::to_string_pretty(&reg)?.as_bytes())?;
+        let (e, r) = (&reg.discontinuity, &reg.elsewhere);
+        println!(
+            "registered truth: mean band RMSE {:.4} at depth discontinuities ({} px), {:.4} elsewhere ({} px); \
+             ({}-{})/({}+{}) RMSE {:.4} / {:.4}; report: {}",
+            e.mean_rmse,
+            e.pixels,
+            r.mean_rmse,
+            r.pixels,
+            reg.index_bands[0],
+            reg.index_bands[1],
+            reg.index_bands[0],
+            reg.index_bands[1],
+            e.index_rmse,
+            r.index_rmse,
+            path.display()
+        );
+    }
     if a.json {
         println!("{}", report.to_json());
     } else {

@@ -84,6 +84,10 @@ pub struct RigArgs {
     /// Skip band-to-band registration (same as `--register none`)
     #[arg(long)]
     pub no_register: bool,
+    /// Keep every band in its own camera (undistorted, unwarped) and write the rig's geometry from the XMP
+    /// (`Camera:RigRelatives`, `RigTranslations`) as `rig_cameras`, for rig-aware training (docs/dataset.md)
+    #[arg(long)]
+    pub rig_cameras: bool,
     /// Band the others are registered to (default: the one nearest 560 nm)
     #[arg(long)]
     pub reference_band: Option<String>,
@@ -176,6 +180,7 @@ pub fn run(a: &ImportArgs) -> anyhow::Result<()> {
         overwrite: r.overwrite,
         threads,
         progress: true,
+        rig_cameras: r.rig_cameras,
     };
     let s = import_rig(&opts)?;
     println!("wrote {} ({} captures, bands {})", r.out.display(), s.captures, s.bands.join(", "));

@@ -126,7 +126,9 @@ pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs)
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or(format!("view{frame}"));
-    let gt = ground_truth(run, frame).ok().map(|(gt, _)| gt);
+    // With `rig_cameras` the image holds each band in its own camera, not the frame camera's registered view: an
+    // error map against it would show the rig's parallax as model error, so there is none.
+    let gt = if run.ds.rig.is_some() { None } else { ground_truth(run, frame).ok().map(|(gt, _)| gt) };
     write_outputs(run, &rv, &stem, gt.as_ref(), out, a)
 }
 

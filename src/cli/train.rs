@@ -64,6 +64,10 @@ pub struct TrainArgs {
     /// the dataset (model key `sampling.drop_outlier_cameras`)
     #[arg(long)]
     pub drop_outliers: bool,
+    /// Ignore the dataset's `rig_cameras`: every band is taken as seen by the frame camera (model key
+    /// `sampling.rig_cameras`)
+    #[arg(long)]
+    pub no_rig_cameras: bool,
 }
 
 pub fn model_with_overrides(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
@@ -79,6 +83,9 @@ fn resolve_model(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
     }
     if a.drop_outliers {
         m.sampling.drop_outlier_cameras = true;
+    }
+    if a.no_rig_cameras {
+        m.sampling.rig_cameras = false;
     }
     Ok(m)
 }

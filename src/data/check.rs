@@ -101,6 +101,9 @@ pub struct CheckReport {
     pub crs: Option<String>,
     /// What an import from raw rig files recorded (units, calibration, registration), when it did.
     pub import: Option<ImportInfo>,
+    /// With `rig_cameras`: per band, its camera's distance from the frame camera (world units) and its rotation
+    /// from it (degrees).
+    pub rig_cameras: Option<Vec<(String, f64, f64)>>,
     /// Every problem found, one line each.
     pub errors: Vec<String>,
     #[serde(skip)]
@@ -147,6 +150,7 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
         cache_budget_bytes: budget_bytes,
         cache: None,
         import: None,
+        rig_cameras: None,
         dropped_outliers: vec![],
         applied_transform_undone: false,
         crs: None,
@@ -163,6 +167,17 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
     if let Ok(root) = super::transforms::read_json::<serde_json::Value>(&ds.transforms_path, "transforms.json") {
         rep.import = import_info(&root);
     }
+    rep.rig_cameras = ds.rig.as_ref().map(|_| {
+        (0..ds.n_bands())
+            .map(|b| {
+                let m = ds.band_camera(b).expect("the dataset has a rig").rig_from_band;
+                let offset = (0..3).map(|i| m[i][3] * m[i][3]).sum::<f64>().sqrt();
+                let trace = m[0][0] + m[1][1] + m[2][2];
+                let angle = ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+                (ds.bands[b].name.clone(), offset, angle)
+            })
+            .collect()
+    });
     rep.dropped_outliers = ds.dropped_outliers.clone();
     rep.applied_transform_undone = ds.applied_transform_undone.is_some();
     rep.crs = ds.crs.as_ref().map(|c| c.describe());
@@ -284,6 +299,12 @@ impl fmt::Display for CheckReport {
             }
             if let Some(p) = &im.pose_prior {
                 writeln!(f, "  poses are {p} priors: import SfM poses before training a real flight")?;
+            }
+        }
+        if let Some(rig) = &self.rig_cameras {
+            writeln!(f, "  rig cameras: every band traced from its own camera (rig-aware training)")?;
+            for (band, offset, angle) in rig {
+                writeln!(f, "    {band}: {offset:.4} world units from the frame camera, turned {angle:.3} deg")?;
             }
         }
         if let Some((lo, hi)) = self.scene_bounds {

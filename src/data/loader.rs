@@ -128,6 +128,9 @@ pub struct Dataset {
     pub transform_cache: std::sync::OnceLock<(PoseTransform, bool)>,
     /// Whether the first frame's file has an alpha channel (composited as `options.alpha_background` says).
     pub has_alpha: bool,
+    /// `rig_cameras`: one camera per band of the files, in file band order ([`super::rig_cameras`]); read through
+    /// [`Dataset::band_camera`], which follows a band selection.
+    pub rig: Option<super::rig_cameras::RigCameras>,
 }
 
 /// A subset of a dataset's bands (`msnerf train --bands`, sweep axis `bands`): the indices kept, in order, into
@@ -295,6 +298,7 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
         band_selection: None,
         transform_cache: Default::default(),
         has_alpha: false,
+        rig: None,
     };
     // Probe the first frame: sample type, and band identity when the header does not name the bands.
     let probe = ds.decode_sources(0)?;
@@ -302,6 +306,16 @@ pub fn load_dataset(dir: &Path, options: &LoadOptions) -> Result<Dataset, DataEr
     ds.has_alpha = matches!(ds.frames[0].image, ImageSource::File(_)) && colour_alpha(&probe[0]).is_some();
     if raw.bands.is_none() {
         ds.bands = infer_bands(&ds, &probe)?;
+    }
+    if let Some(r) = &raw.rig_cameras {
+        let names: Vec<String> = ds.bands.iter().map(|b| b.name.clone()).collect();
+        let rig = r.resolve(&names, width, height).map_err(|(key, reason)| DataError::InvalidValue {
+            path: tpath.clone(),
+            key,
+            frame: None,
+            reason,
+        })?;
+        ds.rig = Some(rig);
     }
     Ok(ds)
 }
@@ -407,6 +421,12 @@ impl Dataset {
         self.bands = indices.iter().map(|&i| all[i].clone()).collect();
         self.band_selection = Some(BandSelection { indices: indices.to_vec(), all });
         Ok(())
+    }
+
+    /// The camera of (selected) band `b` when the dataset has `rig_cameras`.
+    pub fn band_camera(&self, b: usize) -> Option<&super::rig_cameras::BandCamera> {
+        let file_band = self.band_selection.as_ref().map_or(b, |s| s.indices[b]);
+        self.rig.as_ref().map(|r| &r.cameras[file_band])
     }
 
     /// The bands the image files hold (all of them, whatever [`Dataset::select_bands`] kept).

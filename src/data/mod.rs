@@ -10,6 +10,7 @@
 //! - [`check`]: `dataset check` as a library function.
 //! - [`bench`]: cache/load benchmark.
 //! - [`outliers`]: implausible camera centres (refused by name, or dropped with `drop_outliers`).
+//! - [`rig_cameras`]: per-band cameras of a multi-camera rig (`rig_cameras`), for rig-aware training.
 //! - [`sparse_points`]: `sparse_points_path`, SfM-like points with the frames that observed them.
 
 pub mod aerial;
@@ -25,6 +26,7 @@ pub mod png_reader;
 pub mod pose;
 pub mod raster;
 pub mod reader;
+pub mod rig_cameras;
 pub mod sparse_points;
 pub mod split;
 pub mod synth;

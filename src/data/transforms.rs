@@ -57,15 +57,17 @@ pub struct RawTransforms {
     pub applied_transform: Option<Mat4>,
     /// `crs`: the projected CRS the poses' world frame is in (easting, northing, height in metres).
     pub crs: Option<crate::geo::Crs>,
+    /// `rig_cameras`: per-band cameras of a multi-camera rig ([`super::rig_cameras`]), band names not yet resolved.
+    pub rig_cameras: Option<super::rig_cameras::RawRig>,
 }
 
-struct Ctx<'a> {
-    path: &'a Path,
-    errors: Vec<DataError>,
+pub(super) struct Ctx<'a> {
+    pub(super) path: &'a Path,
+    pub(super) errors: Vec<DataError>,
 }
 
 impl Ctx<'_> {
-    fn invalid(&mut self, key: &str, frame: Option<&FrameRef>, reason: impl Into<String>) {
+    pub(super) fn invalid(&mut self, key: &str, frame: Option<&FrameRef>, reason: impl Into<String>) {
         self.errors.push(DataError::InvalidValue {
             path: self.path.to_path_buf(),
             key: key.into(),
@@ -73,14 +75,14 @@ impl Ctx<'_> {
             reason: reason.into(),
         });
     }
-    fn missing(&mut self, key: &str, frame: Option<&FrameRef>) {
+    pub(super) fn missing(&mut self, key: &str, frame: Option<&FrameRef>) {
         self.errors.push(DataError::MissingKey {
             path: self.path.to_path_buf(),
             key: key.into(),
             frame: frame.cloned(),
         });
     }
-    fn num(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<f64> {
+    pub(super) fn num(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<f64> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::Number(n)) => n.as_f64().filter(|v| v.is_finite()).or_else(|| {
@@ -93,7 +95,7 @@ impl Ctx<'_> {
             }
         }
     }
-    fn string(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<String> {
+    pub(super) fn string(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<String> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::String(s)) if !s.is_empty() => Some(s.clone()),
@@ -103,7 +105,12 @@ impl Ctx<'_> {
             }
         }
     }
-    fn string_list(&mut self, obj: &Map<String, Value>, key: &str, frame: Option<&FrameRef>) -> Option<Vec<String>> {
+    pub(super) fn string_list(
+        &mut self,
+        obj: &Map<String, Value>,
+        key: &str,
+        frame: Option<&FrameRef>,
+    ) -> Option<Vec<String>> {
         match obj.get(key) {
             None | Some(Value::Null) => None,
             Some(Value::Array(a)) => {
@@ -171,6 +178,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
         top.get("applied_transform").and_then(|v| rigid_matrix(&mut cx, v, "applied_transform", None));
     let crs = parse_crs(&mut cx, top);
     let bands = parse_bands(&mut cx, top);
+    let rig_cameras = super::rig_cameras::parse(&mut cx, top);
     let lists = SplitLists {
         train: cx.string_list(top, "train_filenames", None),
         val: cx.string_list(top, "val_filenames", None),
@@ -214,6 +222,7 @@ pub fn parse_value(path: &Path, root: &Value) -> Result<RawTransforms, DataError
         sparse_points,
         applied_transform,
         crs,
+        rig_cameras,
     })
 }
 
@@ -419,7 +428,7 @@ fn parse_matrix(cx: &mut Ctx, f: &Map<String, Value>, fr: &FrameRef) -> Option<M
 }
 
 /// A 3x4 or 4x4 matrix whose rotation part is orthonormal with determinant +1.
-fn rigid_matrix(cx: &mut Ctx, v: &Value, key: &str, fr: Option<&FrameRef>) -> Option<Mat4> {
+pub(super) fn rigid_matrix(cx: &mut Ctx, v: &Value, key: &str, fr: Option<&FrameRef>) -> Option<Mat4> {
     let rows: Option<Vec<Vec<f64>>> = v.as_array().and_then(|rows| {
         rows.iter().map(|r| r.as_array().and_then(|r| r.iter().map(|x| x.as_f64()).collect())).collect()
     });

@@ -91,6 +91,11 @@ pub struct SamplingConfig {
     /// run's dataset.json) instead of refusing the dataset (`data::outliers`; `msnerf train --drop-outliers`).
     #[serde(default)]
     pub drop_outlier_cameras: bool,
+    /// Trace each band's rays from its own camera when the dataset has `rig_cameras` (rig-aware training,
+    /// docs/dataset.md); `false` treats the bands as seen by the frame camera, as if they were registered
+    /// (`msnerf train --no-rig-cameras`).
+    #[serde(default = "yes")]
+    pub rig_cameras: bool,
 }
 
 fn yes() -> bool {

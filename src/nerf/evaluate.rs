@@ -87,7 +87,7 @@ pub fn evaluate(
     let mut depth_views = Vec::new();
     for f in frames {
         let rv = run
-            .render_view(f)
+            .render_observed_view(f)
             .map_err(|e| EvalError::Render { frame: run.ds.frames[f].name.clone(), err: Box::new(e) })?;
         let pred = SpectralImage::from_interleaved(rv.width, rv.height, run.ds.bands.clone(), &rv.colour)?;
         let (gt, mask) = ground_truth(run, f)?;

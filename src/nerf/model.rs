@@ -72,6 +72,8 @@ pub struct ModelShapes {
     pub cfg: ModelConfig,
     pub bands: usize,
     pub n_cameras: usize,
+    /// Rows of the camera table: `n_cameras`, or with `rig_cameras` every frame's band cameras too (1 + B per frame).
+    pub table_cameras: usize,
     /// Density MLP of each proposal level, coarse to fine.
     pub proposal_mlps: Vec<MlpConfig>,
     pub field_mlp: MlpConfig,
@@ -97,6 +99,7 @@ impl ModelShapes {
             cfg: cfg.clone(),
             bands,
             n_cameras,
+            table_cameras: n_cameras,
             proposal_mlps: cfg
                 .proposals
                 .iter()

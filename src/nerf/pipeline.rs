@@ -29,11 +29,16 @@ use crate::gpu::{Context, GpuBuffer, GpuError, GpuResult, InFlight, MemoryCatego
 use crate::nn::{ParamSlice, RowSlice};
 use std::collections::VecDeque;
 
-/// A training batch: per ray (camera, row, col) and B target values plus a ray weight (0 masks the ray out); with
-/// depth supervision on, per ray (target distance, sigma) in the normalised frame, (0, 1) for no target.
+/// A training batch: per ray (camera, row, col) and B target values plus a ray weight (0 masks the ray out); a NaN
+/// target is a band the ray did not observe (rig-aware training, [`super::rig_rays`]): it adds nothing to the loss
+/// (an infinite one is corrupt data, and the NaN/Inf guard skips the step). With depth supervision on, per ray (target distance, sigma) in the normalised frame, (0, 1) for no
+/// target.
 #[derive(Clone, Debug, Default)]
 pub struct Batch {
     pub pixels: Vec<u32>,
+    /// Per ray, the camera whose pose correction and appearance embedding it uses (its frame); empty: the camera
+    /// of its pixel triple.
+    pub cameras: Vec<u32>,
     pub targets: Vec<f32>,
     /// Empty unless `loss.depth` is set.
     pub depth: Vec<f32>,
@@ -42,6 +47,24 @@ pub struct Batch {
 impl Batch {
     pub fn rays(&self) -> usize {
         self.pixels.len() / 3
+    }
+
+    /// Per ray, the camera of its per-camera parameters.
+    pub fn ray_cameras(&self) -> Vec<u32> {
+        if self.cameras.is_empty() {
+            self.pixels.chunks(3).map(|p| p[0]).collect()
+        } else {
+            self.cameras.clone()
+        }
+    }
+
+    /// The (ray, band) targets that count: the sum over rays of the ray weight times its observed bands (eq. 3.1's
+    /// normaliser: the loss is the weighted mean over observed targets).
+    pub fn observed_targets(&self, bands: usize) -> f64 {
+        self.targets
+            .chunks(bands + 1)
+            .map(|t| t[bands] as f64 * t[..bands].iter().filter(|v| !v.is_nan()).count() as f64)
+            .sum()
     }
 }
 
@@ -74,7 +97,8 @@ struct PendingStep {
     flight: InFlight,
     stats: StepStats,
     n_rays: usize,
-    total_w: f64,
+    /// [`Batch::observed_targets`] (at least B).
+    observed: f64,
     n_reg: usize,
     /// What Adam's host counters did (taken back if the guard skipped the step).
     adam: Vec<crate::nn::adam::GroupStep>,
@@ -146,7 +170,8 @@ fn infer_scratch<'a>(train: &'a Option<Backward<GpuAlloc>>, b: &'a ChunkBuffers<
 }
 
 impl Pipeline {
-    /// `cameras`: one entry per dataset frame, in the normalised frame.
+    /// `cameras`: the camera table in the normalised frame: one entry per dataset frame, then (`rig_cameras`) every
+    /// frame's band cameras ([`super::rig_rays::RigRays::table`]).
     pub fn new(ctx: &Context, model: Model, cameras: &[GpuCamera]) -> GpuResult<Self> {
         let kernels = RenderKernels::new(ctx)?;
         let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;
@@ -175,7 +200,7 @@ impl Pipeline {
         })
     }
 
-    /// Replaces the camera table. Rendering novel views appends their cameras after the dataset's frames (indices
+    /// Replaces the camera table. Rendering novel views appends their cameras after the dataset's cameras (indices
     /// `>= model.n_cameras` are valid for [`Pipeline::render`] only: evaluation uses no pose correction and the mean
     /// appearance embedding, so no per-camera parameter is read for them). Training keeps the dataset's table.
     pub fn set_cameras(&mut self, cameras: &[GpuCamera]) -> GpuResult<()> {
@@ -615,7 +640,7 @@ impl Pipeline {
         self.ensure_buffers(true)?;
         self.ensure_io(0, 1)?;
         let targets = vec![0.0f32; self.model.bands + 1];
-        self.io[0].write_batch(&pixels, &targets, &[])?;
+        self.io[0].write_batch(&pixels, &[0], &targets, &[])?;
         let b = self.train_bufs.take().expect("ensured above");
         let res = (|| {
             for update_props in [true, false] {
@@ -661,6 +686,22 @@ impl Pipeline {
                 ),
             });
         }
+        if let Some(c) = batch.ray_cameras().into_iter().find(|&c| c as usize >= self.model.n_cameras) {
+            return Err(GpuError::Dispatch {
+                kernel: "train step".into(),
+                msg: format!(
+                    "a ray's camera {c} is not one of the model's {} cameras (per-camera parameters; a band \
+                     camera's ray names its frame in Batch::cameras)",
+                    self.model.n_cameras
+                ),
+            });
+        }
+        if !batch.cameras.is_empty() && batch.cameras.len() != n_rays {
+            return Err(GpuError::Dispatch {
+                kernel: "train step".into(),
+                msg: format!("a batch of {n_rays} rays names the cameras of {} rays", batch.cameras.len()),
+            });
+        }
         if batch.pixels.len() != 3 * n_rays || batch.targets.len() != n_rays * (bands + 1) {
             return Err(GpuError::Dispatch {
                 kernel: "train step".into(),
@@ -673,8 +714,10 @@ impl Pipeline {
             });
         }
         let total_w: f64 = (0..n_rays).map(|i| batch.targets[i * (bands + 1) + bands] as f64).sum();
+        // Every target observed: `observed` is total_w * B, the per-band means of eq. 3.1 averaged over the bands.
+        let observed = batch.observed_targets(bands).max(bands as f64);
         let norms = (
-            (1.0 / (total_w.max(1.0) * bands as f64)) as f32,
+            (1.0 / observed) as f32,
             (cfg.loss.distortion_at(self.step) as f64 / total_w.max(1.0)) as f32,
             (cfg.loss.interlevel_mult as f64 / (n_rays.max(1) * cfg.sampling.num_nerf_samples) as f64) as f32,
             cfg.loss.depth.map_or(0.0, |d| (d.mult as f64 / total_w.max(1.0)) as f32),
@@ -691,7 +734,7 @@ impl Pipeline {
         }
         let slot = self.next_io;
         self.ensure_io(slot, n_rays)?;
-        self.io[slot].write_batch(&batch.pixels, &batch.targets, &batch.depth)?;
+        self.io[slot].write_batch(&batch.pixels, &batch.ray_cameras(), &batch.targets, &batch.depth)?;
         let update_props =
             self.schedule.decide(&self.model.cfg.sampling, self.step) && !self.model.proposals.is_empty();
         let profiled = self.profile_every > 0 && self.step % self.profile_every == 0;
@@ -719,7 +762,7 @@ impl Pipeline {
                 return Err(e);
             }
         };
-        self.pending.push_back(PendingStep { io: slot, flight, stats, n_rays, total_w, n_reg, adam });
+        self.pending.push_back(PendingStep { io: slot, flight, stats, n_rays, observed, n_reg, adam });
         self.next_io = (slot + 1) % self.steps_in_flight;
         self.step += 1;
         Ok(())
@@ -756,7 +799,6 @@ impl Pipeline {
         stats.timing = p.flight.wait()?;
         let io = &self.io[p.io];
         let l = io.layout;
-        let bands = self.model.bands;
         let out: Vec<f32> = io.output.read(l.ray_out, p.n_rays * l.ray_out_row())?;
         let mut sq = 0.0f64;
         for row in out.chunks(l.ray_out_row()) {
@@ -791,7 +833,7 @@ impl Pipeline {
         }
         stats.loss =
             stats.loss_rgb + stats.loss_distortion + stats.loss_interlevel + stats.loss_depth + stats.loss_pose;
-        stats.psnr = -10.0 * (sq / (p.total_w.max(1.0) * bands as f64)).max(1e-20).log10();
+        stats.psnr = -10.0 * (sq / p.observed).max(1e-20).log10();
         self.finished.push_back(stats);
         Ok(())
     }

@@ -7,6 +7,7 @@ use super::error::{NerfError, NerfResult};
 use super::model::Model;
 use super::pipeline::Pipeline;
 use super::rays::GpuCamera;
+use super::rig_rays::RigRays;
 use super::trainer::{camera_table, load_run_dataset};
 use super::views::NovelView;
 use crate::data::{Dataset, PoseTransform};
@@ -21,8 +22,10 @@ pub struct LoadedRun {
     pub transform: PoseTransform,
     pub pipe: Pipeline,
     pub checkpoint: PathBuf,
-    /// Novel views in the camera table after the dataset's frames (see [`LoadedRun::set_novel_views`]).
+    /// Novel views in the camera table after the dataset's cameras (see [`LoadedRun::set_novel_views`]).
     pub novel: Vec<NovelView>,
+    /// The dataset's cameras in the table: its frames, then, with `rig_cameras`, every frame's band cameras.
+    dataset_cameras: usize,
 }
 
 /// One rendered view (pixel-interleaved, row-major).
@@ -63,20 +66,42 @@ impl LoadedRun {
         let checkpoint = dir.join("checkpoints/latest.msnp");
         let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len())?;
         model.store.load(&checkpoint)?;
-        let mut pipe =
-            Pipeline::new(ctx, model, &camera_table(&ds)).map_err(NerfError::gpu("building the pipeline"))?;
+        let table = camera_table(&ds);
+        let dataset_cameras = table.len();
+        let mut pipe = Pipeline::new(ctx, model, &table).map_err(NerfError::gpu("building the pipeline"))?;
         pipe.appearance_rows = Some(ds.split_indices(crate::data::Split::Train));
         let transform = ds.pose_transform();
-        Ok(Self { dir: dir.to_path_buf(), cfg, ds, transform, pipe, checkpoint, novel: Vec::new() })
+        Ok(Self { dir: dir.to_path_buf(), cfg, ds, transform, pipe, checkpoint, novel: Vec::new(), dataset_cameras })
     }
 
-    /// Renders every pixel of frame `frame` (its own camera and pose).
+    /// Renders every pixel of frame `frame` through the frame camera (with `rig_cameras`, every band registered to
+    /// it: what renders, clouds and orthophotos show).
     pub fn render_view(&mut self, frame: usize) -> NerfResult<RenderedView> {
         let (w, h) = (self.ds.width as usize, self.ds.height as usize);
         self.render_camera(frame, w, h).map_err(NerfError::gpu(format!("rendering frame {frame}")))
     }
 
-    /// Puts `views` in the pipeline's camera table after the dataset's frames (replacing earlier novel views), so
+    /// Renders frame `frame` as its image file holds it: without `rig_cameras` the frame camera's view
+    /// ([`LoadedRun::render_view`]); with them band b from band b's own camera (B renders, each keeping one band), so
+    /// that it compares pixel for pixel with the dataset's unregistered image. Depth and accumulation are the frame
+    /// camera's.
+    pub fn render_observed_view(&mut self, frame: usize) -> NerfResult<RenderedView> {
+        let Some(rig) = RigRays::new(&self.ds) else { return self.render_view(frame) };
+        let mut view = self.render_view(frame)?;
+        let (w, h, b_n) = (view.width, view.height, self.ds.n_bands());
+        // Bands seen through the frame camera are already right in the frame camera's view.
+        for b in (0..b_n).filter(|&b| !rig.frame_bands()[b]) {
+            let cam = rig.camera(frame, b) as usize;
+            let band = self.render_camera(cam, w, h).map_err(NerfError::gpu(format!("rendering frame {frame}")))?;
+            for p in 0..w * h {
+                view.colour[p * b_n + b] = band.colour[p * b_n + b];
+            }
+            view.seconds += band.seconds;
+        }
+        Ok(view)
+    }
+
+    /// Puts `views` in the pipeline's camera table after the dataset's cameras (replacing earlier novel views), so
     /// that [`LoadedRun::render_novel_view`] can render them.
     pub fn set_novel_views(&mut self, views: &[NovelView]) -> NerfResult<()> {
         let mut table = camera_table(&self.ds);
@@ -89,12 +114,17 @@ impl LoadedRun {
         Ok(())
     }
 
+    /// The camera-table index of novel view `k` of the last [`LoadedRun::set_novel_views`].
+    pub fn novel_camera(&self, k: usize) -> u32 {
+        (self.dataset_cameras + k) as u32
+    }
+
     /// Renders novel view `k` of the last [`LoadedRun::set_novel_views`] at its own size; `frame` of the result is
     /// its index in the camera table.
     pub fn render_novel_view(&mut self, k: usize) -> NerfResult<RenderedView> {
         let v = self.novel.get(k).ok_or_else(|| NerfError::invalid(format!("novel view {k}"), "was not set"))?;
         let (w, h, name) = (v.camera.width as usize, v.camera.height as usize, v.name.clone());
-        self.render_camera(self.ds.frames.len() + k, w, h).map_err(NerfError::gpu(format!("rendering {name}")))
+        self.render_camera(self.dataset_cameras + k, w, h).map_err(NerfError::gpu(format!("rendering {name}")))
     }
 
     fn render_camera(&mut self, cam: usize, w: usize, h: usize) -> GpuResult<RenderedView> {

@@ -94,12 +94,12 @@ impl StepIo {
         })
     }
 
-    /// Writes a batch (`depth` empty: no depth targets, zeros are written when the layout has room for them).
-    pub fn write_batch(&mut self, pixels: &[u32], targets: &[f32], depth: &[f32]) -> GpuResult<()> {
+    /// Writes a batch: pixel triples, each ray's camera for per-camera parameters, targets and depth targets
+    /// (`depth` empty: none, zeros are written when the layout has room for them).
+    pub fn write_batch(&mut self, pixels: &[u32], cams: &[u32], targets: &[f32], depth: &[f32]) -> GpuResult<()> {
         let l = self.layout;
-        let cams: Vec<u32> = pixels.chunks(3).map(|p| p[0]).collect();
         self.input.write(l.pixels, pixels)?;
-        self.input.write(l.cams, &cams)?;
+        self.input.write(l.cams, cams)?;
         self.input.write(l.targets, targets)?;
         if depth.is_empty() {
             self.input.write(l.depth, &vec![0.0f32; 2 * cams.len()])?;

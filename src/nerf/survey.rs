@@ -289,7 +289,7 @@ pub fn render_survey(
     }
     let view = ortho_view(run, grid, top);
     run.set_novel_views(std::slice::from_ref(&view)).map_err(SurveyError::Render)?;
-    let cam = run.ds.frames.len() as u32;
+    let cam = run.novel_camera(0);
     let frames = run.ds.split_indices(Split::Train);
     let nb = run.ds.n_bands();
     let floor = opts.min_accumulation.max(0.5);

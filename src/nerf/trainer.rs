@@ -17,6 +17,7 @@ use super::error::{NerfError, NerfResult};
 use super::model::Model;
 use super::pipeline::{Batch, Pipeline, StepStats};
 use super::rays::GpuCamera;
+use super::rig_rays::RigRays;
 use super::schedule::ProposalSchedule;
 use crate::data::{cache, load_dataset, Dataset, LoadOptions, Split};
 use crate::gpu::{Context, KernelTime, TimingReport};
@@ -89,20 +90,25 @@ pub struct TrainSummary {
 /// Consecutive NaN/Inf-poisoned steps after which training stops.
 pub const MAX_POISONED_STEPS: u32 = 5;
 
-/// The normalised camera table of every frame (GPU layout).
+/// The normalised camera table (GPU layout): every frame's camera, then, for a dataset with `rig_cameras`, every
+/// frame's band cameras ([`RigRays::table`]).
 pub fn camera_table(ds: &Dataset) -> Vec<GpuCamera> {
     let t = ds.pose_transform();
-    ds.frames
+    let mut table: Vec<GpuCamera> = ds
+        .frames
         .iter()
         .map(|f| {
             let m = t.pose_to_normalized(&f.c2w);
             let c2w: [[f32; 4]; 3] = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| m[r][c] as f32));
             GpuCamera::new(&f.camera, &c2w)
         })
-        .collect()
+        .collect();
+    table.extend(RigRays::table(ds));
+    table
 }
 
-/// Fixed held-out pixels (camera, row, col) with their values and ray weights, drawn from the eval split.
+/// Fixed held-out pixels (camera, row, col) with their values and ray weights, drawn from the eval split; with
+/// `rig_cameras`, rig rays (one band each, NaN for the others: [`RigRays`]).
 pub struct EvalSet {
     pub pixels: Vec<u32>,
     pub targets: Vec<f32>,
@@ -117,21 +123,53 @@ pub fn eval_set(ds: &Dataset, n: usize, seed: u64) -> NerfResult<EvalSet> {
         return Ok(set);
     }
     let per = n.div_ceil(frames.len());
+    let rig = RigRays::new(ds);
+    let mut batch = Batch::default();
     for &fi in &frames {
         let img = ds.read_frame(fi)?;
-        let mut px = vec![0.0f32; b];
-        for _ in 0..per {
+        let mut px = crate::data::PixelBatch { bands: b, values: vec![0.0f32; per * b], ..Default::default() };
+        for k in 0..per {
             let (row, col) = (rng.random_range(0..ds.height), rng.random_range(0..ds.width));
-            img.pixel_into(row, col, &mut px);
-            set.pixels.extend([fi as u32, row, col]);
-            set.targets.extend_from_slice(&px);
-            set.targets.push(if img.mask_at(row, col) == 0 { 0.0 } else { 1.0 });
+            img.pixel_into(row, col, &mut px.values[k * b..(k + 1) * b]);
+            px.image.push(fi as u32);
+            px.row.push(row);
+            px.col.push(col);
+            px.mask.push(img.mask_at(row, col));
         }
+        push_pixels(&mut batch, &px, rig.as_ref(), false, None);
     }
+    set.pixels = batch.pixels;
+    set.targets = batch.targets;
     Ok(set)
 }
 
-/// Held-out PSNR (data range 1) over the eval set: mean squared error over unmasked pixels and all bands.
+/// Appends sampled pixels to a batch: plain rays through the frame camera, or rig rays ([`RigRays::push`];
+/// `frame_rays` for pixels drawn for their depth targets); `depth` gives a ray's depth target.
+fn push_pixels(
+    batch: &mut Batch,
+    px: &crate::data::PixelBatch,
+    rig: Option<&RigRays>,
+    frame_rays: bool,
+    depth: Option<&super::depth_targets::DepthTargets>,
+) {
+    let mut column = |f: usize, row: u32, col: u32| depth.map_or([0.0, 1.0], |d| d.column(f, row, col));
+    if let Some(rig) = rig {
+        rig.push(batch, px, frame_rays, depth.map(|_| &mut column as &mut dyn FnMut(usize, u32, u32) -> [f32; 2]));
+        return;
+    }
+    let bands = px.bands;
+    for i in 0..px.image.len() {
+        batch.pixels.extend([px.image[i], px.row[i], px.col[i]]);
+        batch.targets.extend_from_slice(&px.values[i * bands..(i + 1) * bands]);
+        batch.targets.push(if px.mask[i] == 0 { 0.0 } else { 1.0 });
+        if depth.is_some() {
+            batch.depth.extend(column(px.image[i] as usize, px.row[i], px.col[i]));
+        }
+    }
+}
+
+/// Held-out PSNR (data range 1) over the eval set: mean squared error over unmasked pixels and the bands each
+/// pixel observed (all of them, but one for rig rays).
 pub fn eval_psnr(pipe: &mut Pipeline, set: &EvalSet) -> NerfResult<f64> {
     let out = pipe.render(&set.pixels).map_err(NerfError::gpu("rendering the held-out pixels"))?;
     let b = pipe.model.bands;
@@ -139,10 +177,13 @@ pub fn eval_psnr(pipe: &mut Pipeline, set: &EvalSet) -> NerfResult<f64> {
     for i in 0..set.pixels.len() / 3 {
         let w = set.targets[i * (b + 1) + b] as f64;
         for k in 0..b {
-            let e = out.colour[i * b + k] as f64 - set.targets[i * (b + 1) + k] as f64;
-            sq += w * e * e;
+            let y = set.targets[i * (b + 1) + k] as f64;
+            if !y.is_nan() {
+                let e = out.colour[i * b + k] as f64 - y;
+                sq += w * e * e;
+                count += w;
+            }
         }
-        count += w * b as f64;
     }
     Ok(-10.0 * (sq / count.max(1.0)).max(1e-20).log10())
 }
@@ -194,6 +235,9 @@ pub fn load_run_dataset(
         ..Default::default()
     };
     let mut ds = load_dataset(data, &opts)?;
+    if !sampling.rig_cameras {
+        ds.rig = None;
+    }
     if let Some(b) = bands {
         ds.select_bands(b)?;
     }
@@ -260,6 +304,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
         },
     )?;
     let eval = eval_set(&ds, opts.eval_pixels, cfg.trainer.seed)?;
+    let rig = RigRays::new(&ds);
     let near_far = (cfg.sampling.near as f64, cfg.sampling.far as f64);
     let depth = match &cfg.loss.depth {
         Some(d) => Some(super::depth_targets::DepthTargets::build(&ds, &train_frames, d, near_far)?),
@@ -312,15 +357,8 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
             batches.push(d.sample_pixels(&cache, &mut rng, n_depth));
         }
         let mut batch = Batch::default();
-        for px in &batches {
-            for i in 0..px.image.len() {
-                batch.pixels.extend([px.image[i], px.row[i], px.col[i]]);
-                batch.targets.extend_from_slice(&px.values[i * bands..(i + 1) * bands]);
-                batch.targets.push(if px.mask[i] == 0 { 0.0 } else { 1.0 });
-                if let Some(d) = &depth {
-                    batch.depth.extend(d.column(px.image[i] as usize, px.row[i], px.col[i]));
-                }
-            }
+        for (k, px) in batches.iter().enumerate() {
+            push_pixels(&mut batch, px, rig.as_ref(), k == 1, depth.as_ref());
         }
         let t0 = Instant::now();
         pipe.submit_step(&batch).map_err(NerfError::gpu(format!("step {submitted}")))?;

@@ -123,7 +123,8 @@ pub fn fit_chunks(
 /// Plans VRAM and host memory for `req` on `dev`.
 pub fn plan(req: &PlanRequest, dev: &DeviceRule) -> Result<Plan, PlanError> {
     let p = req.profile;
-    let shapes = ModelShapes::new(req.model, req.data.bands, req.data.n_frames);
+    let mut shapes = ModelShapes::new(req.model, req.data.bands, req.data.n_frames);
+    shapes.table_cameras = req.data.table_cameras();
     let rays = req.rays.unwrap_or_else(|| profile_rays(p));
     let vram = plan_vram(&shapes, &rays, dev)?;
     let budget = p.vram_budget_bytes();

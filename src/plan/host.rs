@@ -12,7 +12,8 @@ use serde::Serialize;
 /// What the plans need to know about a dataset.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
 pub struct DatasetShape {
-    /// Frames of the dataset (rows of the camera table and of the appearance embedding).
+    /// Frames of the dataset (rows of the appearance embedding; of the camera table too, which with `rig_cameras`
+    /// also holds every frame's band cameras: [`DatasetShape::table_cameras`]).
     pub n_frames: usize,
     /// Frames in the training split (what the cache holds).
     pub n_train: usize,
@@ -21,6 +22,8 @@ pub struct DatasetShape {
     pub bands: usize,
     /// Host bytes of the largest training image, mask plane included.
     pub bytes_per_image: u64,
+    /// The dataset has `rig_cameras` (a camera per band of each frame in the camera table).
+    pub rig_cameras: bool,
 }
 
 impl DatasetShape {
@@ -33,6 +36,7 @@ impl DatasetShape {
             height: ds.height,
             bands: ds.n_bands(),
             bytes_per_image: train.iter().map(|&i| ds.frame_bytes(i)).max().unwrap_or(0),
+            rig_cameras: ds.rig.is_some(),
         }
     }
 
@@ -45,7 +49,13 @@ impl DatasetShape {
             height,
             bands,
             bytes_per_image: width as u64 * height as u64 * bands as u64 * sample_bytes,
+            rig_cameras: false,
         }
+    }
+
+    /// Rows of the camera table the trainer uploads.
+    pub fn table_cameras(&self) -> usize {
+        self.n_frames * if self.rig_cameras { 1 + self.bands } else { 1 }
     }
 }
 

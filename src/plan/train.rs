@@ -33,7 +33,8 @@ pub fn resolve_profile(
         },
     );
     // Fit the chunks to this device: the model's sizes, or smaller where they do not fit.
-    let shapes = ModelShapes::new(model, data.bands, data.n_frames);
+    let mut shapes = ModelShapes::new(model, data.bands, data.n_frames);
+    shapes.table_cameras = data.table_cameras();
     let dev = DeviceRule::from_context(ctx);
     let rays = profile_rays(&p);
     let f = fit_chunks(
@@ -85,7 +86,8 @@ pub fn check_training(
     if pl.fits {
         return Ok(pl);
     }
-    let shapes = ModelShapes::new(model, pl.data.bands, pl.data.n_frames);
+    let mut shapes = ModelShapes::new(model, pl.data.bands, pl.data.n_frames);
+    shapes.table_cameras = pl.data.table_cameras();
     let f = fit_chunks(&shapes, &rays, &dev, p.vram_budget_bytes())?;
     let hint = match (pl.fits_vram, f.max_rays_per_chunk) {
         (true, _) => String::new(),

@@ -4,7 +4,8 @@
 //!   chunks by [`chunk_lens`] (what `LargeArray` creates), four arrays (parameters, gradients, Adam m and v),
 //!   each with a chunk table when the device has bufferDeviceAddress.
 //! - One level table per hash grid ([`HashGridConfig::levels`], uploaded by `HashGrid::new`).
-//! - The camera table (one [`GpuCamera`] per dataset frame, uploaded by `Pipeline::new`).
+//! - The camera table (one [`GpuCamera`] per dataset frame, and per band of each frame with `rig_cameras`, uploaded
+//!   by `Pipeline::new`).
 //! - The training chunk and the evaluation chunk: [`ChunkBuffers::with_shapes`] run with [`PlanAlloc`].
 //! - The two staging buffers at the size of the largest upload and readback the trainer makes
 //!   ([`staging_bytes`]): parameter pieces of [`PIECE`] elements at initialisation, checkpoint and resume,
@@ -142,7 +143,7 @@ pub fn plan_vram(shapes: &ModelShapes, rays: &RayCounts, dev: &DeviceRule) -> Re
     for g in &grids {
         push("hash grid levels".into(), MemoryCategory::Other, Part::LevelTables, level_bytes(g), false);
     }
-    let camera_bytes = (shapes.n_cameras * std::mem::size_of::<GpuCamera>()) as u64;
+    let camera_bytes = (shapes.table_cameras * std::mem::size_of::<GpuCamera>()) as u64;
     push("camera table".into(), MemoryCategory::Rays, Part::CameraTable, camera_bytes, false);
 
     // Training and evaluation chunks (the trainer's own allocation code, recording instead of allocating).

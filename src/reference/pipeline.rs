@@ -46,7 +46,9 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
     let seed = cfg.trainer.seed as u32;
     let anneal = anneal_at(s, step) as f64;
     let total_w: f64 = rays.iter().map(|r| r.weight).sum::<f64>().max(1.0);
-    let rgb_norm = 1.0 / (total_w * bands as f64);
+    // The weighted count of observed (not NaN) targets: total_w * B when every band is observed.
+    let observed: f64 = rays.iter().map(|r| r.weight * r.target.iter().filter(|v| !v.is_nan()).count() as f64).sum();
+    let rgb_norm = 1.0 / observed.max(bands as f64);
     let dist_norm = cfg.loss.distortion_mult as f64 / total_w;
     let inter_norm = cfg.loss.interlevel_mult as f64 / (rays.len() * s.num_nerf_samples) as f64;
     let band_w: Vec<f64> = cfg.band_weights(bands).expect("validated").iter().map(|&v| v as f64).collect();

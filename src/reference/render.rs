@@ -356,7 +356,8 @@ pub fn composite<T: Float>(a: &CompositeIn<T>) -> Composite<T> {
     let mut g_c = vec![T::zero(); b_n];
     for b in 0..b_n {
         colour[b] = colour[b] + bg[b] * (T::one() - big_a);
-        let e = colour[b] - a.target[b];
+        // A NaN target: a band the ray did not observe (rig-aware training): no loss, no gradient.
+        let e = if a.target[b].is_nan() { T::zero() } else { colour[b] - a.target[b] };
         loss = loss + a.band_weights[b] * e * e;
         g_c[b] = c::<T>(2.0) * a.band_weights[b] * e * a.rgb_norm * a.ray_weight;
     }

@@ -87,6 +87,9 @@ pub struct BandFile {
     pub lens: Option<Lens>,
     /// Rig rotation relative to the reference camera in degrees (roll, pitch, yaw as MicaSense writes them).
     pub rig_relatives: Option<[f64; 3]>,
+    /// `Camera:RigTranslations`: the camera's centre relative to the rig's reference camera (metres, taken in the
+    /// reference camera's axes: x right, y down, z forward; MicaSense's library reads the tag but does not use it).
+    pub rig_translations: Option<[f64; 3]>,
     /// DJI: optical-centre offset to the reference band in pixels.
     pub relative_center: Option<[f64; 2]>,
     /// Horizontal irradiance (DLS2 `HorizontalIrradiance` / DJI `Irradiance`) in the units the vendor writes. DLS1's
@@ -219,6 +222,19 @@ pub fn interpret(meta: FileMeta) -> Result<BandFile, RigError> {
 
     let lens = lens(vendor, &meta)?.or_else(|| exif_lens(&meta));
     let rig_relatives = x.numbers(NS_CAMERA, "RigRelatives").filter(|v| v.len() == 3).map(|v| [v[0], v[1], v[2]]);
+    let rig_translations = match x.numbers(NS_CAMERA, "RigTranslations") {
+        None => None,
+        Some(v) if v.len() == 3 && v.iter().all(|t| t.is_finite() && t.abs() <= 0.5) => Some([v[0], v[1], v[2]]),
+        Some(v) => {
+            return Err(RigError::bad(
+                &meta.path,
+                "Camera:RigTranslations",
+                format!(
+                "{v:?}: expected three offsets in metres, each at most 0.5 m (a rig's lenses sit centimetres apart)"
+            ),
+            ))
+        }
+    };
     let relative_center = match (x.number(NS_DJI, "RelativeOpticalCenterX"), x.number(NS_DJI, "RelativeOpticalCenterY"))
     {
         (Some(a), Some(b)) => Some([a, b]),
@@ -245,6 +261,7 @@ pub fn interpret(meta: FileMeta) -> Result<BandFile, RigError> {
         vignetting_mode,
         lens,
         rig_relatives,
+        rig_translations,
         relative_center,
         irradiance,
         meta,

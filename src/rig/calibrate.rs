@@ -106,26 +106,24 @@ pub fn calibrate_panels(
     Ok(PanelReport { captures, irradiance })
 }
 
-/// DLS irradiance per band of one capture (DLS2 horizontal irradiance or DJI `Irradiance`).
+/// DLS irradiance per band of one capture: DLS2 horizontal irradiance, DJI `Irradiance`, or DLS1 spectral irradiance
+/// corrected for the sun's angle ([`super::dls`]).
 pub fn dls_irradiance(cap: &Capture) -> Result<Vec<f64>, RigError> {
     cap.bands
         .iter()
         .map(|b| {
-            b.irradiance.filter(|e| *e > 0.0 && e.is_finite()).ok_or_else(|| {
-                if b.meta.xmp.number("pix4d.com", "Irradiance").is_some() {
-                    return RigError::bad(
-                        &b.meta.path,
-                        "Camera:Irradiance",
-                        "DLS1 spectral irradiance at the tilted sensor; its sun-angle correction is not implemented \
-                         (use --panel, or --units radiance)",
-                    );
-                }
-                RigError::missing(
-                    &b.meta.path,
-                    "Camera:HorizontalIrradiance / drone-dji:Irradiance",
-                    "--irradiance dls needs the light sensor's irradiance (use --panel otherwise)",
-                )
-            })
+            if let Some(e) = b.irradiance.filter(|e| *e > 0.0 && e.is_finite()) {
+                return Ok(e);
+            }
+            if b.meta.xmp.number("pix4d.com", "Irradiance").is_some() {
+                // DLS1: the spectral irradiance at the tilted sensor, corrected for the sun's angle.
+                return super::dls::dls1(b).map(|d| d.horizontal);
+            }
+            Err(RigError::missing(
+                &b.meta.path,
+                "Camera:HorizontalIrradiance / drone-dji:Irradiance",
+                "--irradiance dls needs the light sensor's irradiance (use --panel otherwise)",
+            ))
         })
         .collect()
 }

@@ -251,14 +251,22 @@ pub fn intersect(
 /// The reference band of the crop as an 8-bit greyscale PNG for SfM tools (COLMAP, ODM, Metashape read it; they do
 /// not read multi-band float TIFFs), stretched from its 0.5th to its 99.5th percentile. Same stem and size as the
 /// frame, so `import poses` matches the tool's images to the frames.
-fn write_sfm_png(p: &Plane, (x0, y0, x1, y1): (usize, usize, usize, usize), path: &Path) -> Result<(), RigError> {
+pub(super) fn write_sfm_png(
+    p: &Plane,
+    (x0, y0, x1, y1): (usize, usize, usize, usize),
+    path: &Path,
+) -> Result<(), RigError> {
     let mut v: Vec<f32> = Vec::with_capacity((x1 - x0) * (y1 - y0));
     for y in y0..y1 {
         for x in x0..x1 {
             v.push(p.at(x, y));
         }
     }
-    let mut sorted = v.clone();
+    // Percentiles of the pixels that hold a value (an uncropped undistortion leaves NaN corners).
+    let mut sorted: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if sorted.is_empty() {
+        sorted.push(0.0);
+    }
     sorted.sort_by(f32::total_cmp);
     let lo = sorted[sorted.len() / 200];
     let hi = sorted[sorted.len() - 1 - sorted.len() / 200].max(lo + f32::EPSILON);

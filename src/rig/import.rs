@@ -120,6 +120,9 @@ pub struct ImportOptions {
     pub overwrite: bool,
     pub threads: usize,
     pub progress: bool,
+    /// Keep every band in its own camera and write `rig_cameras` (rig-aware training) instead of registering the
+    /// bands ([`super::rig_model`]).
+    pub rig_cameras: bool,
 }
 
 /// The summary of an import.
@@ -209,6 +212,15 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         ));
     }
     let mut warnings = Vec::new();
+    if opts.rig_cameras {
+        if !matches!(opts.registration, Registration::Auto | Registration::None) {
+            return Err(RigError::option(
+                "--rig-cameras",
+                "keeps every band in its own camera: it cannot be combined with --register capture or rig",
+            ));
+        }
+        warnings.extend(super::rig_model::check_rig(first)?);
+    }
 
     // Irradiance.
     let source = match (opts.units, opts.irradiance, panels.is_empty()) {
@@ -272,6 +284,7 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         }
     };
     let mode = match opts.registration {
+        _ if opts.rig_cameras => Registration::None,
         Registration::Auto if n > RIG_REGISTRATION_ABOVE => Registration::Rig,
         Registration::Auto => Registration::Capture,
         m => m,
@@ -326,7 +339,11 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     let frames = par_map(n, threads, &bar, |i| {
         let cap = &scan.captures[i];
         let l = load(cap, irradiance_of(cap)?.as_deref())?;
-        write_frame(cap, &l, warps[i].clone(), ref_idx, opts.undistort, rect, &staging.path)
+        if opts.rig_cameras {
+            super::rig_model::write_frame_rig(cap, &l, ref_idx, opts.undistort, &staging.path)
+        } else {
+            write_frame(cap, &l, warps[i].clone(), ref_idx, opts.undistort, rect, &staging.path)
+        }
     })?;
     bar.finish_and_clear();
 
@@ -373,6 +390,9 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
             "source_files": cap.bands.iter().map(|b| b.meta.path.display().to_string()).collect::<Vec<_>>(),
             "registration_residual_px": f.registration.iter().map(|r| r.stats.map(|s| s.residual_px)).collect::<Vec<_>>(),
         });
+        if opts.rig_cameras {
+            frame["mask_path"] = json!(format!("masks/{}.png", cap.name()));
+        }
         if !opts.undistort {
             if let Some(l) = cap.bands[ref_idx].lens {
                 frame["camera_model"] = json!("OPENCV");
@@ -424,6 +444,9 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     let mut transforms = transforms;
     if let Some(p) = &projector {
         transforms["crs"] = json!(p.crs.key());
+    }
+    if opts.rig_cameras {
+        transforms["rig_cameras"] = super::rig_model::rig_cameras_json(first, ref_idx, opts.undistort);
     }
     let tpath = staging.path.join("transforms.json");
     let text = serde_json::to_string_pretty(&transforms).expect("json");

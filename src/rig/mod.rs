@@ -3,14 +3,17 @@
 //!
 //! - [`meta`]: EXIF/TIFF tags and XMP of one file; [`calib`]: vendor conventions -> [`calib::BandFile`];
 //! - [`capture`]: grouping files into captures by XMP capture id, bands by wavelength;
-//! - [`radiometry`]: raw DN -> radiance; [`panel`], [`calibrate`]: panel detection, irradiance;
+//! - [`radiometry`]: raw DN -> radiance; [`panel`], [`calibrate`]: panel detection, irradiance; [`dls`]: DLS1 sun angle;
 //! - [`lens`], [`register`], [`warp`]: undistortion and band-to-band registration (one resampling per band);
 //! - [`plane`]: the f32 image type; [`geo`]: GPS -> local ENU pose priors;
+//! - [`rig_model`]: `--rig-cameras`, every band kept in its own camera and the rig's geometry written from the XMP;
+//! - [`register_dataset`]: `msnerf dataset register`, the same alignment on a dataset already in msnerf's format;
 //! - [`frame`]: one capture through the chain; [`import`]: the whole flow, writing the dataset atomically.
 
 pub mod calib;
 pub mod calibrate;
 pub mod capture;
+pub mod dls;
 pub mod error;
 pub mod frame;
 pub mod geo;
@@ -21,6 +24,8 @@ pub mod panel;
 pub mod plane;
 pub mod radiometry;
 pub mod register;
+pub mod register_dataset;
+pub mod rig_model;
 pub mod warp;
 
 pub use error::RigError;

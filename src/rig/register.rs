@@ -120,7 +120,7 @@ struct Level {
     iy: Plane,
 }
 
-fn gradient_image(p: &Plane) -> Plane {
+pub fn gradient_image(p: &Plane) -> Plane {
     // NaN (outside the source) becomes 0 before differentiating, so borders do not spread NaN.
     let clean = Plane::new(p.width, p.height, p.data.iter().map(|v| if v.is_finite() { *v } else { 0.0 }).collect());
     let mut g = clean.blur().gradient_magnitude();

@@ -233,6 +233,26 @@ fn unscale(m: &mut ColmapModel, factor: u32) {
     }
 }
 
+/// With `rig_cameras`: the bands (indices into `names`) whose camera is the frame camera (identity `rig_from_band`).
+fn frame_camera_bands(root: &serde_json::Value, names: &[String]) -> Option<Vec<usize>> {
+    let cams = root.get("rig_cameras")?.get("cameras")?.as_array()?;
+    let identity = |m: &serde_json::Value| {
+        (0..3).all(|i| {
+            (0..4).all(|j| {
+                let v = m.get(i).and_then(|r| r.get(j)).and_then(|v| v.as_f64());
+                v.is_some_and(|v| (v - f64::from(u8::from(i == j))).abs() < 1e-9)
+            })
+        })
+    };
+    Some(
+        cams.iter()
+            .filter(|c| c.get("rig_from_band").is_some_and(identity))
+            .filter_map(|c| c.get("band")?.as_str())
+            .filter_map(|n| names.iter().position(|m| m.eq_ignore_ascii_case(n)))
+            .collect(),
+    )
+}
+
 /// Runs the whole pipeline.
 pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
     let t_all = std::time::Instant::now();
@@ -257,7 +277,28 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
         None => (0..images::band_count(&frames[0].images)?).map(|i| i.to_string()).collect(),
     };
     let frame_images: Vec<FrameImages> = frames.iter().map(|f| f.images.clone()).collect();
-    let band = images::choose_band(&frame_images, &names, &o.band)?;
+    let band = match frame_camera_bands(&root, &names) {
+        // `rig_cameras`: the frames' poses are the frame camera's, so COLMAP must see a band seen through it.
+        Some(ok) => {
+            let pick = match &o.band {
+                images::BandChoice::Pan => None,
+                images::BandChoice::Auto => ok.first().copied(),
+                named => images::choose_band(&frame_images, &names, named)?.filter(|b| ok.contains(b)),
+            };
+            Some(pick.ok_or_else(|| {
+                let list: Vec<&str> = ok.iter().map(|&b| names[b].as_str()).collect();
+                dataset_err(
+                    &tpath,
+                    format!(
+                        "rig_cameras: COLMAP must see a band whose camera is the frame camera (identity rig_from_band): \
+                         {}; give --band with one of them",
+                        if list.is_empty() { "none has one".to_string() } else { list.join(", ") }
+                    ),
+                )
+            })?)
+        }
+        None => images::choose_band(&frame_images, &names, &o.band)?,
+    };
     let band_desc = band.map_or("pan (mean of all bands)".to_string(), |b| names[b].clone());
     let (w, h) = {
         let c = &frames[0].camera;

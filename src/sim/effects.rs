@@ -22,6 +22,10 @@
 //!   centre): the band's image is the reference image rotated by θ (clockwise as displayed, image y down)
 //!   about c, then shifted by t = `shift_px` (+x right, +y down). Rendered by casting that band's own ray,
 //!   so an integer shift is an exact pixel shift (no resampling).
+//! - `rig_parallax`: band b is seen by its own camera, the frame camera moved by `offset_m` (its axes, metres):
+//!   every pixel casts that camera's ray, so the band's image differs from the reference's by a parallax that
+//!   depends on depth (no 2D warp undoes it at every depth). With `write_rig_cameras` the dataset says so
+//!   (`rig_cameras`, docs/dataset.md); depth maps and truth points stay the frame camera's.
 //! - `vignetting`: V = 1 + k1 r² + k2 r⁴ + k3 r⁶, r = |p − c| / half-diagonal.
 //! - `exposure_drift`: g_{v,b} = gains[v] (cycled), else 1 + std·N(v), times 1 + band_std·N(v, b).
 //! - `noise`: Gaussian with variance std² + shot·value, then (bits > 0) clamped to [0, full_scale] and
@@ -45,6 +49,8 @@ pub struct EffectsDesc {
     pub vegetation_brdf: Option<BrdfDesc>,
     #[serde(default)]
     pub misregistration: Option<MisregistrationDesc>,
+    #[serde(default)]
+    pub rig_parallax: Option<RigParallaxDesc>,
     #[serde(default)]
     pub vignetting: Option<VignettingDesc>,
     #[serde(default)]
@@ -121,6 +127,26 @@ pub struct BandShiftDesc {
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
+pub struct RigParallaxDesc {
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    pub bands: Vec<BandOffsetDesc>,
+    /// Write the band cameras into `transforms.json` as `rig_cameras` (rig-aware training); `false` leaves a
+    /// dataset whose bands disagree by the parallax and says nothing about it, as a warped import would.
+    #[serde(default = "yes")]
+    pub write_rig_cameras: bool,
+}
+
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BandOffsetDesc {
+    pub band: String,
+    /// The band camera's centre in the frame camera's axes (OpenGL: +x right, +y up, +z backwards), metres.
+    pub offset_m: [f64; 3],
+}
+
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
 pub struct VignettingDesc {
     #[serde(default = "yes")]
     pub enabled: bool,
@@ -180,6 +206,7 @@ impl EffectsDesc {
             sun: self.sun.clone().filter(|e| e.enabled),
             vegetation_brdf: self.vegetation_brdf.clone().filter(|e| e.enabled),
             misregistration: self.misregistration.clone().filter(|e| e.enabled),
+            rig_parallax: self.rig_parallax.clone().filter(|e| e.enabled),
             vignetting: self.vignetting.clone().filter(|e| e.enabled),
             exposure_drift: self.exposure_drift.clone().filter(|e| e.enabled),
             noise: self.noise.clone().filter(|e| e.enabled),
@@ -193,6 +220,7 @@ impl EffectsDesc {
             (self.sun.is_some(), "sun"),
             (self.vegetation_brdf.is_some(), "vegetation_brdf"),
             (self.misregistration.is_some(), "misregistration"),
+            (self.rig_parallax.is_some(), "rig_parallax"),
             (self.vignetting.is_some(), "vignetting"),
             (self.exposure_drift.is_some(), "exposure_drift"),
             (self.noise.is_some(), "noise"),
@@ -246,6 +274,32 @@ impl EffectsDesc {
                 if !(fin(s.shift_px[0]) && fin(s.shift_px[1]) && fin(s.rotation_deg)) {
                     return Err((format!("misregistration.bands[{i}]"), "values must be finite".into()));
                 }
+            }
+        }
+        if let Some(r) = &self.rig_parallax {
+            let names: Vec<String> = resolve_bands(scene).into_iter().map(|b| b.name).collect();
+            for (i, o) in r.bands.iter().enumerate() {
+                if !names.iter().any(|n| n.eq_ignore_ascii_case(&o.band)) {
+                    return Err((
+                        format!("rig_parallax.bands[{i}].band"),
+                        format!("unknown band `{}` (bands: {})", o.band, names.join(", ")),
+                    ));
+                }
+                if r.bands[..i].iter().any(|x| x.band.eq_ignore_ascii_case(&o.band)) {
+                    return Err((format!("rig_parallax.bands[{i}].band"), "band listed twice".into()));
+                }
+                if !o.offset_m.iter().all(|v| v.is_finite() && v.abs() <= 5.0) {
+                    return Err((
+                        format!("rig_parallax.bands[{i}].offset_m"),
+                        "three finite offsets of at most 5 m (a rig's lenses sit centimetres apart)".into(),
+                    ));
+                }
+            }
+            if r.enabled && self.misregistration.as_ref().is_some_and(|m| m.enabled) {
+                return bad(
+                    "rig_parallax",
+                    "cannot be combined with misregistration (one kind of band offset per scene)",
+                );
             }
         }
         if let Some(v) = &self.vignetting {

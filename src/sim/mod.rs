@@ -153,7 +153,16 @@ impl Prepared {
             }
         }
         let effects = desc.effects.active();
-        let mut transforms = vec![render::Affine2::IDENTITY];
+        let mut transforms = vec![render::BandView::REFERENCE];
+        let view_index =
+            |transforms: &mut Vec<render::BandView>, v: render::BandView| match transforms.iter().position(|x| *x == v)
+            {
+                Some(i) => i,
+                None => {
+                    transforms.push(v);
+                    transforms.len() - 1
+                }
+            };
         let mut band_transform = vec![0; bands.len()];
         if let Some(m) = &effects.misregistration {
             let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
@@ -169,13 +178,14 @@ impl Prepared {
                 } else {
                     render::Affine2 { a, t }
                 };
-                band_transform[b] = match transforms.iter().position(|x| *x == tr) {
-                    Some(i) => i,
-                    None => {
-                        transforms.push(tr);
-                        transforms.len() - 1
-                    }
-                };
+                band_transform[b] = view_index(&mut transforms, render::BandView { affine: tr, offset: [0.0; 3] });
+            }
+        }
+        if let Some(r) = &effects.rig_parallax {
+            for o in &r.bands {
+                let b = bands.iter().position(|x| x.name.eq_ignore_ascii_case(&o.band)).expect("validated");
+                let v = render::BandView { affine: render::Affine2::IDENTITY, offset: o.offset_m };
+                band_transform[b] = view_index(&mut transforms, v);
             }
         }
         let total = poses.len() * (w as usize) * (h as usize);

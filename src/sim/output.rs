@@ -79,6 +79,10 @@ pub fn simulate(desc: &SceneDesc, opts: &SimOptions, out: &Path) -> Result<SimRe
     for d in ["images", "depth"] {
         std::fs::create_dir_all(root.join(d)).map_err(SimError::io(root.join(d)))?;
     }
+    if prep.effects.rig_parallax.is_some() {
+        let d = root.join("truth/registered");
+        std::fs::create_dir_all(&d).map_err(SimError::io(d))?;
+    }
     let threads = if opts.threads == 0 {
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
     } else {
@@ -181,6 +185,9 @@ fn write_view(prep: &Prepared, opts: &SimOptions, root: &Path, i: usize, img: &V
             None => writer::write_tiff(&p, w, h, nb, TiffData::F32(&img.values))?,
         }
     }
+    if let Some(reg) = &img.registered {
+        writer::write_tiff(&root.join(format!("truth/registered/{name}.tif")), w, h, nb, TiffData::F32(reg))?;
+    }
     writer::write_tiff(&root.join(format!("depth/{name}.tif")), w, h, 1, TiffData::F32(&img.depth))
 }
 
@@ -251,6 +258,20 @@ fn write_transforms(prep: &Prepared, opts: &SimOptions, root: &Path, sparse: Opt
     if let Some(c) = &prep.crs {
         t["crs"] = json!(c.key());
     }
+    if let Some(r) = prep.effects.rig_parallax.as_ref().filter(|r| r.write_rig_cameras) {
+        let cams: Vec<serde_json::Value> = prep
+            .bands
+            .iter()
+            .map(|b| {
+                let o = r.bands.iter().find(|x| x.band.eq_ignore_ascii_case(&b.name)).map_or([0.0; 3], |x| x.offset_m);
+                json!({
+                    "band": b.name, "camera_model": "PINHOLE", "fl_x": c.fx, "fl_y": c.fy, "cx": c.cx, "cy": c.cy,
+                    "rig_from_band": [[1.0, 0.0, 0.0, o[0]], [0.0, 1.0, 0.0, o[1]], [0.0, 0.0, 1.0, o[2]], [0.0, 0.0, 0.0, 1.0]],
+                })
+            })
+            .collect();
+        t["rig_cameras"] = json!({ "cameras": cams });
+    }
     writer::write_json(&root.join("transforms.json"), &t)
 }
 
@@ -311,6 +332,7 @@ fn write_meta(prep: &Prepared, desc: &SceneDesc, opts: &SimOptions, root: &Path)
         "sun": eff.sun.as_ref().map(|s| json!({"azimuth_deg": s.azimuth_deg, "elevation_deg": s.elevation_deg, "sky_fraction": s.sky_fraction})),
         "vegetation_brdf": eff.vegetation_brdf.as_ref().map(|b| json!({"k": b.k, "theta": b.theta, "rho_c": b.rho_c})),
         "misregistration": eff.misregistration.as_ref().map(|m| m.bands.iter().map(|b| json!({"band": b.band, "shift_px": b.shift_px, "rotation_deg": b.rotation_deg})).collect::<Vec<_>>()),
+        "rig_parallax": eff.rig_parallax.as_ref().map(|r| json!({"bands": r.bands.iter().map(|b| json!({"band": b.band, "offset_m": b.offset_m})).collect::<Vec<_>>(), "write_rig_cameras": r.write_rig_cameras})),
         "vignetting": eff.vignetting.as_ref().map(|v| json!({"coeffs": v.coeffs, "center_px": v.center_px})),
         "exposure_gains": gains,
         "noise": eff.noise.as_ref().map(|n| json!({"std": n.std, "shot": n.shot, "bits": n.bits, "full_scale": n.full_scale})),
@@ -350,7 +372,7 @@ pixel (col, row) has its centre at (col + 0.5, row + 0.5); one ray per pixel thr
 on the backdrop dome (radius {extent} m), so every depth is finite.\n\
 - `ground_truth.ply`: {pts_desc}; one float per band (`refl_<centre nm>`): the surface's band-integrated\n  \
 reflectance with no light or sensor effect.\n\
-- `simulation.json`: the options, effects, per-view gains and every material's band values.\n\n\
+- `simulation.json`: the options, effects, per-view gains and every material's band values.\n{registered}\n\
 ## Bands\n\n| name | centre nm | FWHM nm |\n|---|---|---|\n{bands}\n\
 ## Effects\n\n{effects_desc}\n\n\
 Without effects a pixel is the band reflectance of the surface it sees (flat Lambertian light). The formulas of\n\
@@ -368,6 +390,12 @@ each effect are in the msnerf source, `src/sim/effects.rs`.\n",
             "binary little-endian PLY, x y z as double (world coordinates are too large for float)"
         } else {
             "binary little-endian PLY, x y z as float"
+        },
+        registered = if prep.effects.rig_parallax.is_some() {
+            "- `truth/registered/view_NNNNN.tif` (`rig_parallax`): every band as the frame camera sees it (gains and\n  \
+vignetting applied, no noise): what registered bands should show.\n"
+        } else {
+            ""
         },
         effects_desc = if effects.is_empty() { "None.".to_string() } else { format!("On: {}.", effects.join(", ")) },
     )

@@ -3,8 +3,8 @@
 //!
 //! One ray per pixel through the pixel centre, built by `data::camera::generate_ray` (the trainer's own ray
 //! function, so both agree bit for bit); no anti-aliasing, so a pixel's value and depth belong to one surface
-//! point. Bands that `misregistration` moves cast their own ray (one per distinct image transform); all others
-//! share the reference ray. Every random draw is a hash of (seed, view, band, pixel), so output does not depend
+//! point. Bands that `misregistration` or `rig_parallax` moves cast their own ray (one per distinct band view);
+//! all others share the reference ray. Every random draw is a hash of (seed, view, band, pixel), so output does not depend
 //! on thread count or order.
 
 use crate::data::camera::{generate_ray, Camera, Intrinsics};
@@ -39,6 +39,18 @@ impl Affine2 {
     }
 }
 
+/// How one band's image is sampled: its image-point transform (misregistration) and its camera centre offset in
+/// the frame camera's axes (rig parallax, metres).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BandView {
+    pub affine: Affine2,
+    pub offset: [f64; 3],
+}
+
+impl BandView {
+    pub const REFERENCE: BandView = BandView { affine: Affine2::IDENTITY, offset: [0.0; 3] };
+}
+
 /// Everything rendering needs, resolved from a scene and the options.
 #[derive(Debug, Clone)]
 pub struct Prepared {
@@ -55,8 +67,8 @@ pub struct Prepared {
     pub world_offset: [f64; 3],
     /// The scene's `crs` (validated), as written into `transforms.json`.
     pub crs: Option<crate::geo::Crs>,
-    /// Distinct sampling transforms; index 0 is the identity (the reference ray, depth and points).
-    pub transforms: Vec<Affine2>,
+    /// Distinct band views; index 0 is the reference (the frame camera's ray, depth and points).
+    pub transforms: Vec<BandView>,
     /// Per band: index into `transforms`.
     pub band_transform: Vec<usize>,
     /// Ground-truth point stride over (view, pixel).
@@ -72,6 +84,9 @@ pub struct ViewImage {
     pub dn: Option<Vec<u16>>,
     /// Distance along the unit reference ray (metres).
     pub depth: Vec<f32>,
+    /// With `rig_parallax`: every band as the frame camera sees it (the reference ray's surface; gains and
+    /// vignetting applied, no noise), the registered truth the bands should agree with. Same layout as `values`.
+    pub registered: Option<Vec<f32>>,
     /// Ground-truth samples: local hit point and material index.
     pub points: Vec<(V3, usize)>,
 }
@@ -106,6 +121,8 @@ impl Prepared {
         let mut depth = vec![0f32; px];
         let mut points = Vec::new();
         let mut band_val = vec![0f64; nb];
+        let mut registered = self.effects.rig_parallax.as_ref().map(|_| vec![0f32; px * nb]);
+        let mut ref_val = vec![0f64; nb];
         let pt_phase = vi % self.point_stride;
 
         for row in 0..h {
@@ -113,8 +130,11 @@ impl Prepared {
                 let p = row * w + col;
                 let (u0, v0) = (col as f64 + 0.5, row as f64 + 0.5);
                 for (ti, tr) in self.transforms.iter().enumerate() {
-                    let (u, v) = if ti == 0 { (u0, v0) } else { tr.apply(u0, v0) };
-                    let ray = generate_ray(&k, &rows, v, u);
+                    let (u, v) = if ti == 0 { (u0, v0) } else { tr.affine.apply(u0, v0) };
+                    let mut ray = generate_ray(&k, &rows, v, u);
+                    for (i, row) in rows.iter().enumerate() {
+                        ray.origin[i] += (0..3).map(|j| row[j] * tr.offset[j]).sum::<f64>();
+                    }
                     let hit = self.world.trace(ray.origin, ray.direction);
                     if ti == 0 {
                         depth[p] = hit.t as f32;
@@ -134,15 +154,26 @@ impl Prepared {
                             *bv = r * light;
                         }
                     }
+                    if ti == 0 {
+                        for (rv, r) in ref_val.iter_mut().zip(&m.refl) {
+                            *rv = r * light;
+                        }
+                    }
                 }
                 let vf = vig.map(|d| effects::vignette(d, self.camera.width, self.camera.height, u0, v0));
                 for b in 0..nb {
                     let mut x = band_val[b];
+                    let mut y = ref_val[b];
                     if let Some(g) = &gains {
                         x *= g[b];
+                        y *= g[b];
                     }
                     if let Some(f) = vf {
                         x *= f;
+                        y *= f;
+                    }
+                    if let Some(reg) = registered.as_mut() {
+                        reg[p * nb + b] = y as f32;
                     }
                     if let Some(n) = noise {
                         let (y, q) = effects::apply_noise(n, x, self.seed, vi, b, p);
@@ -155,7 +186,7 @@ impl Prepared {
                 }
             }
         }
-        ViewImage { values, dn, depth, points }
+        ViewImage { values, dn, depth, points, registered }
     }
 
     /// The band-independent light factor L at a hit (see `effects`).

@@ -211,3 +211,49 @@ fn splits_three_ways() {
     let eval: Vec<usize> = ds.split_indices(Eval);
     assert_eq!(eval, [0, 8]);
 }
+
+/// `rig_cameras` (per-band cameras of a rig): read back in band order, and every bad entry named by its key.
+#[test]
+fn rig_cameras_are_read_and_bad_ones_named() {
+    let id = |x: f64| json!([[1.0, 0.0, 0.0, x], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
+    let cam = |band: &str, x: f64| json!({"band": band, "fl_x": 9.0, "cx": 4.0, "cy": 3.0, "rig_from_band": id(x)});
+    let names: Vec<String> =
+        bands_json(2).as_array().unwrap().iter().map(|b| b["name"].as_str().unwrap().to_string()).collect();
+    let (b0, b1) = (names[0].clone(), names[1].clone());
+    // Listed out of band order: the dataset keeps file band order.
+    let td = dataset(|j| j["rig_cameras"] = json!({"cameras": [cam(&b1, 0.04), cam(&b0, 0.0)]}));
+    let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
+    let rig = ds.rig.as_ref().expect("rig read");
+    assert_eq!((rig.cameras[0].rig_from_band[0][3], rig.cameras[1].rig_from_band[0][3]), (0.0, 0.04));
+    assert_eq!(
+        (rig.cameras[1].camera.fy, rig.cameras[1].camera.width),
+        (9.0, 8),
+        "fl_y defaults to fl_x, w to the images'"
+    );
+    let cases: Vec<(serde_json::Value, &[&str])> = vec![
+        (json!({"cameras": [cam(&b0, 0.0)]}), &["rig_cameras.cameras", "has no camera"]),
+        (json!({"cameras": [cam(&b0, 0.0), cam("thermal", 0.0)]}), &["rig_cameras.cameras[1].band", "thermal"]),
+        (json!({"cameras": [cam(&b0, 0.0), cam(&b0, 0.1)]}), &["rig_cameras.cameras[1].band", "two cameras"]),
+        (
+            json!({"cameras": [cam(&b0, 0.0), {"band": b1, "fl_x": -2.0, "cx": 4.0, "cy": 3.0, "rig_from_band": id(0.0)}]}),
+            &["rig_cameras.cameras[1].fl_x", "positive"],
+        ),
+        (
+            json!({"cameras": [cam(&b0, 0.0), {"band": b1, "fl_x": 9.0, "cx": 4.0, "cy": 3.0,
+            "rig_from_band": [[2.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]}]}),
+            &["rig_cameras.cameras[1].rig_from_band", "orthonormal"],
+        ),
+        (
+            json!({"cameras": [cam(&b0, 0.0), {"band": b1, "fl_x": 9.0, "cy": 3.0}]}),
+            &["rig_cameras.cameras[1].cx", "rig_cameras.cameras[1].rig_from_band"],
+        ),
+        (json!({"cameras": []}), &["rig_cameras.cameras", "empty"]),
+        (json!([1, 2]), &["rig_cameras", "expected an object"]),
+    ];
+    for (rig, parts) in cases {
+        let td = dataset(|j| j["rig_cameras"] = rig.clone());
+        let e = load_err(&td);
+        assert_names(&e, &["transforms.json"]);
+        assert_names(&e, parts);
+    }
+}

@@ -100,6 +100,21 @@ fn write_capture(dir: &Path, k: usize, panel: bool, tweak: &dyn Fn(usize, &mut V
 
 /// [`write_capture`] with the Red band moved by `extra` pixels more (a capture whose bands sit differently).
 fn write_capture_shifted(dir: &Path, k: usize, panel: bool, tweak: &dyn Fn(usize, &mut Vec<u16>), extra: [f64; 2]) {
+    write_capture_with(dir, k, panel, tweak, extra, None);
+}
+
+/// Per band (index into [`BANDS`]): `Camera:RigRelatives` (degrees) and `RigTranslations` (metres).
+type RigXmp<'a> = Option<&'a dyn Fn(usize) -> ([f64; 3], [f64; 3])>;
+
+/// [`write_capture_shifted`] with the rig's geometry in the XMP when `rig` is given.
+fn write_capture_with(
+    dir: &Path,
+    k: usize,
+    panel: bool,
+    tweak: &dyn Fn(usize, &mut Vec<u16>),
+    extra: [f64; 2],
+    rig: RigXmp,
+) {
     for (bi, (suffix, name, c, fw, e, ..)) in BANDS.iter().enumerate() {
         let s = if *name == "Red" { [BANDS[bi].7[0] + extra[0], BANDS[bi].7[1] + extra[1]] } else { BANDS[bi].7 };
         let mut px = Vec::with_capacity((W * H) as usize);
@@ -133,6 +148,7 @@ fn write_capture_shifted(dir: &Path, k: usize, panel: bool, tweak: &dyn Fn(usize
             principal_mm: [0.795, 0.595],
             distortion: [0.0; 5],
             horizontal_irradiance: Some(*e),
+            rig: rig.map(|r| r(bi)),
         });
         write_rig_tiff(&dir.join(format!("IMG_{k:04}_{suffix}.tif")), W, H, &px, &xmp, &exif_for(k));
     }
@@ -166,6 +182,7 @@ fn opts(input: &Path, out: &Path) -> ImportOptions {
         overwrite: false,
         threads: 2,
         progress: false,
+        rig_cameras: false,
     }
 }
 
@@ -406,6 +423,7 @@ fn bad_input_is_named_and_nothing_partial_is_left() {
         principal_mm: [0.795, 0.595],
         distortion: [0.0; 5],
         horizontal_irradiance: None,
+        rig: None,
     })
     .replace("MicaSense:RadiometricCalibration", "MicaSense:Other");
     write_rig_tiff(&bad, W, H, &px, &xmp, &exif_for(3));
@@ -527,6 +545,7 @@ fn bad_input_is_named_and_nothing_partial_is_left() {
             principal_mm: [0.795, 0.595],
             distortion: [0.0; 5],
             horizontal_irradiance: None,
+            rig: None,
         });
         write_rig_tiff(&p, W, H, &px, &xmp, &exif_for(1));
     }
@@ -647,6 +666,7 @@ fn a_rig_without_a_lens_model_is_refused_by_name_or_uses_exif_focal_length() {
                 principal_mm: [0.795, 0.595],
                 distortion: [0.0; 5],
                 horizontal_irradiance: Some(1.0),
+                rig: None,
             })
             .replace("Camera:PerspectiveFocalLength", "Camera:Other");
             write_rig_tiff(&p, W, H, &px, &xmp, &FixtureExif { focal_mm, ..exif_for(k) });
@@ -664,4 +684,109 @@ fn a_rig_without_a_lens_model_is_refused_by_name_or_uses_exif_focal_length() {
         serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
     let f = &tj["frames"][0];
     assert_eq!((f["fl_x"].as_f64(), f["fl_y"].as_f64()), (Some(800.0), Some(800.0)));
+}
+
+/// The rig of [`rig_flight`]: NIR turned and moved beside the reference, Red moved only, Blue the reference.
+fn fixture_rig(bi: usize) -> ([f64; 3], [f64; 3]) {
+    match BANDS[bi].1 {
+        "NIR" => ([0.4, -0.3, 0.2], [0.021, -0.008, 0.001]),
+        "Red" => ([0.0, 0.0, 0.0], [-0.015, 0.0, 0.0]),
+        _ => ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+    }
+}
+
+/// A flight whose files carry `RigRelatives` and `RigTranslations`.
+fn rig_flight(dir: &Path, n: usize) -> PathBuf {
+    let input = dir.join("flight");
+    std::fs::create_dir_all(&input).unwrap();
+    write_capture_with(&input, 0, true, &|_, _| {}, [0.0, 0.0], Some(&fixture_rig));
+    for k in 1..=n {
+        write_capture_with(&input, k, false, &|_, _| {}, [0.0, 0.0], Some(&fixture_rig));
+    }
+    input
+}
+
+/// `import rig --rig-cameras`: no band is warped (each keeps its own camera), `rig_cameras` holds each band's pose
+/// composed here from the XMP (MicaSense's `Rx Ry Rz` in degrees, the reference's rotation undone, photogrammetric
+/// axes flipped to OpenGL's), masks are written and the dataset trains; without the rig tags it is refused by name.
+#[test]
+fn rig_cameras_import_keeps_bands_unwarped_and_writes_the_rig() {
+    let t = TempDir::new("rig-cameras");
+    let input = rig_flight(t.path(), 3);
+    let out = t.path().join("dataset");
+    let s = import_rig(&ImportOptions { rig_cameras: true, ..opts(&input, &out) }).unwrap();
+    assert_eq!((s.captures, s.registration), (3, Registration::None));
+    let tf: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let cams = tf["rig_cameras"]["cameras"].as_array().expect("rig_cameras written");
+    assert_eq!(cams.len(), 3);
+    let rot = |d: [f64; 3]| {
+        let (a, b, c) = (d[0].to_radians(), d[1].to_radians(), d[2].to_radians());
+        let rx = [[1.0, 0.0, 0.0], [0.0, a.cos(), -a.sin()], [0.0, a.sin(), a.cos()]];
+        let ry = [[b.cos(), 0.0, b.sin()], [0.0, 1.0, 0.0], [-b.sin(), 0.0, b.cos()]];
+        let rz = [[c.cos(), -c.sin(), 0.0], [c.sin(), c.cos(), 0.0], [0.0, 0.0, 1.0]];
+        let mul = |p: [[f64; 3]; 3], q: [[f64; 3]; 3]| {
+            let mut m = [[0.0; 3]; 3];
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[i][j] = (0..3).map(|k| p[i][k] * q[k][j]).sum();
+                }
+            }
+            m
+        };
+        mul(mul(rx, ry), rz)
+    };
+    let flip = [1.0, -1.0, -1.0];
+    for cam in cams {
+        let bi = BANDS.iter().position(|b| b.1 == cam["band"].as_str().unwrap()).unwrap();
+        let (rel, tr) = fixture_rig(bi);
+        let r = rot(rel); // the reference (Blue) has no rotation and no translation
+        let m = &cam["rig_from_band"];
+        for i in 0..3 {
+            for j in 0..3 {
+                let want = flip[i] * r[i][j] * flip[j];
+                assert!((m[i][j].as_f64().unwrap() - want).abs() < 1e-12, "{} R[{i}][{j}]", BANDS[bi].1);
+            }
+            assert!((m[i][3].as_f64().unwrap() - flip[i] * tr[i]).abs() < 1e-12, "{} t[{i}]", BANDS[bi].1);
+        }
+        assert_eq!(cam["fl_x"].as_f64(), Some(100.0));
+    }
+    // Unwarped: every band shows the scene where its own camera saw it (the fixture's band offsets stay in).
+    let ds = msnerf::data::load_dataset(&out, &msnerf::data::LoadOptions::default()).unwrap();
+    assert!(ds.rig.is_some() && ds.frames.iter().all(|f| f.mask.is_some()));
+    assert_eq!((ds.width, ds.height), (W, H), "no crop");
+    let text = msnerf::data::check_dataset(&out, 1 << 30).to_string();
+    assert!(text.contains("rig cameras") && text.contains("NIR: 0.0225 world units"), "{text}");
+    let img = ds.read_frame(0).unwrap();
+    let k = 1; // frame 0 is capture 1 (the panel capture is not a frame)
+    let mut worst: f64 = 0.0;
+    for (bi, b) in ds.bands.iter().enumerate() {
+        let fb = BANDS.iter().position(|x| x.1 == b.name).unwrap();
+        for y in 10..H - 10 {
+            for x in 10..W - 10 {
+                let want = reflectance(fb, k, x as f64 - BANDS[fb].7[0], y as f64 - BANDS[fb].7[1]);
+                worst = worst.max((img.get(y, x, bi) as f64 - want).abs());
+            }
+        }
+    }
+    assert!(worst < 0.01, "unwarped reflectance off by {worst}");
+    // It trains (one-band rays from each band's camera).
+    let g = common::gpu();
+    let mut model = common::small_tiny_config();
+    model.trainer.max_steps = 5;
+    let run = t.path().join("run");
+    let summary = msnerf::nerf::trainer::train(&g, &common::train_options(&out, &run, model, 64)).unwrap();
+    assert!(summary.final_loss.is_finite());
+
+    // A band file without the rig's tags is refused, named; so is --rig-cameras with image registration.
+    let plain = flight(&t.path().join("plain"), 1);
+    let e = expect_err(import_rig(&ImportOptions { rig_cameras: true, ..opts(&plain, &t.path().join("o1")) }));
+    assert!(e.contains("Camera:RigRelatives") && e.contains("IMG_0001_"), "{e}");
+    let e = expect_err(import_rig(&ImportOptions {
+        rig_cameras: true,
+        registration: Registration::Capture,
+        ..opts(&input, &t.path().join("o2"))
+    }));
+    assert!(e.contains("--rig-cameras"), "{e}");
+    no_partial_output(t.path(), &t.path().join("o2"));
 }

@@ -173,6 +173,7 @@ fn import_opts(input: &Path, out: &Path) -> ImportOptions {
         overwrite: false,
         threads: 2,
         progress: false,
+        rig_cameras: false,
     }
 }
 
@@ -238,5 +239,60 @@ fn import_calibrates_with_the_panel_and_registers_the_flight_capture() {
     assert_eq!(t.frames.len(), 1);
     assert_eq!(t.bands.as_ref().map(|b| b.len()), Some(5));
     assert_eq!((t.frames[0].camera.width as usize, t.frames[0].camera.height as usize), (w, h));
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+/// DLS1 (this RedEdge's firmware 2.1.2): MicaSense's own expected values for this very panel image
+/// (micasense/imageprocessing tests/test_dls.py `test_sun_angle_image` and `test_fresnel`, tolerance 0.001 as
+/// there): sun and sensor directions in NED, the sun-sensor angle, the solar elevation and azimuth, and the
+/// diffuser's Fresnel transmission; then the horizontal irradiance from those angles by MicaSense's formula written
+/// here, and DLS reflectance on the flight capture next to the panel's.
+#[test]
+fn dls1_sun_angle_matches_micasense_and_gives_horizontal_irradiance() {
+    use msnerf::rig::dls::{dls1, fresnel};
+    let b = interpret(read_meta(&rededge("0000SET_IMG_0000_1.tif")).unwrap()).unwrap();
+    let d = dls1(&b).unwrap();
+    let close = |a: f64, b: f64, what: &str| assert!((a - b).abs() < 1e-3, "{what}: {a} vs MicaSense's {b}");
+    close(d.sun_sensor_angle, 0.6754, "sun-sensor angle");
+    close(d.solar_elevation, 0.7193, "solar elevation");
+    close(d.solar_azimuth, 3.4756, "solar azimuth");
+    let sun = msnerf::rig::dls::sun_ned(d.solar_elevation, d.solar_azimuth);
+    for (k, want) in [-0.711, -0.247, -0.659].iter().enumerate() {
+        close(sun[k], *want, "sun direction (NED)");
+    }
+    let yaw = -3.070_222_992_336_269_f64; // DLS:Yaw/Pitch/Roll of the file
+    let (pitch, roll) = (-0.18812839845718335f64, -0.013387829297356699f64);
+    let n = msnerf::rig::dls::sensor_ned(yaw, pitch, roll);
+    for (k, want) in [-1.87482468e-01, 1.82720334e-05, -9.82267949e-01].iter().enumerate() {
+        close(n[k], *want, "sensor normal (NED)");
+    }
+    for (phi, want) in [(0.0, 0.9416), (0.01, 0.9416), (0.5, 0.940), (0.99, 0.903), (1.0, 0.901)] {
+        close(fresnel(phi), want, "Fresnel transmission");
+    }
+    // Horizontal irradiance: E / T(theta) / (1/6 + cos theta) * (sin el + 1/6), MicaSense's image.py.
+    let e = 1.084824800491333; // Camera:Irradiance of the file
+    let want = e / fresnel(d.sun_sensor_angle) / (1.0 / 6.0 + d.sun_sensor_angle.cos())
+        * (d.solar_elevation.sin() + 1.0 / 6.0);
+    assert!((d.horizontal - want).abs() < 1e-12 * want, "{} vs {want}", d.horizontal);
+    eprintln!("DLS1 Blue: spectral {e:.4}, horizontal {:.4} W/m^2/nm", d.horizontal);
+
+    // The flight capture through `--irradiance dls`: reflectance from the DLS next to the panel's calibration.
+    let tmp = std::env::temp_dir().join(format!("msnerf-rig-dls1-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let input = flight_folder(&tmp);
+    let with = |irr: IrradianceSource, out: &str| {
+        let o =
+            ImportOptions { irradiance: irr, registration: Registration::None, ..import_opts(&input, &tmp.join(out)) };
+        import_rig(&o).unwrap();
+        read_f32_bands(&tmp.join(out).join("images/0000SET_IMG_0001.tif"))
+    };
+    let (_, _, panel) = with(IrradianceSource::Panel, "panel");
+    let (_, _, dls) = with(IrradianceSource::Dls, "dls");
+    for (bi, (p, q)) in panel.iter().zip(&dls).enumerate() {
+        let mean = |v: &Vec<f32>| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
+        let ratio = mean(q) / mean(p);
+        eprintln!("band {bi}: mean reflectance DLS1 / panel = {ratio:.3}");
+        assert!(ratio > 0.5 && ratio < 2.0, "band {bi}: DLS1 reflectance {ratio:.3}x the panel's");
+    }
     std::fs::remove_dir_all(&tmp).unwrap();
 }

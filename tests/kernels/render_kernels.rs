@@ -262,7 +262,16 @@ fn composite_case(r: &mut ChaCha8Rng, nr: usize, n: usize, bands: usize) -> Comp
     let colours = (0..nr * n * bands).map(|_| r.random_range(0.05f32..0.95)).collect();
     let mut targets = Vec::new();
     for i in 0..nr {
-        targets.extend((0..bands).map(|_| r.random_range(0.0f32..1.0)));
+        // Every fifth ray is a rig ray (rig-aware training): it observed band i % B only, the others are NaN.
+        let observed = |b: usize| i % 5 != 1 || b == i % bands;
+        targets.extend((0..bands).map(|b| {
+            let y = r.random_range(0.0f32..1.0);
+            if observed(b) {
+                y
+            } else {
+                f32::NAN
+            }
+        }));
         targets.push(if i % 7 == 3 { 0.0 } else { 1.0 }); // some rays masked out
     }
     let band_w = (0..bands).map(|b| 0.5 + b as f32 * 0.25).collect();
@@ -438,6 +447,21 @@ fn composite_matches_twin_for_every_background() {
             with_loss += usize::from(has && t.loss_depth != 0.0);
             with_target += usize::from(has);
             check_vals(&ro[RAY_OUT_FIXED..], &t.colour, "colour");
+            // A rig ray's loss, from eq. 3.1 in plain f64 on the GPU's own colours: the observed band alone; the
+            // unobserved bands get no colour gradient at all.
+            if i % 5 == 1 {
+                let (b, y) = (i % bb, cc.targets[i * (bb + 1) + i % bb] as f64);
+                let e = ro[RAY_OUT_FIXED + b] as f64 - y;
+                let w = cc.targets[i * (bb + 1) + bb] as f64;
+                let want = cc.band_w[b] as f64 * e * e * w / (nr * bb) as f64;
+                let got = RayOut::LossRgb.of(ro) as f64;
+                assert!((got - want).abs() <= 1e-4 * want.abs() + 1e-9, "ray {i}: rig loss {got} vs {want}");
+                for s in 0..n {
+                    for ob in (0..bb).filter(|&ob| ob != b) {
+                        assert_eq!(gc[(i * n + s) * bb + ob], 0.0, "ray {i}: unobserved band {ob} has a gradient");
+                    }
+                }
+            }
             let draw: Vec<f32> = (0..n).map(|s| gd[(i * n + s) * stride]).collect();
             check_grad(&draw, &t.d_raw, "dL/draw");
             check_grad(&gc[i * n * bb..(i + 1) * n * bb], &t.d_colour, "dL/dc");

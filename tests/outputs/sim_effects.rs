@@ -212,3 +212,55 @@ fn noise_has_the_configured_std_and_is_12_bit() {
         }
     }
 }
+
+#[test]
+fn rig_parallax_moves_a_band_camera_and_writes_its_rig() {
+    // The NIR camera sits 2 px worth of ground to the right of the frame camera at view 0's height (50 m): over flat
+    // ground its image is the reference image moved 2 px left, exactly; on the 5 m box the parallax is larger.
+    let (_p, plain) = run_yaml(&effect_scene(""));
+    let fx = plain.frames[0].camera.fx;
+    let offset = 2.0 * 50.0 / fx;
+    let yaml = format!("effects:\n  rig_parallax:\n    bands: [{{band: nir, offset_m: [{offset}, 0, 0]}}]\n");
+    let (t, ds) = run_yaml(&effect_scene(&yaml));
+    let rig = ds.rig.as_ref().expect("rig_cameras written and read back");
+    let nir = ds.bands.iter().position(|b| b.name.eq_ignore_ascii_case("nir")).expect("nir band");
+    assert_eq!(rig.cameras[nir].rig_from_band[0][3], offset);
+    for (b, c) in rig.cameras.iter().enumerate().filter(|&(b, _)| b != nir) {
+        assert!(c.is_frame_camera(&ds.frames[0].camera), "band {b} is the frame camera");
+    }
+    let (img, r) = (frame(&ds, 0), frame(&plain, 0));
+    let depth = plain.read_depth(0).unwrap().expect("depth map");
+    let ground = |row: u32, col: u32| (depth[(row * W + col) as usize] - 50.0 / ray_cos(row, col, fx)).abs() < 1e-3;
+    let (mut flat, mut moved) = (0, 0);
+    for row in 0..H {
+        for col in 0..W - 2 {
+            for b in (0..img.bands).filter(|&b| b != nir) {
+                assert_eq!(img.get(row, col, b), r.get(row, col, b), "band {b} untouched");
+            }
+            if ground(row, col) && ground(row, col + 2) {
+                let (got, want) = (img.get(row, col, nir), r.get(row, col + 2, nir));
+                assert!((got - want).abs() < 1e-5, "flat ground ({row},{col}): {got} vs {want}");
+                flat += 1;
+                moved += usize::from(img.get(row, col, nir) != r.get(row, col, nir));
+            }
+        }
+    }
+    assert!(flat > 300 && moved > 30, "{flat} flat-ground pixels, {moved} changed by the shift");
+    // The registered truth is what the frame camera sees in every band: the plain scene's image.
+    let reg = msnerf::data::tiff_reader::read_tiff(&t.path().join("ds/truth/registered/view_00000.tif"), 1 << 30)
+        .expect("registered truth")
+        .raster;
+    for row in 0..H {
+        for col in 0..W {
+            for b in 0..img.bands {
+                assert!((reg.get(row, col, b) - r.get(row, col, b)).abs() < 1e-6, "registered truth ({row},{col},{b})");
+            }
+        }
+    }
+}
+
+/// The cosine of the angle between pixel (row, col)'s ray and the optical axis of a pinhole camera with focal `fx`.
+fn ray_cos(row: u32, col: u32, fx: f64) -> f32 {
+    let (x, y) = ((col as f64 + 0.5 - W as f64 / 2.0) / fx, (row as f64 + 0.5 - H as f64 / 2.0) / fx);
+    (1.0 / (1.0 + x * x + y * y).sqrt()) as f32
+}

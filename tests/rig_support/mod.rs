@@ -225,6 +225,8 @@ pub struct MsXmp<'a> {
     pub principal_mm: [f64; 2],
     pub distortion: [f64; 5],
     pub horizontal_irradiance: Option<f64>,
+    /// `Camera:RigRelatives` (degrees) and `Camera:RigTranslations` (metres), as newer firmware writes them.
+    pub rig: Option<([f64; 3], [f64; 3])>,
 }
 
 pub fn micasense_xmp(x: &MsXmp) -> String {
@@ -232,6 +234,15 @@ pub fn micasense_xmp(x: &MsXmp) -> String {
     let irr = x
         .horizontal_irradiance
         .map(|e| format!("<Camera:HorizontalIrradiance>{e}</Camera:HorizontalIrradiance>"))
+        .unwrap_or_default();
+    let rig = x
+        .rig
+        .map(|(r, t)| {
+            format!(
+                "<Camera:RigRelatives>{},{},{}</Camera:RigRelatives><Camera:RigTranslations>{},{},{}</Camera:RigTranslations>",
+                r[0], r[1], r[2], t[0], t[1], t[2]
+            )
+        })
         .unwrap_or_default();
     format!(
         r#"<?xpacket begin="" id="W5M0MpCehiHzreSzNTczkc9d"?><x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">
@@ -247,7 +258,7 @@ pub fn micasense_xmp(x: &MsXmp) -> String {
 <Camera:PrincipalPoint>{ppx},{ppy}</Camera:PrincipalPoint>
 <Camera:PerspectiveFocalLength>{f}</Camera:PerspectiveFocalLength>
 <Camera:PerspectiveDistortion><rdf:Seq>{d}</rdf:Seq></Camera:PerspectiveDistortion>
-{irr}
+{irr}{rig}
 </rdf:Description></rdf:RDF></x:xmpmeta><?xpacket end="w"?>"#,
         a = seq(&x.a),
         cap = x.capture,

@@ -71,13 +71,19 @@ fn poisoned_steps_are_skipped_and_name_the_buffer() {
     let s = p.train_step(&clean).expect("step");
     assert!(!s.skipped, "{:?}", s.poisoned);
 
-    // A NaN target value (a corrupt pixel): the loss and every gradient are NaN.
+    // A NaN target is a band the ray did not observe (rig-aware training): the step goes on.
+    let mut unobserved = batch(bands, 32, 3);
+    unobserved.targets[5 * (bands + 1) + 1] = f32::NAN;
+    let s = p.train_step(&unobserved).expect("step");
+    assert!(!s.skipped && s.loss.is_finite(), "a NaN target is not observed, not poison: {s:?}");
+
+    // An infinite target value (a corrupt pixel): the loss and every gradient are non-finite.
     let mut bad = batch(bands, 32, 2);
-    bad.targets[5 * (bands + 1) + 1] = f32::NAN;
+    bad.targets[5 * (bands + 1) + 1] = f32::INFINITY;
     let before = state(&p);
     let step0 = p.step;
     let s = p.train_step(&bad).expect("step");
-    assert!(s.skipped && !s.loss.is_finite(), "NaN target skipped: {s:?}");
+    assert!(s.skipped && !s.loss.is_finite(), "infinite target skipped: {s:?}");
     assert_eq!(s.poisoned.as_deref(), Some("ray outputs"));
     assert_eq!(p.step, step0 + 1, "a skipped step still counts");
     assert!(state(&p) == before, "a skipped step changes no parameter or moment");

@@ -16,4 +16,5 @@ mod sweep_resume;
 mod train_e2e;
 mod train_in_flight;
 mod train_pose_refinement;
+mod train_rig;
 mod train_step;

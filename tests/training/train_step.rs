@@ -59,6 +59,13 @@ fn check_step(update: bool, seed: u64) {
 }
 
 fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
+    check_step_full(update, seed, false, tweak);
+}
+
+/// `rig`: the camera table also holds a band camera per frame (the frame's pose moved 5 cm along its x axis, as
+/// `rig_cameras` makes them), every other ray comes from one and observes one band (NaN targets for the others),
+/// and its pose correction and appearance are its frame's (`Batch::cameras`).
+fn check_step_full(update: bool, seed: u64, rig: bool, tweak: impl Fn(&mut ModelConfig)) {
     let g = gpu();
     let mut cfg = small_config();
     tweak(&mut cfg);
@@ -85,7 +92,20 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
         }
     }
     let params: Vec<f64> = model.store.params().download(&g).expect("params").iter().map(|&v| v as f64).collect();
-    let table: Vec<GpuCamera> = cams.iter().zip(&poses).map(|(c, p)| GpuCamera::new(c, p)).collect();
+    let band_poses: Vec<[[f32; 4]; 3]> = poses
+        .iter()
+        .map(|p| {
+            let mut q = *p;
+            for row in &mut q {
+                row[3] += 0.05 * row[0];
+            }
+            q
+        })
+        .collect();
+    let mut table: Vec<GpuCamera> = cams.iter().zip(&poses).map(|(c, p)| GpuCamera::new(c, p)).collect();
+    if rig {
+        table.extend(cams.iter().zip(&band_poses).map(|(c, p)| GpuCamera::new(c, p)));
+    }
     let mut pipe = Pipeline::new(&g, model, &table).expect("pipeline");
     if !update {
         pipe.step = 50; // past the always-update warm-up; the schedule's counter is 0, so no update
@@ -95,12 +115,23 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
     let mut refs = Vec::new();
     for i in 0..n {
         let (cam, row, col) = (i % 3, r.random_range(0..48u32), r.random_range(0..64u32));
-        batch.pixels.extend([cam as u32, row, col]);
-        let target: Vec<f32> = (0..bands).map(|_| r.random_range(0.0f32..1.0)).collect();
+        let rig_ray = rig && i % 2 == 0;
+        batch.pixels.extend([if rig_ray { 3 + cam as u32 } else { cam as u32 }, row, col]);
+        if rig {
+            batch.cameras.push(cam as u32);
+        }
+        let mut target: Vec<f32> = (0..bands).map(|_| r.random_range(0.0f32..1.0)).collect();
+        if rig_ray {
+            for (b, t) in target.iter_mut().enumerate() {
+                if b != i % bands {
+                    *t = f32::NAN;
+                }
+            }
+        }
         let weight = if i % 9 == 4 { 0.0 } else { 1.0 };
         batch.targets.extend(&target);
         batch.targets.push(weight);
-        let ray = cams[cam].ray_f32(&poses[cam], row, col);
+        let ray = cams[cam].ray_f32(if rig_ray { &band_poses[cam] } else { &poses[cam] }, row, col);
         // With depth supervision: a target near the scene centre's distance on most rays, none on every fifth.
         let depth = cfg.loss.depth.and_then(|_| {
             let centre = ray.origin.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
@@ -209,6 +240,13 @@ fn whole_step_matches_reference_with_pose_refinement() {
     for (update, seed) in [(true, 13), (false, 12)] {
         check_step_with(update, seed, |c| c.camera_optimizer.mode = CameraOptMode::SO3xR3);
     }
+}
+
+#[test]
+fn whole_step_matches_reference_with_rig_rays() {
+    use msnerf::nerf::config::CameraOptMode;
+    check_step_full(true, 11, true, |_| {});
+    check_step_full(false, 13, true, |c| c.camera_optimizer.mode = CameraOptMode::SO3xR3);
 }
 
 #[test]
