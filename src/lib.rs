@@ -19,6 +19,7 @@ pub mod plan;
 pub mod poses;
 pub mod reference;
 pub mod rig;
+pub mod scale;
 pub mod sfm;
 pub mod shaders;
 pub mod sim;

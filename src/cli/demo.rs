@@ -162,6 +162,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         gsd: None,
         legacy: false,
         keep_outside_box: false,
+        partial: false,
     };
     let cloud = filter(raw, &pargs)?;
     write_cloud(&cloud, &cloud_path, run.ds.crs.as_ref())?;

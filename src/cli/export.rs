@@ -31,9 +31,9 @@ pub enum ExportWhat {
     Ortho(super::export_survey::OrthoArgs),
 }
 
-#[derive(clap::Args, Debug)]
+#[derive(clap::Args, Debug, Clone)]
 pub struct PointcloudArgs {
-    /// Run folder written by `msnerf train`
+    /// Run folder written by `msnerf train`, or a `msnerf partition` folder whose blocks were trained (merged)
     pub run: PathBuf,
     /// Output file: .ply or .las
     #[arg(long)]
@@ -85,6 +85,10 @@ pub struct PointcloudArgs {
     /// half-size below the ground and 1.5 times above), which the export otherwise drops as nerfstudio's does
     #[arg(long)]
     pub keep_outside_box: bool,
+    /// RUN is a `msnerf partition` folder: merge the blocks that finished and list the others (without it, a block
+    /// that is not trained is an error)
+    #[arg(long)]
+    pub partial: bool,
 }
 
 impl PointcloudArgs {
@@ -185,6 +189,9 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
     anyhow::ensure!(ext_ok, "--out {}: the file must end in .ply or .las", a.out.display());
     let opts = a.export_options()?;
     let ctx = Context::new(&cli.context_desc())?;
+    if a.run.join("blocks.json").is_file() {
+        return export_blocks(&ctx, a, &opts);
+    }
     let mut run = LoadedRun::load(&ctx, &a.run)?;
     let (raw, stats) = export_points_with_stats(&mut run, &opts)?;
     let cloud = filter(raw, a)?;
@@ -194,6 +201,37 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
         Some(c) => println!("-> {} (crs {})", a.out.display(), c.describe()),
         None => println!("-> {} (the dataset's local frame: no crs)", a.out.display()),
     }
+    Ok(())
+}
+
+/// `export pointcloud BLOCKS`: every block's cloud, filtered as the flags ask (the point budget applied to the
+/// merged cloud), cut to the block's core and joined ([`crate::scale::merge`]).
+fn export_blocks(ctx: &Context, a: &PointcloudArgs, opts: &ExportOptions) -> anyhow::Result<()> {
+    let blocks = crate::scale::runner::read_blocks(&a.run)?;
+    let mut crs = None;
+    let per_block = PointcloudArgs { points: None, ..a.clone() };
+    let (merged, stats) = crate::scale::merge::merge_clouds(&a.run, &blocks, a.partial, |b, run| {
+        let fail = |e: &dyn std::fmt::Display| crate::scale::ScaleError::Block {
+            block: b.name.clone(),
+            reason: e.to_string(),
+        };
+        let mut r = LoadedRun::load(ctx, run).map_err(|e| fail(&e))?;
+        let (raw, _) = export_points_with_stats(&mut r, opts).map_err(|e| fail(&e))?;
+        crs = r.ds.crs.clone();
+        filter(raw, &per_block).map_err(|e| fail(&e))
+    })?;
+    let cloud = match a.points {
+        Some(n) => pointcloud::filter::subsample(&merged, n, a.seed)?.0,
+        None => merged,
+    };
+    write_cloud(&cloud, &a.out, crs.as_ref())?;
+    for (name, exported, kept) in &stats.blocks {
+        println!("{name}: {kept} of its {exported} points lie in its core");
+    }
+    for m in &stats.missing {
+        println!("left out (not trained or not finished): {m}");
+    }
+    println!("-> {} ({} points from {} blocks)", a.out.display(), cloud.len(), stats.blocks.len());
     Ok(())
 }
 

@@ -10,6 +10,7 @@ pub mod eval;
 pub mod export;
 pub mod export_survey;
 pub mod import;
+pub mod partition;
 pub mod plan;
 pub mod preview;
 pub mod render;
@@ -70,6 +71,10 @@ pub enum Command {
     CompareRaster(compare_raster::CompareRasterArgs),
     /// Train a grid of configurations under one budget: accuracy against time, CSV, plots and a report
     Sweep(sweep::SweepArgs),
+    /// Split a large flight into a grid of overlapping blocks, each a dataset of its own (issue 23)
+    Partition(partition::PartitionArgs),
+    /// Train every block of a `partition` folder, one `msnerf train` process per block, resumable
+    TrainBlocks(partition::TrainBlocksArgs),
 }
 
 impl Cli {
@@ -104,5 +109,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Preview(a) => preview::run(a),
         Command::Plan(a) => plan::run(&cli, a),
         Command::Sweep(a) => sweep::run(&cli, a),
+        Command::Partition(a) => partition::run_partition(a),
+        Command::TrainBlocks(a) => partition::run_train_blocks(a),
     }
 }

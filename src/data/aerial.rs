@@ -55,11 +55,45 @@ fn percentile(v: &mut [f64], q: f64) -> f64 {
     v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
+/// The ground the cameras see, in the levelled world frame (the world turned so that the cameras' mean up is +z).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroundFootprint {
+    /// World -> levelled frame.
+    pub rotation: glam::DMat3,
+    /// Ground height z_g (levelled frame, world units).
+    pub ground_z: f64,
+    /// Mean camera height above the ground.
+    pub height: f64,
+    /// The 2nd-98th percentile box of where image corner and centre rays meet the ground: x0, x1, y0, y1.
+    pub bounds: [f64; 4],
+}
+
 /// The aerial normalisation of cameras `frames` (camera-to-world, intrinsics).
 pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform, NotAerial> {
+    let g = ground_footprint(frames)?;
+    let [x0, x1, y0, y1] = g.bounds;
+    // 3. Scale and centre.
+    let e = (0.5 * (x1 - x0)).max(0.5 * (y1 - y0)).max(0.25 * g.height.abs()).max(1e-9);
+    let centre = DVec3::new(0.5 * (x0 + x1), 0.5 * (y0 + y1), g.ground_z + 0.5 * e);
+    Ok(PoseTransform::new(g.rotation, -centre, 1.0 / e))
+}
+
+/// Steps 1 and 2 of the aerial normalisation: the ground height and the footprint of the views on it.
+pub fn ground_footprint(frames: &[(Mat4, Camera)]) -> Result<GroundFootprint, NotAerial> {
+    ground_footprint_with(frames, None, None)
+}
+
+/// [`ground_footprint`] with the levelling given (`rotation`, world -> levelled; e.g. the identity for a projected
+/// CRS, whose z is up; default: the cameras' mean up turned to +z) and the ground height given (`ground_z`, levelled
+/// frame; default: where the optical axes meet, which needs axes that are not parallel).
+pub fn ground_footprint_with(
+    frames: &[(Mat4, Camera)],
+    rotation: Option<glam::DMat3>,
+    ground_z: Option<f64>,
+) -> Result<GroundFootprint, NotAerial> {
     let n = frames.len();
     let up = frames.iter().fold(DVec3::ZERO, |u, (p, _)| u + column(p, 1));
-    let r = rotation_between(up, DVec3::Z);
+    let r = rotation.unwrap_or_else(|| rotation_between(up, DVec3::Z));
     // Levelled camera centres and forward axes (OpenGL cameras look along -z).
     let centres: Vec<DVec3> = frames.iter().map(|(p, _)| r * column(p, 3)).collect();
     let fwd: Vec<DVec3> = frames.iter().map(|(p, _)| r * -column(p, 2)).collect();
@@ -67,7 +101,41 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
     if mean_fz.is_nan() || mean_fz >= -0.25 {
         return Err(NotAerial::NotLookingDown(mean_fz));
     }
-    // 1. Where pairs of optical axes meet.
+    // 1. Where pairs of optical axes meet (unless the ground height is given).
+    let z_g = match ground_z {
+        Some(z) => z,
+        None => axes_meet_height(&centres, &fwd)?,
+    };
+    // 2. The footprint on z = z_g.
+    let height = centres.iter().map(|c| c.z - z_g).sum::<f64>() / n as f64;
+    let max_reach = 10.0 * height.abs().max(1e-9);
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    for ((p, cam), c) in frames.iter().zip(&centres) {
+        let k = cam.intrinsics::<f64>();
+        let (w, h) = (cam.width as f64, cam.height as f64);
+        for (v, u) in [(0.0, 0.0), (0.0, w), (h, 0.0), (h, w), (0.5 * h, 0.5 * w)] {
+            let dc = DVec3::from(camera_direction(&k, v, u));
+            let d = r * (column(p, 0) * dc.x + column(p, 1) * dc.y + column(p, 2) * dc.z);
+            if d.z.is_nan() || d.z >= -0.05 * d.length() {
+                continue;
+            }
+            // Where the ray meets z = z_g, its horizontal reach clamped to max_reach.
+            let hit = (d * ((z_g - c.z) / d.z)).truncate().clamp_length_max(max_reach);
+            xs.push(c.x + hit.x);
+            ys.push(c.y + hit.y);
+        }
+    }
+    if xs.is_empty() {
+        return Err(NotAerial::NoGroundInView);
+    }
+    let (x0, x1) = (percentile(&mut xs, 0.02), percentile(&mut xs, 0.98));
+    let (y0, y1) = (percentile(&mut ys, 0.02), percentile(&mut ys, 0.98));
+    Ok(GroundFootprint { rotation: r, ground_z: z_g, height, bounds: [x0, x1, y0, y1] })
+}
+
+/// The median height where pairs of optical axes pass within 5 % of their distance of each other.
+fn axes_meet_height(centres: &[DVec3], fwd: &[DVec3]) -> Result<f64, NotAerial> {
+    let n = centres.len();
     let pairs = n * (n.saturating_sub(1)) / 2;
     let stride = pairs.div_ceil(20_000).max(1);
     let mut meet_z = Vec::new();
@@ -98,33 +166,5 @@ pub fn normalize_poses_aerial(frames: &[(Mat4, Camera)]) -> Result<PoseTransform
     if meet_z.len() < 10 {
         return Err(NotAerial::AxesDoNotMeet(meet_z.len()));
     }
-    let z_g = percentile(&mut meet_z, 0.5);
-    // 2. The footprint on z = z_g.
-    let height = centres.iter().map(|c| c.z - z_g).sum::<f64>() / n as f64;
-    let max_reach = 10.0 * height.abs().max(1e-9);
-    let (mut xs, mut ys) = (Vec::new(), Vec::new());
-    for ((p, cam), c) in frames.iter().zip(&centres) {
-        let k = cam.intrinsics::<f64>();
-        let (w, h) = (cam.width as f64, cam.height as f64);
-        for (v, u) in [(0.0, 0.0), (0.0, w), (h, 0.0), (h, w), (0.5 * h, 0.5 * w)] {
-            let dc = DVec3::from(camera_direction(&k, v, u));
-            let d = r * (column(p, 0) * dc.x + column(p, 1) * dc.y + column(p, 2) * dc.z);
-            if d.z.is_nan() || d.z >= -0.05 * d.length() {
-                continue;
-            }
-            // Where the ray meets z = z_g, its horizontal reach clamped to max_reach.
-            let hit = (d * ((z_g - c.z) / d.z)).truncate().clamp_length_max(max_reach);
-            xs.push(c.x + hit.x);
-            ys.push(c.y + hit.y);
-        }
-    }
-    if xs.is_empty() {
-        return Err(NotAerial::NoGroundInView);
-    }
-    let (x0, x1) = (percentile(&mut xs, 0.02), percentile(&mut xs, 0.98));
-    let (y0, y1) = (percentile(&mut ys, 0.02), percentile(&mut ys, 0.98));
-    // 3. Scale and centre.
-    let e = (0.5 * (x1 - x0)).max(0.5 * (y1 - y0)).max(0.25 * height.abs()).max(1e-9);
-    let centre = DVec3::new(0.5 * (x0 + x1), 0.5 * (y0 + y1), z_g + 0.5 * e);
-    Ok(PoseTransform::new(r, -centre, 1.0 / e))
+    Ok(percentile(&mut meet_z, 0.5))
 }

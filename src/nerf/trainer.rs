@@ -10,7 +10,8 @@
 //! RUN/metrics.jsonl                  one JSON object per logged step and per evaluation
 //! RUN/camera_poses.json              refined camera poses (with pose refinement on; `super::camera_poses`)
 //! ```
-//! Ctrl-C saves a checkpoint and stops; `--resume` continues from the latest one; `--time-budget` stops in time.
+//! Ctrl-C or SIGTERM (a Slurm preemption or time limit) saves a checkpoint and stops; `--resume` continues from the
+//! latest one; `--time-budget` stops in time.
 
 use super::config::ModelConfig;
 use super::error::{NerfError, NerfResult};
@@ -342,7 +343,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let mut submitted = state.step;
     while submitted < max_steps {
         if opts.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed)) {
-            summary.stopped_early = Some("interrupted (Ctrl-C)".into());
+            summary.stopped_early = Some("interrupted (SIGINT or SIGTERM)".into());
             break;
         }
         let elapsed = elapsed0 + start.elapsed().as_secs_f64();

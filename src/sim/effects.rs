@@ -260,34 +260,16 @@ impl EffectsDesc {
             }
         }
         if let Some(m) = &self.misregistration {
-            let names: Vec<String> = resolve_bands(scene).into_iter().map(|b| b.name).collect();
+            check_band_list(scene, "misregistration", m.bands.iter().map(|b| b.band.as_str()))?;
             for (i, s) in m.bands.iter().enumerate() {
-                if !names.iter().any(|n| n.eq_ignore_ascii_case(&s.band)) {
-                    return Err((
-                        format!("misregistration.bands[{i}].band"),
-                        format!("unknown band `{}` (bands: {})", s.band, names.join(", ")),
-                    ));
-                }
-                if m.bands[..i].iter().any(|o| o.band.eq_ignore_ascii_case(&s.band)) {
-                    return Err((format!("misregistration.bands[{i}].band"), "band listed twice".into()));
-                }
                 if !(fin(s.shift_px[0]) && fin(s.shift_px[1]) && fin(s.rotation_deg)) {
                     return Err((format!("misregistration.bands[{i}]"), "values must be finite".into()));
                 }
             }
         }
         if let Some(r) = &self.rig_parallax {
-            let names: Vec<String> = resolve_bands(scene).into_iter().map(|b| b.name).collect();
+            check_band_list(scene, "rig_parallax", r.bands.iter().map(|b| b.band.as_str()))?;
             for (i, o) in r.bands.iter().enumerate() {
-                if !names.iter().any(|n| n.eq_ignore_ascii_case(&o.band)) {
-                    return Err((
-                        format!("rig_parallax.bands[{i}].band"),
-                        format!("unknown band `{}` (bands: {})", o.band, names.join(", ")),
-                    ));
-                }
-                if r.bands[..i].iter().any(|x| x.band.eq_ignore_ascii_case(&o.band)) {
-                    return Err((format!("rig_parallax.bands[{i}].band"), "band listed twice".into()));
-                }
                 if !o.offset_m.iter().all(|v| v.is_finite() && v.abs() <= 5.0) {
                     return Err((
                         format!("rig_parallax.bands[{i}].offset_m"),
@@ -330,6 +312,27 @@ impl EffectsDesc {
         }
         Ok(())
     }
+}
+
+/// An effect's per-band list (`{effect}.bands[i].band`): every name a band of the scene, none listed twice.
+fn check_band_list<'a>(
+    scene: &SceneDesc,
+    effect: &str,
+    bands: impl Iterator<Item = &'a str>,
+) -> Result<(), (String, String)> {
+    let names: Vec<String> = resolve_bands(scene).into_iter().map(|b| b.name).collect();
+    let mut seen: Vec<&str> = Vec::new();
+    for (i, band) in bands.enumerate() {
+        let key = format!("{effect}.bands[{i}].band");
+        if !names.iter().any(|n| n.eq_ignore_ascii_case(band)) {
+            return Err((key, format!("unknown band `{band}` (bands: {})", names.join(", "))));
+        }
+        if seen.iter().any(|s| s.eq_ignore_ascii_case(band)) {
+            return Err((key, "band listed twice".into()));
+        }
+        seen.push(band);
+    }
+    Ok(())
 }
 
 /// Unit vector towards the sun (x east, y north, z up).

@@ -8,6 +8,7 @@ mod bench_cli;
 mod depth_supervision;
 mod plan_cli;
 mod plan_ledger;
+mod scale_blocks;
 mod sweep_bands;
 mod sweep_grid;
 mod sweep_outputs;

@@ -93,7 +93,7 @@ fn a_stopped_run_leaves_a_checkpoint_that_resumes() {
     o.stop = Some(stop);
     let s = train(&g, &o).expect("train");
     assert_eq!(s.steps, 0);
-    assert!(s.stopped_early.as_deref().is_some_and(|w| w.contains("Ctrl-C")));
+    assert!(s.stopped_early.as_deref().is_some_and(|w| w.contains("SIGINT or SIGTERM")));
     assert!(run.join("checkpoints/latest.msnp").is_file(), "an interrupted run still saves");
     let mut o = opts(&data, &run, 10);
     o.resume = true;

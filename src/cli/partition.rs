@@ -1,0 +1,126 @@
+//! `msnerf partition DATASET --blocks AxB --overlap F --out BLOCKS` and `msnerf train-blocks BLOCKS`: thin CLI over
+//! [`crate::scale`].
+
+use std::path::PathBuf;
+
+use crate::scale::partition::{parse_grid, partition, PartitionOptions};
+use crate::scale::runner::{train_blocks, TrainBlocksOptions};
+
+#[derive(clap::Args, Debug)]
+pub struct PartitionArgs {
+    /// Dataset folder (transforms.json)
+    pub dataset: PathBuf,
+    /// Blocks along x and y of the ground area (levelled world frame), e.g. 2x2
+    #[arg(long)]
+    pub blocks: String,
+    /// Each block grown on every side by this fraction of its size, in [0, 1)
+    #[arg(long, default_value_t = 0.15)]
+    pub overlap: f64,
+    /// Ground height in the dataset's world frame (z for a dataset with a `crs`); default: where the cameras' optical
+    /// axes meet (a nadir grid flight needs it given)
+    #[arg(long)]
+    pub ground_z: Option<f64>,
+    /// Output folder: blocks.json and one dataset per block (must not exist unless --overwrite)
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace OUT when it exists
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Also write OUT/slurm.sh: a Slurm job array, one task per block (`sbatch OUT/slurm.sh`)
+    #[arg(long)]
+    pub slurm: bool,
+    /// Time limit of each Slurm task
+    #[arg(long, default_value = "08:00:00")]
+    pub slurm_time: String,
+    /// CPUs per Slurm task
+    #[arg(long, default_value_t = 4)]
+    pub slurm_cpus: usize,
+    /// Host memory for each task's image cache, in GiB (`msnerf train --host-budget-gib`)
+    #[arg(long, default_value_t = 8.0)]
+    pub host_budget_gib: f64,
+    /// Arguments for every block's `msnerf train` in the Slurm script (after `--`)
+    #[arg(last = true)]
+    pub train_args: Vec<String>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct TrainBlocksArgs {
+    /// Folder written by `msnerf partition`
+    pub blocks: PathBuf,
+    /// Blocks trained at once
+    #[arg(long, default_value_t = 1)]
+    pub parallel: usize,
+    /// Vulkan devices handed out round robin, comma-separated (`msnerf devices` indices or names)
+    #[arg(long, value_delimiter = ',')]
+    pub devices: Vec<String>,
+    /// Arguments for every `msnerf train` (after `--`), e.g. `-- --model nerfacto --max-steps 30000`
+    #[arg(last = true)]
+    pub train_args: Vec<String>,
+}
+
+pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
+    if a.slurm {
+        crate::scale::slurm::check_time(&a.slurm_time)?; // before anything is written
+    }
+    let o = PartitionOptions {
+        blocks: parse_grid(&a.blocks)?,
+        overlap: a.overlap,
+        ground_z: a.ground_z,
+        overwrite: a.overwrite,
+    };
+    let b = partition(&a.dataset, &a.out, &o)?;
+    println!(
+        "wrote {}: {} blocks ({}x{}), overlap {}",
+        a.out.display(),
+        b.blocks.len(),
+        b.grid[0],
+        b.grid[1],
+        b.overlap
+    );
+    for blk in &b.blocks {
+        println!(
+            "  {}: x {:.2}..{:.2}, y {:.2}..{:.2} (core); {} training and {} eval views",
+            blk.name, blk.core[0], blk.core[1], blk.core[2], blk.core[3], blk.train_frames, blk.eval_frames
+        );
+    }
+    for w in &b.warnings {
+        println!("warning: {w}");
+    }
+    if a.slurm {
+        anyhow::ensure!(
+            a.host_budget_gib.is_finite() && a.host_budget_gib > 0.0,
+            "--host-budget-gib must be > 0, got {}",
+            a.host_budget_gib
+        );
+        let so = crate::scale::slurm::SlurmOptions {
+            time: a.slurm_time.clone(),
+            host_budget_bytes: (a.host_budget_gib * (1u64 << 30) as f64) as u64,
+            cpus_per_task: a.slurm_cpus,
+            exe: std::env::current_exe()?,
+            train_args: a.train_args.clone(),
+        };
+        let gib = crate::scale::slurm::write_job_array(&a.out, &b, &so)?;
+        println!(
+            "Slurm job array: sbatch {} ({} tasks, {gib} GiB each)",
+            a.out.join("slurm.sh").display(),
+            b.blocks.len()
+        );
+    }
+    Ok(())
+}
+
+pub fn run_train_blocks(a: &TrainBlocksArgs) -> anyhow::Result<()> {
+    let o = TrainBlocksOptions {
+        exe: std::env::current_exe()?,
+        parallel: a.parallel,
+        devices: a.devices.clone(),
+        train_args: a.train_args.clone(),
+    };
+    let runs = train_blocks(&a.blocks, &o)?;
+    for r in &runs {
+        let steps = r.steps.map_or("-".to_string(), |s| s.to_string());
+        let how = if r.resumed { "resumed" } else { "trained" };
+        println!("{}: {how}, {steps} steps, {:.1} s -> {}", r.block, r.seconds, r.run.display());
+    }
+    Ok(())
+}

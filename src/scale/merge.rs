@@ -1,0 +1,108 @@
+//! Merged outputs of block-wise training (issue 23): every world point belongs to exactly one block, the one whose
+//! core contains it in the levelled frame of `blocks.json` (x and y only; the cores of the outer blocks reach to
+//! infinity outward, so points beyond the footprint box still have one owner). Cores are half-open,
+//! `[x0, x1) x [y0, y1)`, so a point on a shared edge is kept once. Each block's cloud is exported from its own run
+//! and cut to its core, and the pieces are joined: no duplicated points in the overlaps.
+
+use std::path::Path;
+
+use glam::{DMat3, DVec3};
+
+use super::error::ScaleError;
+use super::partition::{Block, Blocks};
+use crate::output::pointcloud::{filter::crop, PointCloud};
+
+/// What the merge did.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct MergeStats {
+    /// Per merged block: (name, points exported, points kept in its core).
+    pub blocks: Vec<(String, usize, usize)>,
+    /// Blocks left out (`partial`): not trained or not finished.
+    pub missing: Vec<String>,
+}
+
+/// The index of the block that owns world point `p`.
+pub fn owner(blocks: &Blocks, p: [f64; 3]) -> usize {
+    let r = DMat3::from_cols_array_2d(&blocks.rotation).transpose();
+    let q = r * DVec3::from(p);
+    let [nx, ny] = blocks.grid;
+    let find = |v: f64, edges: &dyn Fn(usize) -> f64, n: usize| (1..n).take_while(|&i| v >= edges(i)).count();
+    let xs = |i: usize| blocks.blocks.iter().find(|b| b.index == [i, 0]).map_or(f64::NAN, |b| b.core[0]);
+    let ys = |j: usize| blocks.blocks.iter().find(|b| b.index == [0, j]).map_or(f64::NAN, |b| b.core[2]);
+    let (ix, iy) = (find(q.x, &xs, nx), find(q.y, &ys, ny));
+    blocks.blocks.iter().position(|b| b.index == [ix, iy]).expect("every grid index has a block")
+}
+
+/// A block's run folder, when it finished training (a checkpoint and a summary).
+pub fn finished_run(dir: &Path, b: &Block) -> Option<std::path::PathBuf> {
+    let run = dir.join(&b.name).join("run");
+    (run.join("checkpoints/latest.msnp").is_file() && run.join("summary.json").is_file()).then_some(run)
+}
+
+/// Exports every block's cloud with `export` (given the block and its run folder) and joins the core parts. Blocks
+/// without a finished run are refused by name, or left out with `partial` (listed in the stats).
+pub fn merge_clouds(
+    dir: &Path,
+    blocks: &Blocks,
+    partial: bool,
+    mut export: impl FnMut(&Block, &Path) -> Result<PointCloud, ScaleError>,
+) -> Result<(PointCloud, MergeStats), ScaleError> {
+    let mut stats = MergeStats::default();
+    let runs: Vec<Option<std::path::PathBuf>> = blocks.blocks.iter().map(|b| finished_run(dir, b)).collect();
+    stats.missing = blocks.blocks.iter().zip(&runs).filter(|(_, r)| r.is_none()).map(|(b, _)| b.name.clone()).collect();
+    if !stats.missing.is_empty() && !partial {
+        return Err(ScaleError::Block {
+            block: stats.missing.join(", "),
+            reason: "not trained or not finished (run `msnerf train-blocks`, or merge the others with --partial)"
+                .into(),
+        });
+    }
+    let mut merged: Option<PointCloud> = None;
+    for (i, (b, run)) in blocks.blocks.iter().zip(&runs).enumerate() {
+        let Some(run) = run else { continue };
+        let cloud = export(b, run)?;
+        let exported = cloud.len();
+        let (kept, _) = crop(&cloud, |p| owner(blocks, *p) == i)
+            .map_err(|e| ScaleError::Block { block: b.name.clone(), reason: e.to_string() })?;
+        stats.blocks.push((b.name.clone(), exported, kept.len()));
+        merged = Some(match merged {
+            None => kept,
+            Some(m) => append(m, kept).map_err(|reason| ScaleError::Block { block: b.name.clone(), reason })?,
+        });
+    }
+    let merged = merged
+        .ok_or_else(|| ScaleError::Block { block: "all".into(), reason: "no block has a finished run".into() })?;
+    Ok((merged, stats))
+}
+
+/// `a` followed by `b` (same bands; normals, colours and scalar fields kept where both have them).
+fn append(mut a: PointCloud, b: PointCloud) -> Result<PointCloud, String> {
+    if a.bands != b.bands {
+        return Err("its bands differ from the other blocks'".into());
+    }
+    a.positions.extend(b.positions);
+    a.values.extend(b.values);
+    a.normals = match (a.normals.take(), b.normals) {
+        (Some(mut x), Some(y)) => {
+            x.extend(y);
+            Some(x)
+        }
+        _ => None,
+    };
+    a.rgb = match (a.rgb.take(), b.rgb) {
+        (Some(mut x), Some(y)) => {
+            x.extend(y);
+            Some(x)
+        }
+        _ => None,
+    };
+    let mut attrs = Vec::new();
+    for mut f in std::mem::take(&mut a.attributes) {
+        if let Some(g) = b.attributes.iter().find(|g| g.name == f.name) {
+            f.values.extend(&g.values);
+            attrs.push(f);
+        }
+    }
+    a.attributes = attrs;
+    Ok(a)
+}

@@ -1,0 +1,16 @@
+//! Scale-out layer (issue 23): large flights trained as spatial blocks.
+//!
+//! - [`partition`]: `msnerf partition`, a grid of blocks over the ground the cameras see, each a dataset of its own;
+//! - [`runner`]: `msnerf train-blocks`, every block trained by its own `msnerf train` process, resumable;
+//! - [`slurm`]: `partition --slurm`, the blocks as a Slurm job array (`sbatch BLOCKS/slurm.sh`);
+//! - [`merge`]: merged outputs, each world point owned by the block whose core contains it;
+//! - [`error`]: `ScaleError`, naming the dataset, option, block or file.
+
+pub mod error;
+pub mod merge;
+pub mod partition;
+pub mod runner;
+pub mod slurm;
+
+pub use error::ScaleError;
+pub use partition::{partition, Block, Blocks, PartitionOptions};
