@@ -5,7 +5,7 @@ export MSNERF_REQUIRE_VALIDATION ?= 1
 # Fresh GPU buffers hold NaN bits, so a read of memory nobody wrote fails a test on lavapipe as it would on NVIDIA.
 export MSNERF_POISON_BUFFERS ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep survey-report import-bench rig-parallax
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep survey-report import-bench rig-parallax test-slurm
 
 setup:
 	@bash tools/setup-debian.sh
@@ -66,3 +66,9 @@ import-bench: build
 # rig-low flight, 200 s of training each (~15 min on 2 cores with lavapipe; docs/radiometry.md quotes it).
 rig-parallax: build
 	bash tools/rig-parallax.sh rig-parallax-output 200
+
+# issue 23's Slurm path on a real one-node cluster on this machine (installs slurm-wlm and munge as root; ~5 min on 2
+# cores with lavapipe): partition, sbatch of the job array, a requeued task resuming, the merged cloud. Not part of
+# `make test` (it starts daemons as root); docs/scale.md records its last run.
+test-slurm: build
+	bash tools/test-slurm.sh

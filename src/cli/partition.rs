@@ -32,6 +32,9 @@ pub struct PartitionArgs {
     /// Time limit of each Slurm task
     #[arg(long, default_value = "08:00:00")]
     pub slurm_time: String,
+    /// Generic resources per Slurm task (`gpu:1`, `gpu:a100:1`...); `none` for CPU-only nodes
+    #[arg(long, default_value = "gpu:1")]
+    pub slurm_gres: String,
     /// CPUs per Slurm task
     #[arg(long, default_value_t = 4)]
     pub slurm_cpus: usize,
@@ -96,6 +99,7 @@ pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
             time: a.slurm_time.clone(),
             host_budget_bytes: (a.host_budget_gib * (1u64 << 30) as f64) as u64,
             cpus_per_task: a.slurm_cpus,
+            gres: if a.slurm_gres == "none" { String::new() } else { a.slurm_gres.clone() },
             exe: std::env::current_exe()?,
             train_args: a.train_args.clone(),
         };

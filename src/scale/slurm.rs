@@ -1,5 +1,6 @@
 //! `msnerf partition ... --slurm`: a Slurm job-array script for the blocks, `BLOCKS/slurm.sh` (submit it with
-//! `sbatch BLOCKS/slurm.sh`). One array task per block (`--array=0-(n-1)`), one GPU each. Each task runs
+//! `sbatch BLOCKS/slurm.sh`). One array task per block (`--array=0-(n-1)`), one GPU each (`--gres`, or none for a
+//! CPU-only node). Each task runs
 //! `msnerf train` on its block with `--resume` when the block already has a checkpoint, so a requeued or preempted
 //! task continues. `--signal=B:TERM@120` asks Slurm to send SIGTERM two minutes before the time limit; `exec` makes
 //! msnerf the signalled process, and msnerf saves a checkpoint on SIGTERM before it exits.
@@ -22,6 +23,8 @@ pub struct SlurmOptions {
     /// The image cache's host budget per task, bytes (`msnerf train --host-budget-gib`).
     pub host_budget_bytes: u64,
     pub cpus_per_task: usize,
+    /// `--gres` of each task (`gpu:1`, `gpu:a100:1`...); empty: none (a CPU-only node, lavapipe).
+    pub gres: String,
     /// The msnerf executable the tasks run.
     pub exe: std::path::PathBuf,
     /// Arguments appended to every `msnerf train`.
@@ -64,11 +67,12 @@ pub fn write_job_array(dir: &Path, blocks: &Blocks, o: &SlurmOptions) -> Result<
 # GPU memory per task: see `msnerf plan` for the model and ray batch given below.\n\
 #SBATCH --job-name=msnerf-blocks\n\
 #SBATCH --array=0-{last}\n\
-#SBATCH --gres=gpu:1\n\
+{gres}\
 #SBATCH --cpus-per-task={cpus}\n\
 #SBATCH --mem={gib}G\n\
 #SBATCH --time={time}\n\
 #SBATCH --requeue\n\
+#SBATCH --open-mode=append\n\
 #SBATCH --signal=B:TERM@120\n\
 #SBATCH --output={dir}/slurm-%A_%a.log\n\
 set -euo pipefail\n\
@@ -82,6 +86,7 @@ exec {exe} train --data \"$DIR/$B\" --out \"$DIR/$B/run\" \"${{RESUME[@]}}\" --q
         qdir = quote(&dir_abs.display().to_string()),
         last = blocks.blocks.len().saturating_sub(1),
         cpus = o.cpus_per_task.max(1),
+        gres = if o.gres.is_empty() { String::new() } else { format!("#SBATCH --gres={}\n", o.gres) },
         time = o.time,
         names = names.join(" "),
         exe = quote(&o.exe.display().to_string()),

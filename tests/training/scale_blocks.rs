@@ -246,6 +246,7 @@ fn slurm_job_array_script_trains_its_task_block() {
         time: "01:30:00".into(),
         host_budget_bytes: 1 << 30,
         cpus_per_task: 2,
+        gres: "gpu:1".into(),
         exe: env!("CARGO_BIN_EXE_msnerf").into(),
         train_args: ["--model", "tiny", "--max-steps", "3", "--rays-per-batch", "256", "--eval-pixels", "64"]
             .map(String::from)
