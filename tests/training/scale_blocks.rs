@@ -35,6 +35,24 @@ fn grid_flight(dir: &Path) {
     simulate(&scene, &SimOptions::default(), dir).expect("simulate");
 }
 
+/// ci-textured partitioned 2 x 1 with 30 % overlap in a fresh temp folder: (folder, data, blocks folder, blocks).
+fn two_blocks(tag: &str) -> (common::TempDir, std::path::PathBuf, std::path::PathBuf, msnerf::scale::Blocks) {
+    let t = common::TempDir::new(tag);
+    let data = t.path().join("data");
+    textured(&data);
+    let out = t.path().join("blocks");
+    let o = PartitionOptions { blocks: [2, 1], overlap: 0.3, ground_z: None, overwrite: false };
+    let blocks = partition(&data, &out, &o).expect("partition");
+    (t, data, out, blocks)
+}
+
+/// `msnerf train` arguments for a few cheap steps of the tiny profile.
+fn tiny_args(steps: &str) -> Vec<String> {
+    ["--model", "tiny", "--max-steps", steps, "--rays-per-batch", "256", "--eval-pixels", "64"]
+        .map(String::from)
+        .to_vec()
+}
+
 #[test]
 fn partition_tiles_the_ground_and_assigns_frames_by_their_rays() {
     let t = common::TempDir::new("partition");
@@ -117,19 +135,12 @@ fn partition_refuses_bad_options_and_layouts_by_name() {
 
 #[test]
 fn train_blocks_trains_every_block_and_resumes() {
-    let t = common::TempDir::new("train-blocks");
-    let data = t.path().join("data");
-    textured(&data);
-    let out = t.path().join("blocks");
-    let o = PartitionOptions { blocks: [2, 1], overlap: 0.3, ground_z: None, overwrite: false };
-    partition(&data, &out, &o).expect("partition");
+    let (_t, _data, out, _) = two_blocks("train-blocks");
     let opts = |steps: &str| TrainBlocksOptions {
         exe: env!("CARGO_BIN_EXE_msnerf").into(),
         parallel: 2,
         devices: vec![],
-        train_args: ["--model", "tiny", "--max-steps", steps, "--rays-per-batch", "256", "--eval-pixels", "64"]
-            .map(String::from)
-            .to_vec(),
+        train_args: tiny_args(steps),
     };
     let runs = train_blocks(&out, &opts("4")).expect("train blocks");
     assert_eq!(runs.len(), 2);
@@ -191,10 +202,7 @@ fn sigterm_saves_a_checkpoint_that_resumes() {
     textured(&data);
     let run = t.path().join("run");
     let exe = env!("CARGO_BIN_EXE_msnerf");
-    let args = |steps: &str| {
-        ["--model", "tiny", "--max-steps", steps, "--rays-per-batch", "256", "--eval-pixels", "64", "--quiet"]
-            .map(String::from)
-    };
+    let args = |steps: &str| [tiny_args(steps), vec!["--quiet".to_string()]].concat();
     let mut child = std::process::Command::new(exe)
         .args(["train", "--data", data.to_str().unwrap(), "--out", run.to_str().unwrap()])
         .args(args("100000"))
@@ -236,21 +244,14 @@ fn sigterm_saves_a_checkpoint_that_resumes() {
 #[test]
 fn slurm_job_array_script_trains_its_task_block() {
     use msnerf::scale::slurm::{write_job_array, SlurmOptions};
-    let t = common::TempDir::new("slurm");
-    let data = t.path().join("data");
-    textured(&data);
-    let out = t.path().join("blocks");
-    let o = PartitionOptions { blocks: [2, 1], overlap: 0.3, ground_z: None, overwrite: false };
-    let blocks = partition(&data, &out, &o).expect("partition");
+    let (_t, _data, out, blocks) = two_blocks("slurm");
     let so = SlurmOptions {
         time: "01:30:00".into(),
         host_budget_bytes: 1 << 30,
         cpus_per_task: 2,
         gres: "gpu:1".into(),
         exe: env!("CARGO_BIN_EXE_msnerf").into(),
-        train_args: ["--model", "tiny", "--max-steps", "3", "--rays-per-batch", "256", "--eval-pixels", "64"]
-            .map(String::from)
-            .to_vec(),
+        train_args: tiny_args("3"),
     };
     let gib = write_job_array(&out, &blocks, &so).expect("script");
     assert_eq!(gib, 5, "the block's images (under 1 GiB) plus 4 GiB");
