@@ -53,7 +53,7 @@ pub enum Command {
     Import(import::ImportArgs),
     /// Camera poses by running COLMAP on a dataset (geo-registered to the frames' GPS when they have it)
     Sfm(sfm::SfmArgs),
-    /// Dataset tools (check)
+    /// Dataset tools (check, register)
     Dataset(dataset::DatasetArgs),
     /// The whole job on a built-in simulated scene: simulate, train, evaluate, render, export, compare
     Demo(demo::DemoArgs),

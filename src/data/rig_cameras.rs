@@ -24,7 +24,7 @@ use serde_json::{Map, Value};
 
 use super::camera::{Camera, CameraModel, Distortion};
 use super::pose::Mat4;
-use super::transforms::{rigid_matrix, Ctx};
+use super::transforms::{camera_model, rigid_matrix, Ctx};
 
 /// One band's camera as written (band by name).
 #[derive(Debug, Clone, PartialEq)]
@@ -64,17 +64,11 @@ pub struct RigCameras {
 }
 
 fn model_of(cx: &mut Ctx, o: &Map<String, Value>, key: &str, distortion: &Distortion) -> CameraModel {
-    match cx.string(o, "camera_model", None).as_deref() {
-        Some("PINHOLE") | Some("SIMPLE_PINHOLE") => CameraModel::Pinhole,
-        Some("OPENCV") => CameraModel::OpenCv,
-        Some("OPENCV_FISHEYE") => CameraModel::OpenCvFisheye,
-        None | Some("PERSPECTIVE") if distortion.is_zero() => CameraModel::Pinhole,
-        None | Some("PERSPECTIVE") => CameraModel::OpenCv,
-        Some(other) => {
-            cx.invalid(&format!("{key}.camera_model"), None, format!("unsupported camera model `{other}`"));
-            CameraModel::Pinhole
-        }
-    }
+    let name = cx.string(o, "camera_model", None);
+    camera_model(name.as_deref(), distortion).unwrap_or_else(|reason| {
+        cx.invalid(&format!("{key}.camera_model"), None, reason);
+        CameraModel::Pinhole
+    })
 }
 
 fn parse_camera(cx: &mut Ctx, i: usize, v: &Value) -> Option<RawBandCamera> {

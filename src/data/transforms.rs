@@ -369,19 +369,10 @@ fn parse_frame(
     } else {
         cx.string(top, "camera_model", None)
     };
-    let model = match model_s.as_deref() {
-        Some("PINHOLE") | Some("SIMPLE_PINHOLE") => CameraModel::Pinhole,
-        Some("OPENCV") => CameraModel::OpenCv,
-        Some("OPENCV_FISHEYE") => CameraModel::OpenCvFisheye,
-        None | Some("PERSPECTIVE") => {
-            if distortion.is_zero() {
-                CameraModel::Pinhole
-            } else {
-                CameraModel::OpenCv
-            }
-        }
-        Some(o) => {
-            cx.invalid("camera_model", Some(&fr), format!("unsupported camera model `{o}`"));
+    let model = match camera_model(model_s.as_deref(), &distortion) {
+        Ok(m) => m,
+        Err(reason) => {
+            cx.invalid("camera_model", Some(&fr), reason);
             CameraModel::Pinhole
         }
     };
@@ -417,6 +408,19 @@ fn parse_frame(
         },
         split,
     })
+}
+
+/// A `camera_model` name (absent or `PERSPECTIVE`: pinhole without distortion, OPENCV with it); the error is
+/// the reason.
+pub(super) fn camera_model(name: Option<&str>, distortion: &Distortion) -> Result<CameraModel, String> {
+    match name {
+        Some("PINHOLE") | Some("SIMPLE_PINHOLE") => Ok(CameraModel::Pinhole),
+        Some("OPENCV") => Ok(CameraModel::OpenCv),
+        Some("OPENCV_FISHEYE") => Ok(CameraModel::OpenCvFisheye),
+        None | Some("PERSPECTIVE") if distortion.is_zero() => Ok(CameraModel::Pinhole),
+        None | Some("PERSPECTIVE") => Ok(CameraModel::OpenCv),
+        Some(o) => Err(format!("unsupported camera model `{o}`")),
+    }
 }
 
 fn parse_matrix(cx: &mut Ctx, f: &Map<String, Value>, fr: &FrameRef) -> Option<Mat4> {

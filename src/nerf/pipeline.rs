@@ -686,7 +686,8 @@ impl Pipeline {
                 ),
             });
         }
-        if let Some(c) = batch.ray_cameras().into_iter().find(|&c| c as usize >= self.model.n_cameras) {
+        let ray_cameras = batch.ray_cameras();
+        if let Some(&c) = ray_cameras.iter().find(|&&c| c as usize >= self.model.n_cameras) {
             return Err(GpuError::Dispatch {
                 kernel: "train step".into(),
                 msg: format!(
@@ -734,7 +735,7 @@ impl Pipeline {
         }
         let slot = self.next_io;
         self.ensure_io(slot, n_rays)?;
-        self.io[slot].write_batch(&batch.pixels, &batch.ray_cameras(), &batch.targets, &batch.depth)?;
+        self.io[slot].write_batch(&batch.pixels, &ray_cameras, &batch.targets, &batch.depth)?;
         let update_props =
             self.schedule.decide(&self.model.cfg.sampling, self.step) && !self.model.proposals.is_empty();
         let profiled = self.profile_every > 0 && self.step % self.profile_every == 0;

@@ -107,43 +107,52 @@ pub fn register_dataset(input: &Path, out: &Path, opts: &RegisterOptions) -> Res
             .collect();
         Ok((raster, planes))
     };
-    // Pass 1: every frame's own warps.
-    let mut warps: Vec<Vec<BandRegistration>> = Vec::with_capacity(ds.frames.len());
-    for fi in 0..ds.frames.len() {
-        let (_, planes) = planes_of(fi)?;
-        warps.push(
-            (0..b_n)
-                .map(|b| {
-                    let warp = if b == reference {
-                        Warp::identity()
+    // Each frame's own warps; with `shared`, all of them first (a second read of every frame then resamples
+    // with their median), else each frame is resampled as soon as its warps are known (one read).
+    let align_frame = |planes: &[Plane]| -> Vec<BandRegistration> {
+        (0..b_n)
+            .map(|b| {
+                let warp = if b == reference {
+                    Warp::identity()
+                } else {
+                    let (warp, _) = align(&planes[reference], &planes[b], Homography::IDENTITY);
+                    if opts.field {
+                        warp
                     } else {
-                        let (warp, _) = align(&planes[reference], &planes[b], Homography::IDENTITY);
-                        if opts.field {
-                            warp
-                        } else {
-                            Warp::from_homography(warp.homography)
-                        }
-                    };
-                    BandRegistration { band: ds.bands[b].name.clone(), warp, stats: None }
-                })
-                .collect(),
-        );
-    }
-    if opts.shared {
-        let (median, _) = median_warps(&warps, w, h);
-        warps = vec![median; ds.frames.len()];
-    }
-    // Pass 2: resample, measure what is left, write.
+                        Warp::from_homography(warp.homography)
+                    }
+                };
+                BandRegistration { band: ds.bands[b].name.clone(), warp, stats: None }
+            })
+            .collect()
+    };
+    let shared = if opts.shared {
+        let mut all = Vec::with_capacity(ds.frames.len());
+        for fi in 0..ds.frames.len() {
+            all.push(align_frame(&planes_of(fi)?.1));
+        }
+        Some(median_warps(&all, w, h).0)
+    } else {
+        None
+    };
     let mut max_residual = vec![0.0f64; b_n];
     let mut frames_out: Vec<(usize, String, Vec<f64>)> = Vec::with_capacity(ds.frames.len());
     for (fi, frame) in ds.frames.iter().enumerate() {
         let (raster, planes) = planes_of(fi)?;
+        let own_warps;
+        let warps = match &shared {
+            Some(s) => s,
+            None => {
+                own_warps = align_frame(&planes);
+                &own_warps
+            }
+        };
         let mut out = vec![0.0f32; w * h * b_n];
         let mut mask: Vec<u8> =
             (0..w * h).map(|p| if raster.mask_at((p / w) as u32, (p % w) as u32) == 0 { 0 } else { 255 }).collect();
         let mut residuals = vec![0.0f64; b_n];
         for b in 0..b_n {
-            let warp = &warps[fi][b].warp;
+            let warp = &warps[b].warp;
             let warped = if b == reference { planes[b].clone() } else { warp_plane(&planes[b], warp, w, h) };
             if b != reference {
                 // Measured on gradient images, as the import does (edges agree across bands, intensities need not).

@@ -21,16 +21,41 @@ pub struct MergeStats {
     pub missing: Vec<String>,
 }
 
-/// The index of the block that owns world point `p`.
-pub fn owner(blocks: &Blocks, p: [f64; 3]) -> usize {
-    let r = DMat3::from_cols_array_2d(&blocks.rotation).transpose();
-    let q = r * DVec3::from(p);
-    let [nx, ny] = blocks.grid;
-    let find = |v: f64, edges: &dyn Fn(usize) -> f64, n: usize| (1..n).take_while(|&i| v >= edges(i)).count();
-    let xs = |i: usize| blocks.blocks.iter().find(|b| b.index == [i, 0]).map_or(f64::NAN, |b| b.core[0]);
-    let ys = |j: usize| blocks.blocks.iter().find(|b| b.index == [0, j]).map_or(f64::NAN, |b| b.core[2]);
-    let (ix, iy) = (find(q.x, &xs, nx), find(q.y, &ys, ny));
-    blocks.blocks.iter().position(|b| b.index == [ix, iy]).expect("every grid index has a block")
+/// Which block owns a world point: the levelling and the cores' inner edges, found once for a whole cloud.
+pub struct Owners {
+    rotation: DMat3,
+    /// Inner edges along x (between grid columns i-1 and i) and y, ascending.
+    x_edges: Vec<f64>,
+    y_edges: Vec<f64>,
+    /// Block index of grid cell (ix, iy) at `iy * nx + ix`.
+    cell_block: Vec<usize>,
+    nx: usize,
+}
+
+impl Owners {
+    pub fn new(blocks: &Blocks) -> Owners {
+        let [nx, ny] = blocks.grid;
+        let core = |ix: usize, iy: usize| blocks.blocks.iter().find(|b| b.index == [ix, iy]).map(|b| b.core);
+        let mut cell_block = vec![0; nx * ny];
+        for (k, b) in blocks.blocks.iter().enumerate() {
+            cell_block[b.index[1] * nx + b.index[0]] = k;
+        }
+        Owners {
+            rotation: DMat3::from_cols_array_2d(&blocks.rotation).transpose(),
+            x_edges: (1..nx).map(|i| core(i, 0).map_or(f64::NAN, |c| c[0])).collect(),
+            y_edges: (1..ny).map(|j| core(0, j).map_or(f64::NAN, |c| c[2])).collect(),
+            cell_block,
+            nx,
+        }
+    }
+
+    /// The index (into `blocks.blocks`) of the block that owns world point `p`.
+    pub fn of(&self, p: [f64; 3]) -> usize {
+        let q = self.rotation * DVec3::from(p);
+        let ix = self.x_edges.iter().take_while(|&&e| q.x >= e).count();
+        let iy = self.y_edges.iter().take_while(|&&e| q.y >= e).count();
+        self.cell_block[iy * self.nx + ix]
+    }
 }
 
 /// A block's run folder, when it finished training (a checkpoint and a summary).
@@ -57,12 +82,13 @@ pub fn merge_clouds(
                 .into(),
         });
     }
+    let owners = Owners::new(blocks);
     let mut merged: Option<PointCloud> = None;
     for (i, (b, run)) in blocks.blocks.iter().zip(&runs).enumerate() {
         let Some(run) = run else { continue };
         let cloud = export(b, run)?;
         let exported = cloud.len();
-        let (kept, _) = crop(&cloud, |p| owner(blocks, *p) == i)
+        let (kept, _) = crop(&cloud, |p| owners.of(*p) == i)
             .map_err(|e| ScaleError::Block { block: b.name.clone(), reason: e.to_string() })?;
         stats.blocks.push((b.name.clone(), exported, kept.len()));
         merged = Some(match merged {
