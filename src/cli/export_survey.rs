@@ -1,7 +1,8 @@
 //! `msnerf export dsm RUN --gsd M --out dsm.tif` and `msnerf export ortho RUN --gsd M --out ortho.tif`: the digital
 //! surface model and the multispectral true orthomosaic of a trained run, Cloud-Optimized GeoTIFFs on one grid in
 //! the dataset's CRS, with PNG previews (see `msnerf::nerf::survey` and `survey_products`). Either command can write
-//! the other product from the same rendering (`--ortho`, `--dsm`).
+//! the other product from the same rendering (`--ortho`, `--dsm`). RUN may be a `msnerf partition` folder: the
+//! blocks' merged products ([`crate::scale::merge_survey`]).
 
 use std::path::PathBuf;
 
@@ -16,7 +17,8 @@ use crate::output::raster::indices::VegetationIndex;
 
 #[derive(clap::Args, Debug)]
 pub struct SurveyArgs {
-    /// Run folder written by `msnerf train`
+    /// Run folder written by `msnerf train`, or a `msnerf partition` folder whose blocks were trained (merged: each
+    /// cell rendered by the block that owns it)
     pub run: PathBuf,
     /// Output GeoTIFF (.tif)
     #[arg(long)]
@@ -59,6 +61,10 @@ pub struct SurveyArgs {
     /// Rays rendered per block (bounds host memory: about 100 bytes per ray)
     #[arg(long, default_value_t = 1 << 20)]
     pub block_rays: usize,
+    /// RUN is a `msnerf partition` folder: merge the blocks that finished, their cells nodata for the others
+    /// (without it, a block that did not finish is an error)
+    #[arg(long)]
+    pub partial: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -101,8 +107,13 @@ impl SurveyArgs {
         })
     }
 
-    /// The grid: --align-to's, or --gsd over --bounds (default: what the training cameras saw).
-    fn grid(&self, run: &mut LoadedRun) -> anyhow::Result<SurveyGrid> {
+    /// The grid: --align-to's, or --gsd over --bounds (default: `seen`, what the training cameras saw). `crs`: the
+    /// dataset's, which --align-to's must match.
+    fn grid(
+        &self,
+        crs: Option<&crate::geo::Crs>,
+        seen: impl FnOnce() -> anyhow::Result<[f64; 4]>,
+    ) -> anyhow::Result<SurveyGrid> {
         if let Some(path) = &self.align_to {
             anyhow::ensure!(
                 self.gsd.is_none() && self.bounds.is_none(),
@@ -116,7 +127,7 @@ impl SurveyArgs {
                 g.pixel_size[0],
                 g.pixel_size[1]
             );
-            if let (Some(a), Some(c)) = (g.epsg, run.ds.crs.as_ref().and_then(|c| c.epsg)) {
+            if let (Some(a), Some(c)) = (g.epsg, crs.and_then(|c| c.epsg)) {
                 anyhow::ensure!(
                     a as u32 == c,
                     "--align-to {}: EPSG:{a}, but the dataset is in EPSG:{c}",
@@ -135,7 +146,7 @@ impl SurveyArgs {
         }
         let gsd = self.gsd.ok_or_else(|| anyhow::anyhow!("give --gsd (the cell size) or --align-to"))?;
         anyhow::ensure!(gsd.is_finite() && gsd > 0.0, "--gsd must be > 0, got {gsd}");
-        let seen = seen_bounds(run)?;
+        let seen = seen()?;
         let bounds = match &self.bounds {
             Some(text) => {
                 let v: Vec<f64> = text
@@ -176,8 +187,13 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
     }
     outputs.indices.dedup();
     let ctx = Context::new(&cli.context_desc())?;
+    if a.run.join("blocks.json").is_file() {
+        return run_survey_blocks(&ctx, a, &opts, &outputs);
+    }
+    anyhow::ensure!(!a.partial, "--partial: {} is a run folder, not a `msnerf partition` folder", a.run.display());
     let mut run = LoadedRun::load(&ctx, &a.run)?;
-    let grid = a.grid(&mut run)?;
+    let crs = run.ds.crs.clone();
+    let grid = a.grid(crs.as_ref(), || Ok(seen_bounds(&mut run)?))?;
     let bar = indicatif::ProgressBar::new(grid.height as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("rendering {bar:30} {pos}/{len} rows, ETA {eta}")
@@ -208,6 +224,57 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
         .as_ref()
         .map_or("the dataset's local frame: no crs".to_string(), |c| format!("crs {}", c.describe()));
     for f in &report.files {
+        println!("-> {} ({crs})", f.display());
+    }
+    Ok(())
+}
+
+/// `export dsm|ortho BLOCKS`: the merged products of block-wise training ([`crate::scale::merge_survey`]); the
+/// default area is the blocks' cores.
+fn run_survey_blocks(
+    ctx: &Context,
+    a: &SurveyArgs,
+    opts: &SurveyOptions,
+    outputs: &SurveyOutputs,
+) -> anyhow::Result<()> {
+    use crate::scale::merge_survey::{cores_bounds, merge_survey};
+    let blocks = crate::scale::runner::read_blocks(&a.run)?;
+    let crs = crate::data::load_dataset(&blocks.source, &crate::data::LoadOptions::default())?.crs;
+    let grid = a.grid(crs.as_ref(), || Ok(cores_bounds(&blocks)))?;
+    let bar = indicatif::ProgressBar::new(grid.height as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} rows, ETA {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let merged = merge_survey(ctx, &a.run, &blocks, &grid, opts, outputs, a.partial, |name, rows, of| {
+        bar.set_message(name.to_string());
+        bar.set_length(of as u64);
+        bar.set_position(rows as u64);
+    })?;
+    bar.finish_and_clear();
+    let s = &merged.report.stats;
+    let b = grid.bounds();
+    println!(
+        "grid {} x {} cells of {} over {:.3},{:.3},{:.3},{:.3}; vertical rays from z = {:.3}",
+        grid.width, grid.height, grid.gsd, b[0], b[1], b[2], b[3], s.top
+    );
+    for p in &merged.blocks {
+        let t = &p.stats;
+        println!(
+            "{}: owns {} cells, {} with a value; its rectangle: {} without a surface, {} outside its scene box, {} \
+             with spread weights, {} inconsistent across views; {} rays in {:.1} s",
+            p.block, p.owned, p.valid, t.no_surface, t.outside_box, t.spread, t.inconsistent, t.rays, t.seconds
+        );
+    }
+    for m in &merged.missing {
+        println!("left out (not trained or not finished; its cells are nodata): {m}");
+    }
+    println!("{} cells: {} with a value; {} rays in {:.1} s", s.cells, s.valid, s.rays, s.seconds);
+    for n in &merged.report.notes {
+        println!("note: {n}");
+    }
+    let crs = crs.as_ref().map_or("the dataset's local frame: no crs".to_string(), |c| format!("crs {}", c.describe()));
+    for f in &merged.report.files {
         println!("-> {} ({crs})", f.display());
     }
     Ok(())

@@ -29,9 +29,13 @@ pub struct PartitionArgs {
     /// Also write OUT/slurm.sh: a Slurm job array, one task per block (`sbatch OUT/slurm.sh`)
     #[arg(long)]
     pub slurm: bool,
-    /// Time limit of each Slurm task
-    #[arg(long, default_value = "08:00:00")]
-    pub slurm_time: String,
+    /// Time limit of each Slurm task [default: 08:00:00]
+    #[arg(long, conflicts_with = "slurm_time_from")]
+    pub slurm_time: Option<String>,
+    /// Compute each task's time limit from `msnerf bench train --json` output measured on the cluster's GPU kind:
+    /// steps x ms per step x 1.25 + 15 min, for the model, batch and band count of the training arguments
+    #[arg(long)]
+    pub slurm_time_from: Option<PathBuf>,
     /// Generic resources per Slurm task (`gpu:1`, `gpu:a100:1`...); `none` for CPU-only nodes
     #[arg(long, default_value = "gpu:1")]
     pub slurm_gres: String,
@@ -62,8 +66,34 @@ pub struct TrainBlocksArgs {
 }
 
 pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        a.slurm || (a.slurm_time.is_none() && a.slurm_time_from.is_none()),
+        "--slurm-time and --slurm-time-from need --slurm"
+    );
+    // The time limit before anything is written.
+    let time = match (&a.slurm_time, &a.slurm_time_from) {
+        (_, Some(bench)) if a.slurm => {
+            let bands = crate::data::load_dataset(&a.dataset, &crate::data::LoadOptions::default())?.n_bands();
+            let e = crate::scale::slurm_time::estimate(bench, &a.train_args, bands)?;
+            println!(
+                "Slurm time limit {}: {} steps of {} at {} rays x {:.1} ms ({} bands measured on {}) x {} + {} min",
+                e.limit,
+                e.steps,
+                e.model,
+                e.rays_per_batch,
+                e.ms_per_step,
+                e.bench_bands,
+                e.device,
+                crate::scale::slurm_time::STEP_MARGIN,
+                crate::scale::slurm_time::FIXED_MINUTES
+            );
+            e.limit
+        }
+        (Some(t), _) => t.clone(),
+        _ => "08:00:00".to_string(),
+    };
     if a.slurm {
-        crate::scale::slurm::check_time(&a.slurm_time)?; // before anything is written
+        crate::scale::slurm::check_time(&time)?;
     }
     let o = PartitionOptions {
         blocks: parse_grid(&a.blocks)?,
@@ -96,7 +126,7 @@ pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
             a.host_budget_gib
         );
         let so = crate::scale::slurm::SlurmOptions {
-            time: a.slurm_time.clone(),
+            time: time.clone(),
             host_budget_bytes: (a.host_budget_gib * (1u64 << 30) as f64) as u64,
             cpus_per_task: a.slurm_cpus,
             gres: if a.slurm_gres == "none" { String::new() } else { a.slurm_gres.clone() },

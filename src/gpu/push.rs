@@ -45,10 +45,13 @@ impl<T: PushScalar, const N: usize> PushScalar for [T; N] {
 
 /// Declares a push-constant struct (`#[repr(C)]`, `Copy`, `Clone`, `Pod`, `Zeroable`) and its [`PushLayout`]:
 ///
-/// ```ignore
+/// ```
 /// msnerf::push_constants! {
 ///     struct FillPush { n: u32, offset: u32, value: u32 }
 /// }
+/// use msnerf::gpu::push::PushLayout;
+/// assert_eq!(std::mem::size_of::<FillPush>(), 12);
+/// assert_eq!(FillPush::FIELDS.iter().map(|f| f.name).collect::<Vec<_>>(), ["n", "offset", "value"]);
 /// ```
 ///
 /// Field names are the GLSL member names. Attributes (docs, further derives) pass through.

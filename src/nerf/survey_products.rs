@@ -11,7 +11,9 @@
 use std::path::{Path, PathBuf};
 
 use super::run::LoadedRun;
-use super::survey::{median_camera_height, render_survey, SurveyError, SurveyGrid, SurveyOptions, SurveyStats};
+use super::survey::{
+    median_camera_height, render_survey, RowBlock, SurveyError, SurveyGrid, SurveyOptions, SurveyStats,
+};
 use crate::output::image::{band, band_description};
 use crate::output::raster::cog::{CogOptions, CogPreview, CogWriter};
 use crate::output::raster::hillshade::{hillshade, Sun};
@@ -68,13 +70,47 @@ fn check_path(path: &Path, what: &str) -> Result<(), SurveyError> {
     Ok(())
 }
 
-/// Renders `grid` once and writes every product `outputs` asks for.
+/// What the products describe, wherever their rendering comes from (one run, or merged blocks).
+#[derive(Debug, Clone)]
+pub struct SurveySource {
+    pub bands: Vec<crate::data::Band>,
+    pub crs: Option<crate::geo::Crs>,
+    /// Written into the products' metadata (`msnerf_run`): the run folder, or the BLOCKS folder.
+    pub label: String,
+    /// World z the vertical rays start from.
+    pub top: f64,
+}
+
+/// The row blocks' consumer handed to a survey renderer.
+pub type RowSink<'a> = dyn FnMut(&RowBlock) -> Result<(), SurveyError> + 'a;
+
+/// Renders `grid` once with `run` and writes every product `outputs` asks for.
 pub fn export_survey(
     run: &mut LoadedRun,
     grid: &SurveyGrid,
     opts: &SurveyOptions,
     outputs: &SurveyOutputs,
     progress: impl FnMut(usize),
+) -> Result<SurveyReport, SurveyError> {
+    let top = opts.top.unwrap_or_else(|| median_camera_height(run));
+    let source = SurveySource {
+        bands: run.ds.bands.clone(),
+        crs: run.ds.crs.clone(),
+        label: run.dir.display().to_string(),
+        top,
+    };
+    write_products(&source, grid, opts, outputs, |opts, sink| render_survey(run, grid, opts, sink, progress))
+}
+
+/// Writes every product `outputs` asks for from the row blocks `render` produces (given the options it must render
+/// with: without the DSM's filters when no DSM is asked for, and with `top` set). Paths and index bands are checked
+/// before `render` is called.
+pub fn write_products(
+    source: &SurveySource,
+    grid: &SurveyGrid,
+    opts: &SurveyOptions,
+    outputs: &SurveyOutputs,
+    render: impl FnOnce(&SurveyOptions, &mut RowSink<'_>) -> Result<SurveyStats, SurveyError>,
 ) -> Result<SurveyReport, SurveyError> {
     if let Some(p) = &outputs.dsm {
         check_path(p, "--out (dsm)")?;
@@ -88,7 +124,7 @@ pub fn export_survey(
             reason: "neither a DSM nor an ortho asked for".into(),
         });
     }
-    let bands = run.ds.bands.clone();
+    let bands = source.bands.clone();
     let probe = SpectralImage { width: 0, height: 0, bands: bands.clone(), data: Vec::new() };
     let mut index_inputs = Vec::new();
     for &ix in &outputs.indices {
@@ -103,9 +139,9 @@ pub fn export_survey(
         opts.max_spread_cells = None;
         opts.consistency = None;
     }
-    let top = opts.top.unwrap_or_else(|| median_camera_height(run));
+    let top = source.top;
     opts.top = Some(top);
-    let georef = GeoReference::in_crs(grid.origin, [grid.gsd, grid.gsd], run.ds.crs.as_ref())?;
+    let georef = GeoReference::in_crs(grid.origin, [grid.gsd, grid.gsd], source.crs.as_ref())?;
     let cog = |product: String| CogOptions {
         geotiff: GeoTiffOptions {
             nodata: Some(NODATA),
@@ -113,7 +149,7 @@ pub fn export_survey(
             bigtiff: None,
             metadata: vec![
                 ("msnerf_product".into(), product),
-                ("msnerf_run".into(), run.dir.display().to_string()),
+                ("msnerf_run".into(), source.label.clone()),
                 ("vertical_rays_from_z".into(), format!("{top}")),
                 ("min_accumulation".into(), format!("{}", opts.min_accumulation.max(0.5))),
             ],
@@ -159,42 +195,36 @@ pub fn export_survey(
     }
     let nb = bands.len();
     let nd = NODATA as f32;
-    let stats = render_survey(
-        run,
-        grid,
-        &opts,
-        |block| {
-            if let Some(wr) = dsm.as_mut() {
-                let rows: Vec<f32> = block.height.iter().map(|&z| if z.is_finite() { z } else { nd }).collect();
-                wr.push_rows(&rows)?;
-            }
-            if let Some(wr) = ortho.as_mut() {
-                let rows: Vec<f32> = block.values.iter().map(|&v| if v.is_finite() { v } else { nd }).collect();
-                wr.push_rows(&rows)?;
-            }
-            for (ix, inputs, _, wr) in index_writers.iter_mut() {
-                let mut v = vec![0.0f64; inputs.len()];
-                let rows: Vec<f32> = block
-                    .values
-                    .chunks_exact(nb)
-                    .map(|px| {
-                        for (k, &b) in inputs.iter().enumerate() {
-                            v[k] = px[b] as f64;
-                        }
-                        let x = ix.formula(&v);
-                        if x.is_finite() {
-                            x as f32
-                        } else {
-                            nd
-                        }
-                    })
-                    .collect();
-                wr.push_rows(&rows)?;
-            }
-            Ok(())
-        },
-        progress,
-    )?;
+    let stats = render(&opts, &mut |block: &RowBlock| {
+        if let Some(wr) = dsm.as_mut() {
+            let rows: Vec<f32> = block.height.iter().map(|&z| if z.is_finite() { z } else { nd }).collect();
+            wr.push_rows(&rows)?;
+        }
+        if let Some(wr) = ortho.as_mut() {
+            let rows: Vec<f32> = block.values.iter().map(|&v| if v.is_finite() { v } else { nd }).collect();
+            wr.push_rows(&rows)?;
+        }
+        for (ix, inputs, _, wr) in index_writers.iter_mut() {
+            let mut v = vec![0.0f64; inputs.len()];
+            let rows: Vec<f32> = block
+                .values
+                .chunks_exact(nb)
+                .map(|px| {
+                    for (k, &b) in inputs.iter().enumerate() {
+                        v[k] = px[b] as f64;
+                    }
+                    let x = ix.formula(&v);
+                    if x.is_finite() {
+                        x as f32
+                    } else {
+                        nd
+                    }
+                })
+                .collect();
+            wr.push_rows(&rows)?;
+        }
+        Ok(())
+    })?;
     let mut files = Vec::new();
     let mut notes = Vec::new();
     if let (Some(wr), Some(path)) = (dsm, &outputs.dsm) {

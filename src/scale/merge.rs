@@ -56,6 +56,14 @@ impl Owners {
         let iy = self.y_edges.iter().take_while(|&&e| q.y >= e).count();
         self.cell_block[iy * self.nx + ix]
     }
+
+    /// The owner of the point at world `x`, `y` on the partition's ground plane (levelled height `ground_z`): where
+    /// a raster cell belongs. A levelled frame tilted by 90 degrees has no such point; `ground_z` is then the world z.
+    pub fn of_ground(&self, x: f64, y: f64, ground_z: f64) -> usize {
+        let r = self.rotation.row(2);
+        let z = if r.z.abs() > 1e-6 { (ground_z - r.x * x - r.y * y) / r.z } else { ground_z };
+        self.of([x, y, z])
+    }
 }
 
 /// A block's run folder, when it finished training (a checkpoint and a summary).

@@ -3,14 +3,18 @@
 //! - [`partition`]: `msnerf partition`, a grid of blocks over the ground the cameras see, each a dataset of its own;
 //! - [`runner`]: `msnerf train-blocks`, every block trained by its own `msnerf train` process, resumable;
 //! - [`slurm`]: `partition --slurm`, the blocks as a Slurm job array (`sbatch BLOCKS/slurm.sh`);
+//! - [`slurm_time`]: each task's time limit from `msnerf bench train --json` measurements;
 //! - [`merge`]: merged outputs, each world point owned by the block whose core contains it;
+//! - [`merge_survey`]: the merged DSM and ortho, each grid cell rendered by the block that owns it;
 //! - [`error`]: `ScaleError`, naming the dataset, option, block or file.
 
 pub mod error;
 pub mod merge;
+pub mod merge_survey;
 pub mod partition;
 pub mod runner;
 pub mod slurm;
+pub mod slurm_time;
 
 pub use error::ScaleError;
 pub use partition::{partition, Block, Blocks, PartitionOptions};

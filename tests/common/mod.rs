@@ -8,8 +8,59 @@ use rand_chacha::ChaCha8Rng;
 
 /// A context for one test. Validation is on whenever the layer is installed (required under `make test`,
 /// which sets MSNERF_REQUIRE_VALIDATION=1); dropping it asserts that the layer reported nothing.
+///
+/// A test process holds one device at a time: a test waits for the device lock before it opens its context. The
+/// Khronos validation layer reads and writes its global map of dispatchable objects without a lock whenever a device
+/// or instance is created or destroyed while another thread calls into the layer (KhronosGroup/Vulkan-ValidationLayers
+/// issue 4391; Debian 12 ships 1.3.239). That race segfaulted the `kernels` binary once on lavapipe in CI
+/// (2026-11-26) and the `outputs` binary within seconds with 16 test threads on an H200. msnerf opens one device per
+/// process, so only the test harness, which opens one per test, meets it. Fields drop in order: the context first,
+/// then the lock.
 pub struct TestGpu {
     pub ctx: Context,
+    _device: DeviceLock,
+}
+
+/// The process's device lock, re-entrant on one thread (a test may open two contexts side by side).
+struct DeviceLock;
+
+struct DeviceOwner {
+    thread: Option<std::thread::ThreadId>,
+    depth: usize,
+}
+
+static DEVICE_OWNER: std::sync::Mutex<DeviceOwner> = std::sync::Mutex::new(DeviceOwner { thread: None, depth: 0 });
+static DEVICE_FREED: std::sync::Condvar = std::sync::Condvar::new();
+
+impl DeviceLock {
+    fn acquire() -> DeviceLock {
+        let me = std::thread::current().id();
+        let mut o = DEVICE_OWNER.lock().unwrap_or_else(|p| p.into_inner());
+        loop {
+            match o.thread {
+                None => {
+                    *o = DeviceOwner { thread: Some(me), depth: 1 };
+                    return DeviceLock;
+                }
+                Some(t) if t == me => {
+                    o.depth += 1;
+                    return DeviceLock;
+                }
+                Some(_) => o = DEVICE_FREED.wait(o).unwrap_or_else(|p| p.into_inner()),
+            }
+        }
+    }
+}
+
+impl Drop for DeviceLock {
+    fn drop(&mut self) {
+        let mut o = DEVICE_OWNER.lock().unwrap_or_else(|p| p.into_inner());
+        o.depth -= 1;
+        if o.depth == 0 {
+            o.thread = None;
+            DEVICE_FREED.notify_all();
+        }
+    }
 }
 
 impl std::ops::Deref for TestGpu {
@@ -29,12 +80,13 @@ pub fn gpu_with(tweak: impl FnOnce(&mut ContextDesc)) -> TestGpu {
         desc.validation = Validation::IfAvailable;
     }
     tweak(&mut desc);
+    let device = DeviceLock::acquire();
     match Context::new(&desc) {
         Ok(ctx) => {
             if !ctx.validation_enabled() {
                 eprintln!("note: VK_LAYER_KHRONOS_validation is not installed; this test runs without it (apt-get install vulkan-validationlayers)");
             }
-            TestGpu { ctx }
+            TestGpu { ctx, _device: device }
         }
         Err(e) => panic!(
             "this test needs a Vulkan device and found none: {e}\n\

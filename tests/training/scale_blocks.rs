@@ -13,7 +13,7 @@ use msnerf::scale::merge::merge_clouds;
 use msnerf::scale::partition::Block;
 use msnerf::scale::partition::{partition, PartitionOptions};
 use msnerf::scale::runner::{read_blocks, train_blocks, TrainBlocksOptions};
-use msnerf::scale::ScaleError;
+use msnerf::scale::{Blocks, ScaleError};
 use msnerf::sim::{simulate, SceneDesc, SimOptions};
 use std::path::Path;
 
@@ -135,7 +135,7 @@ fn partition_refuses_bad_options_and_layouts_by_name() {
 
 #[test]
 fn train_blocks_trains_every_block_and_resumes() {
-    let (_t, _data, out, _) = two_blocks("train-blocks");
+    let (t, _data, out, _) = two_blocks("train-blocks");
     let opts = |steps: &str| TrainBlocksOptions {
         exe: env!("CARGO_BIN_EXE_msnerf").into(),
         parallel: 2,
@@ -177,6 +177,7 @@ fn train_blocks_trains_every_block_and_resumes() {
             .count();
         assert_eq!(owners, 1, "point {p:?}");
     }
+    merged_survey_takes_each_cell_from_its_owner(&g, &out, &blocks, t.path());
     // An unfinished block: refused by name, or left out with `partial`.
     std::fs::remove_file(out.join("block_1_0/run/summary.json")).unwrap();
     let e = merge_clouds(&out, &blocks, false, export).expect_err("unfinished").to_string();
@@ -184,6 +185,26 @@ fn train_blocks_trains_every_block_and_resumes() {
     let (part, stats) = merge_clouds(&out, &blocks, true, export).expect("partial merge");
     assert_eq!((stats.missing.clone(), stats.blocks.len()), (vec!["block_1_0".to_string()], 1));
     assert!(part.len() < cloud.len());
+    // The same through the CLI for the ortho: refused by name, or the finished block's cells with --partial.
+    let ortho = t.path().join("partial_ortho.tif");
+    let args = |partial: bool| {
+        let mut v = vec!["export", "ortho", out.to_str().unwrap(), "--gsd", "2", "--out", ortho.to_str().unwrap()];
+        if partial {
+            v.push("--partial");
+        }
+        v.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let bin = env!("CARGO_BIN_EXE_msnerf");
+    let refused = std::process::Command::new(bin).args(args(false)).output().expect("run msnerf");
+    let text = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && text.contains("block_1_0") && text.contains("--partial"), "{text}");
+    assert!(!ortho.exists(), "no product after a refusal");
+    let text = common::msnerf(bin, &args(true).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(text.contains("left out") && text.contains("block_1_0"), "{text}");
+    let o = msnerf::output::raster::geotiff_read::read_geotiff(&ortho).expect("partial ortho");
+    let (w, h) = (o.grid.width, o.grid.height);
+    let nodata = (0..w * h).filter(|&i| o.is_nodata(o.value(0, i % w, i / w))).count();
+    assert!(nodata > 0 && nodata < w * h, "block_1_0's cells are nodata, block_0_0's are not ({nodata} of {})", w * h);
 
     // A broken block fails by name; the other still trains.
     std::fs::write(out.join("block_1_0/transforms.json"), "{").unwrap();
@@ -191,6 +212,93 @@ fn train_blocks_trains_every_block_and_resumes() {
     let e = train_blocks(&out, &opts("3")).expect_err("one block is broken").to_string();
     assert!(e.contains("block_1_0") && !e.contains("block_0_0:"), "{e}");
     assert!(out.join("block_0_0/run/summary.json").is_file(), "the healthy block trained");
+}
+
+/// The merged DSM and ortho over the blocks' cores: every cell as the block that owns it (found here from
+/// blocks.json's levelling and half-open cores, the outer ones unbounded) renders it alone over the same grid, so
+/// nothing is blended or doubled; both blocks contribute, and the other block's render differs in the overlap.
+fn merged_survey_takes_each_cell_from_its_owner(g: &msnerf::gpu::Context, out: &Path, blocks: &Blocks, tmp: &Path) {
+    use msnerf::nerf::survey::{SurveyGrid, SurveyOptions};
+    use msnerf::nerf::survey_products::{export_survey, SurveyOutputs};
+    use msnerf::output::raster::geotiff_read::read_geotiff;
+    use msnerf::scale::merge_survey::{cores_bounds, flight_top, merge_survey};
+    // Seven steps from one seed leave the two blocks' fields nearly alike: retrain one from another seed, so the
+    // owner of a cell can be told apart.
+    let block = out.join("block_1_0");
+    std::fs::remove_dir_all(block.join("run")).unwrap();
+    let (data, run) = (block.to_str().unwrap().to_string(), block.join("run").to_str().unwrap().to_string());
+    let mut args = vec!["train", "--data", &data, "--out", &run, "--quiet", "--seed", "7"];
+    let tiny = tiny_args("30");
+    args.extend(tiny.iter().map(String::as_str));
+    common::msnerf(env!("CARGO_BIN_EXE_msnerf"), &args);
+    let b = cores_bounds(blocks);
+    let grid = SurveyGrid::covering(b, (b[2] - b[0]) / 40.0, 1 << 20).expect("grid");
+    let top = flight_top(blocks).expect("the flight's camera height");
+    let opts = SurveyOptions { consistency: None, max_spread_cells: None, top: Some(top), ..Default::default() };
+    let products = |tag: &str| SurveyOutputs {
+        dsm: Some(tmp.join(format!("{tag}_dsm.tif"))),
+        ortho: Some(tmp.join(format!("{tag}_ortho.tif"))),
+        indices: vec![],
+    };
+    let merged = merge_survey(g, out, blocks, &grid, &opts, &products("merged"), false, |_, _, _| {}).expect("merge");
+    assert_eq!(merged.blocks.len(), 2);
+    assert!(merged.blocks.iter().all(|p| p.owned > 0 && p.valid > 0), "both blocks contribute: {:?}", merged.blocks);
+    assert_eq!(merged.blocks.iter().map(|p| p.owned).sum::<usize>(), grid.cells(), "each cell owned once");
+    let read = |tag: &str| {
+        let o = products(tag);
+        (read_geotiff(&o.dsm.unwrap()).expect("dsm"), read_geotiff(&o.ortho.unwrap()).expect("ortho"))
+    };
+    for blk in &blocks.blocks {
+        let mut run = LoadedRun::load(g, &out.join(&blk.name).join("run")).expect("block run");
+        export_survey(&mut run, &grid, &opts, &products(&blk.name), |_| {}).expect("block alone");
+    }
+    let (mdsm, mortho) = read("merged");
+    let alone: Vec<_> = blocks.blocks.iter().map(|k| read(&k.name)).collect();
+    assert_eq!((mdsm.grid.width, mdsm.grid.height), (grid.width, grid.height));
+    let r = blocks.rotation;
+    let nb = mortho.grid.bands;
+    let (mut agree, mut compared, mut other_differs) = (0usize, 0usize, 0usize);
+    for row in 0..grid.height {
+        for col in 0..grid.width {
+            let [x, y] = grid.centre(row, col);
+            // Levelled x, y of the cell centre on the ground plane (levelled z = ground_z).
+            let z = (blocks.ground_z - r[2][0] * x - r[2][1] * y) / r[2][2];
+            let q = [0, 1].map(|i| r[i][0] * x + r[i][1] * y + r[i][2] * z);
+            let owner = blocks
+                .blocks
+                .iter()
+                .position(|k| {
+                    let [ix, iy] = k.index;
+                    (ix == 0 || q[0] >= k.core[0])
+                        && (ix + 1 == blocks.grid[0] || q[0] < k.core[1])
+                        && (iy == 0 || q[1] >= k.core[2])
+                        && (iy + 1 == blocks.grid[1] || q[1] < k.core[3])
+                })
+                .expect("every cell has an owner");
+            let same = |a: &msnerf::output::raster::geotiff_read::GeoRaster,
+                        b: &msnerf::output::raster::geotiff_read::GeoRaster,
+                        tol: f32| {
+                (0..a.grid.bands).all(|band| {
+                    let (u, v) = (a.value(band, col, row), b.value(band, col, row));
+                    (a.is_nodata(u) && b.is_nodata(v)) || (u - v).abs() <= tol
+                })
+            };
+            compared += 1;
+            let (odsm, oortho) = &alone[owner];
+            if same(&mdsm, odsm, 1e-2) && same(&mortho, oortho, 1e-3) {
+                agree += 1;
+            }
+            let (xdsm, xortho) = &alone[1 - owner];
+            if !same(&mdsm, xdsm, 1e-2) || !same(&mortho, xortho, 1e-3) {
+                other_differs += 1;
+            }
+        }
+    }
+    assert!(nb >= 3);
+    // The owner renders its rectangle, not the whole grid: ray origins differ in the last bits, which may flip a cell
+    // at the accumulation floor.
+    assert!(agree as f64 >= 0.99 * compared as f64, "{agree} of {compared} cells are the owner's");
+    assert!(other_differs as f64 > 0.05 * compared as f64, "the blocks' renders differ ({other_differs} cells)");
 }
 
 /// SIGTERM (what Slurm sends before a time limit or a preemption) stops `msnerf train` with a checkpoint, so the
@@ -285,4 +393,73 @@ fn slurm_job_array_script_trains_its_task_block() {
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let bad = SlurmOptions { time: "soon".into(), ..so };
     assert!(write_job_array(&out, &blocks, &bad).unwrap_err().to_string().contains("--slurm-time"));
+}
+
+/// `partition --slurm --slurm-time-from BENCH.json`: each task's limit is steps x ms per step x 1.25 + 15 min,
+/// computed here by hand, from the measurement of the training's model and batch with the nearest band count at or
+/// above the dataset's; a file without one is refused by name with the command that makes it.
+#[test]
+fn slurm_time_limit_comes_from_the_train_benchmark() {
+    use msnerf::scale::slurm_time::{estimate, slurm_limit};
+    let t = common::TempDir::new("slurm-time");
+    let bench = t.path().join("bench.json");
+    let row = |model: &str, bands: usize, rays: usize, ms: f64| serde_json::json!({"model": model, "bands": bands, "rays_per_batch": rays, "ms_per_step": ms, "device": "H200"});
+    let rows = vec![
+        row("nerfacto", 3, 4096, 4.28),
+        row("nerfacto", 16, 4096, 9.0),
+        row("nerfacto", 8, 4096, 6.0),
+        row("nerfacto", 8, 8192, 11.0),
+        row("tiny", 8, 256, 2.5),
+    ];
+    std::fs::write(&bench, serde_json::to_string(&rows).unwrap()).unwrap();
+    let args = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    // 6 bands: the 8-band measurement at nerfacto's default batch (4096) and steps (30000).
+    let e = estimate(&bench, &args(&["--model", "nerfacto"]), 6).expect("estimate");
+    assert_eq!((e.steps, e.rays_per_batch, e.bench_bands, e.ms_per_step), (30_000, 4096, 8, 6.0));
+    let minutes = (30_000.0f64 * 6.0 * 1.25 / 60_000.0 + 15.0).ceil() as u64; // 18.75 -> 19
+    assert_eq!((e.minutes, e.limit.as_str()), (minutes, "00:19:00"));
+    // Flags in either form, the last one winning; a long run crosses a day.
+    let e = estimate(&bench, &args(&["--max-steps", "9", "--max-steps=2000000", "--rays-per-batch=8192"]), 8).unwrap();
+    assert_eq!(e.minutes, (2_000_000.0f64 * 11.0 * 1.25 / 60_000.0 + 15.0).ceil() as u64);
+    assert_eq!(e.limit, slurm_limit(e.minutes));
+    assert_eq!(slurm_limit(473), "07:53:00");
+    assert_eq!(slurm_limit(1440 + 61), "1-01:01:00");
+    // No measurement with enough bands: refused, naming the file and the command to run.
+    let err = estimate(&bench, &args(&["--model", "nerfacto"]), 32).expect_err("no 32-band row").to_string();
+    assert!(err.contains("bench.json") && err.contains("--bands 32"), "{err}");
+    std::fs::write(&bench, "{}").unwrap();
+    assert!(estimate(&bench, &[], 3).expect_err("not a list").to_string().contains("bench.json"));
+    // Through the CLI: the limit lands in the job script.
+    std::fs::write(&bench, serde_json::to_string(&rows).unwrap()).unwrap();
+    let data = t.path().join("data");
+    textured(&data);
+    let out = t.path().join("blocks");
+    let bin = env!("CARGO_BIN_EXE_msnerf");
+    let (d, o, b) = (data.to_str().unwrap(), out.to_str().unwrap(), bench.to_str().unwrap());
+    let text = common::msnerf(
+        bin,
+        &[
+            "partition",
+            d,
+            "--blocks",
+            "2x1",
+            "--out",
+            o,
+            "--slurm",
+            "--slurm-time-from",
+            b,
+            "--",
+            "--model",
+            "tiny",
+            "--rays-per-batch",
+            "256",
+            "--max-steps",
+            "3000",
+        ],
+    );
+    let minutes = (3000.0f64 * 2.5 * 1.25 / 60_000.0 + 15.0).ceil() as u64; // 15.16 -> 16
+    assert_eq!(minutes, 16);
+    assert!(text.contains("Slurm time limit 00:16:00"), "{text}");
+    let script = std::fs::read_to_string(out.join("slurm.sh")).expect("slurm.sh");
+    assert!(script.contains("#SBATCH --time=00:16:00"), "{script}");
 }
