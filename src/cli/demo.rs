@@ -130,6 +130,8 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         stretch: "reflectance".into(),
         sheet_views: 4,
         orbit: Default::default(),
+        partial: false,
+        blend_mib: 1024,
     };
     let frames = run.ds.split_indices(Split::Eval);
     let mut tiles = Vec::new();

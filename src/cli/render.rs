@@ -21,7 +21,8 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
 pub struct RenderArgs {
-    /// Run folder written by `msnerf train`
+    /// Run folder written by `msnerf train`, or a `msnerf partition` folder whose blocks were trained (every block
+    /// renders each view, blended over the overlaps)
     pub run: PathBuf,
     /// Views to render: eval, train, all (dataset frames), orbit (novel views circling the scene), or a camera-path
     /// JSON file (nerfstudio's viewer camera_path.json, or a list of transforms.json-style frames)
@@ -44,6 +45,14 @@ pub struct RenderArgs {
     pub sheet_views: usize,
     #[command(flatten)]
     pub orbit: OrbitArgs,
+    /// RUN is a `msnerf partition` folder: render with the blocks that finished (without it, a block that did not
+    /// finish is an error)
+    #[arg(long)]
+    pub partial: bool,
+    /// RUN is a `msnerf partition` folder: host memory for the blend's accumulators, MiB (views are rendered in
+    /// groups that fit)
+    #[arg(long, default_value_t = 1024)]
+    pub blend_mib: usize,
 }
 
 /// The orbit's flags (`--views orbit` only); defaults come from the training cameras.
@@ -129,26 +138,26 @@ pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs)
     // With `rig_cameras` the image holds each band in its own camera, not the frame camera's registered view: an
     // error map against it would show the rig's parallax as model error, so there is none.
     let gt = if run.ds.rig.is_some() { None } else { ground_truth(run, frame).ok().map(|(gt, _)| gt) };
-    write_outputs(run, &rv, &stem, gt.as_ref(), out, a)
+    write_outputs(&run.ds.bands, &rv, &stem, gt.as_ref(), out, a)
 }
 
 /// Renders novel view `k` (set with [`LoadedRun::set_novel_views`]) and writes its files, without an error map.
 pub fn write_novel_view(run: &mut LoadedRun, k: usize, out: &Path, a: &RenderArgs) -> anyhow::Result<ViewFiles> {
     let rv = run.render_novel_view(k)?;
     let stem = run.novel[k].name.clone();
-    write_outputs(run, &rv, &stem, None, out, a)
+    write_outputs(&run.ds.bands, &rv, &stem, None, out, a)
 }
 
 /// Writes the files of one rendered view named `stem`; `gt` (the frame's ground truth) adds the error preview.
 fn write_outputs(
-    run: &LoadedRun,
+    bands: &[crate::data::Band],
     rv: &RenderedView,
     stem: &str,
     gt: Option<&SpectralImage>,
     out: &Path,
     a: &RenderArgs,
 ) -> anyhow::Result<ViewFiles> {
-    let img = SpectralImage::from_interleaved(rv.width, rv.height, run.ds.bands.clone(), &rv.colour)?;
+    let img = SpectralImage::from_interleaved(rv.width, rv.height, bands.to_vec(), &rv.colour)?;
     write_geotiff(&out.join(format!("{stem}.tif")), &img, &GeoTiffOptions::default())?;
     if a.exr {
         crate::output::raster::exr::write_exr(&out.join(format!("{stem}.exr")), &img)?;
@@ -199,6 +208,10 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
         anyhow::bail!("--orbit-views, --orbit-radius, --orbit-height and --orbit-pitch-deg need --views orbit");
     }
     let ctx = Context::new(&cli.context_desc())?;
+    if a.run.join("blocks.json").is_file() {
+        return run_blocks(&ctx, a);
+    }
+    anyhow::ensure!(!a.partial, "--partial: {} is a run folder, not a `msnerf partition` folder", a.run.display());
     let mut run = LoadedRun::load(&ctx, &a.run)?;
     // Every view is known (and a camera path fully checked) before the output folder is touched.
     let views = parse_views(&run, a)?;
@@ -221,9 +234,102 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
         }
         println!("rendered {name} ({}/{n})", k + 1);
     }
+    write_sheet(&sheet, n, a)
+}
+
+fn write_sheet(sheet: &[(String, Rgb8)], n: usize, a: &RenderArgs) -> anyhow::Result<()> {
     let per_view = sheet.len() / n.min(a.sheet_views).max(1);
     let tiles: Vec<Tile> = sheet.iter().map(|(l, i)| Tile { image: i, label: Some(l.as_str()) }).collect();
     contact_sheet(&tiles, per_view.max(1), 4, [32, 32, 32])?.write_png(&a.out.join("contact_sheet.png"))?;
     println!("outputs in {}", a.out.display());
     Ok(())
+}
+
+/// `render BLOCKS`: the views of the partitioned dataset, posed in its world frame, rendered by every block and
+/// blended ([`crate::scale::merge_render`]); dataset frames get an error preview and a PSNR against their image
+/// (`metrics.json`: the whole scene's views, not one block's).
+fn run_blocks(ctx: &Context, a: &RenderArgs) -> anyhow::Result<()> {
+    use crate::scale::merge_render::{render_blocks, WorldView};
+    let blocks = crate::scale::runner::read_blocks(&a.run)?;
+    let ds = crate::data::load_dataset(&blocks.source, &crate::data::LoadOptions::default())?;
+    let transform = ds.pose_transform();
+    let frames: Vec<usize> = match a.views.as_str() {
+        "all" => (0..ds.frames.len()).collect(),
+        "eval" => ds.split_indices(Split::Eval),
+        "train" => ds.split_indices(Split::Train),
+        _ => Vec::new(),
+    };
+    let views: Vec<(WorldView, Option<usize>)> = match a.views.as_str() {
+        "all" | "eval" | "train" => {
+            anyhow::ensure!(!frames.is_empty(), "--views {}: no frames", a.views);
+            frames
+                .iter()
+                .map(|&f| {
+                    let fr = &ds.frames[f];
+                    (WorldView { name: fr.name.clone(), camera: fr.camera, c2w: fr.c2w }, Some(f))
+                })
+                .collect()
+        }
+        s => {
+            let novel = if s == "orbit" {
+                orbit_views(&ds, &transform, &a.orbit.desc())?
+            } else {
+                load_camera_path(Path::new(s), &ds, &transform)?
+            };
+            novel
+                .into_iter()
+                .map(|v| (WorldView { name: v.name, camera: v.camera, c2w: transform.pose_to_world(&v.c2w) }, None))
+                .collect()
+        }
+    };
+    anyhow::ensure!(a.blend_mib > 0, "--blend-mib must be > 0");
+    std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
+    let world: Vec<WorldView> = views.iter().map(|(v, _)| v.clone()).collect();
+    let (rendered, stats) = render_blocks(ctx, &a.run, &blocks, &world, a.partial, a.blend_mib << 20, |b, j, n| {
+        println!("{b}: rendered {j}/{n}")
+    })?;
+    let mut sheet: Vec<(String, Rgb8)> = Vec::new();
+    let mut metrics = Vec::new();
+    for (k, ((v, frame), rv)) in views.iter().zip(&rendered).enumerate() {
+        let stem = Path::new(&v.name).file_stem().map_or(v.name.clone(), |s| s.to_string_lossy().into_owned());
+        let gt = match frame {
+            Some(f) if ds.rig.is_none() => {
+                let r = ds.read_frame(*f)?;
+                let data: Vec<f32> = (0..r.bands).flat_map(|b| r.band_f32(b)).collect();
+                let mask: Option<Vec<bool>> = r.mask.as_ref().map(|m| m.iter().map(|&x| x != 0).collect());
+                Some((SpectralImage::from_planar(r.width as usize, r.height as usize, ds.bands.clone(), data)?, mask))
+            }
+            _ => None,
+        };
+        let files = write_outputs(&ds.bands, rv, &stem, gt.as_ref().map(|g| &g.0), &a.out, a)?;
+        if let Some((gt, mask)) = &gt {
+            let img = SpectralImage::from_interleaved(rv.width, rv.height, ds.bands.clone(), &rv.colour)?;
+            let px = rv.width * rv.height;
+            let full_mask: Option<Vec<bool>> =
+                mask.as_ref().map(|m| m.iter().cycle().take(px * ds.n_bands()).copied().collect());
+            let p = crate::output::metrics::psnr(&img.data, &gt.data, full_mask.as_deref(), 1.0)?;
+            println!("{}: PSNR {p:.2} dB (blended)", v.name);
+            metrics.push(serde_json::json!({"view": v.name, "psnr": p}));
+        }
+        if k < a.sheet_views {
+            sheet.extend(files.tiles);
+        }
+    }
+    println!(
+        "blocks {}; {} of {} pixels blended from more than one block",
+        stats.blocks.join(", "),
+        stats.blended_pixels,
+        stats.pixels
+    );
+    for m in &stats.missing {
+        println!("left out (not trained or not finished): {m}");
+    }
+    if !metrics.is_empty() {
+        let mean = metrics.iter().filter_map(|m| m["psnr"].as_f64()).sum::<f64>() / metrics.len() as f64;
+        println!("mean PSNR over {} views: {mean:.2} dB", metrics.len());
+        let json =
+            serde_json::json!({"views": metrics, "mean_psnr": mean, "blocks": stats.blocks, "missing": stats.missing});
+        crate::util::atomic::write_bytes(&a.out.join("metrics.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
+    }
+    write_sheet(&sheet, rendered.len(), a)
 }

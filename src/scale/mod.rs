@@ -6,10 +6,12 @@
 //! - [`slurm_time`]: each task's time limit from `msnerf bench train --json` measurements;
 //! - [`merge`]: merged outputs, each world point owned by the block whose core contains it;
 //! - [`merge_survey`]: the merged DSM and ortho, each grid cell rendered by the block that owns it;
+//! - [`merge_render`]: views rendered by every block, blended over the overlaps by where each pixel's surface lies;
 //! - [`error`]: `ScaleError`, naming the dataset, option, block or file.
 
 pub mod error;
 pub mod merge;
+pub mod merge_render;
 pub mod merge_survey;
 pub mod partition;
 pub mod runner;

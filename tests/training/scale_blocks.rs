@@ -178,6 +178,7 @@ fn train_blocks_trains_every_block_and_resumes() {
         assert_eq!(owners, 1, "point {p:?}");
     }
     merged_survey_takes_each_cell_from_its_owner(&g, &out, &blocks, t.path());
+    render_blends_the_blocks_by_where_each_pixel_lies(&g, &out, &blocks, t.path());
     // An unfinished block: refused by name, or left out with `partial`.
     std::fs::remove_file(out.join("block_1_0/run/summary.json")).unwrap();
     let e = merge_clouds(&out, &blocks, false, export).expect_err("unfinished").to_string();
@@ -205,6 +206,20 @@ fn train_blocks_trains_every_block_and_resumes() {
     let (w, h) = (o.grid.width, o.grid.height);
     let nodata = (0..w * h).filter(|&i| o.is_nodata(o.value(0, i % w, i / w))).count();
     assert!(nodata > 0 && nodata < w * h, "block_1_0's cells are nodata, block_0_0's are not ({nodata} of {})", w * h);
+    let render = |partial: bool| {
+        let dir = t.path().join(format!("partial_render_{partial}"));
+        let mut v = vec!["render".to_string(), out.display().to_string(), "--out".into(), dir.display().to_string()];
+        if partial {
+            v.push("--partial".into());
+        }
+        std::process::Command::new(bin).args(&v).output().expect("run msnerf")
+    };
+    let refused = render(false);
+    let text = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && text.contains("block_1_0") && text.contains("--partial"), "{text}");
+    let partial = render(true);
+    let text = String::from_utf8_lossy(&partial.stdout);
+    assert!(partial.status.success() && text.contains("left out") && text.contains("block_1_0"), "{text}");
 
     // A broken block fails by name; the other still trains.
     std::fs::write(out.join("block_1_0/transforms.json"), "{").unwrap();
@@ -299,6 +314,107 @@ fn merged_survey_takes_each_cell_from_its_owner(g: &msnerf::gpu::Context, out: &
     // at the accumulation floor.
     assert!(agree as f64 >= 0.99 * compared as f64, "{agree} of {compared} cells are the owner's");
     assert!(other_differs as f64 > 0.05 * compared as f64, "the blocks' renders differ ({other_differs} cells)");
+}
+
+/// `render BLOCKS`: each pixel is the blend of every block's render with weights computed here from blocks.json
+/// (levelled surface point, cores with unbounded outer edges, a linear fade across each side's overlap margin,
+/// weights floored at 1e-9), to 1e-4; the overlap is blended somewhere; and the CLI writes the views with a PSNR.
+fn render_blends_the_blocks_by_where_each_pixel_lies(
+    g: &msnerf::gpu::Context,
+    out: &Path,
+    blocks: &Blocks,
+    tmp: &Path,
+) {
+    use msnerf::nerf::views::NovelView;
+    use msnerf::scale::merge_render::{render_blocks, WorldView};
+    let src = load_dataset(&blocks.source, &LoadOptions::default()).expect("source");
+    let views: Vec<WorldView> = src
+        .split_indices(Split::Eval)
+        .iter()
+        .take(2)
+        .map(|&f| WorldView { name: src.frames[f].name.clone(), camera: src.frames[f].camera, c2w: src.frames[f].c2w })
+        .collect();
+    let (merged, stats) = render_blocks(g, out, blocks, &views, false, 1 << 30, |_, _, _| {}).expect("render blocks");
+    assert_eq!(stats.blocks.len(), 2);
+    assert!(stats.blended_pixels > 0, "the overlap is blended somewhere");
+    let r = DMat3::from_cols_array_2d(&blocks.rotation).transpose();
+    let weight = |k: usize, p: [f64; 3]| -> f64 {
+        let b = &blocks.blocks[k];
+        let q = r * DVec3::from(p);
+        let side = |v: f64, lo: f64, hi: f64, glo: f64, ghi: f64, first: bool, last: bool| -> f64 {
+            if v < lo && !first {
+                (1.0 - (lo - v) / (lo - glo)).clamp(0.0, 1.0)
+            } else if v > hi && !last {
+                (1.0 - (v - hi) / (ghi - hi)).clamp(0.0, 1.0)
+            } else {
+                1.0
+            }
+        };
+        let [ix, iy] = b.index;
+        let (c, gr) = (b.core, b.grown);
+        side(q.x, c[0], c[1], gr[0], gr[1], ix == 0, ix + 1 == blocks.grid[0])
+            * side(q.y, c[2], c[3], gr[2], gr[3], iy == 0, iy + 1 == blocks.grid[1])
+    };
+    let mut alone = Vec::new();
+    for b in &blocks.blocks {
+        let mut run = LoadedRun::load(g, &out.join(&b.name).join("run")).expect("block run");
+        let novel: Vec<NovelView> = views
+            .iter()
+            .map(|v| NovelView {
+                name: v.name.clone(),
+                camera: v.camera,
+                c2w: run.transform.pose_to_normalized(&v.c2w),
+            })
+            .collect();
+        run.set_novel_views(&novel).expect("views");
+        alone.push((0..views.len()).map(|j| run.render_novel_view(j).expect("render")).collect::<Vec<_>>());
+    }
+    let nb = src.n_bands();
+    let mut worst = 0.0f64;
+    for (j, v) in views.iter().enumerate() {
+        let m = &merged[j];
+        for i in 0..m.width * m.height {
+            let ray = v.camera.ray_f64(&v.c2w, (i / m.width) as u32, (i % m.width) as u32);
+            let (mut sum, mut wsum) = (vec![0.0f64; nb], 0.0f64);
+            for (k, per_view) in alone.iter().enumerate() {
+                let rv = &per_view[j];
+                let d = rv.depth[i] as f64;
+                let p = if rv.accumulation[i] >= 0.5 && d.is_finite() {
+                    [0, 1, 2].map(|a| ray.origin[a] + ray.direction[a] * d)
+                } else {
+                    // The ground plane: levelled z = ground_z.
+                    let (qo, qd) = (r * DVec3::from(ray.origin), r * DVec3::from(ray.direction));
+                    let t = (blocks.ground_z - qo.z) / qd.z;
+                    if qd.z.abs() > 1e-12 && t > 0.0 {
+                        [0, 1, 2].map(|a| ray.origin[a] + t * ray.direction[a])
+                    } else {
+                        ray.origin
+                    }
+                };
+                let w = weight(k, p).max(1e-9);
+                for (s, c) in sum.iter_mut().zip(&rv.colour[i * nb..(i + 1) * nb]) {
+                    *s += w * *c as f64;
+                }
+                wsum += w;
+            }
+            for (s, c) in sum.iter().zip(&m.colour[i * nb..(i + 1) * nb]) {
+                worst = worst.max((*c as f64 - s / wsum).abs());
+            }
+        }
+    }
+    assert!(worst < 1e-4, "blend differs from the formula by {worst}");
+    // Through the CLI: the eval views with their PSNR against the images.
+    let dir = tmp.join("render");
+    let text = common::msnerf(
+        env!("CARGO_BIN_EXE_msnerf"),
+        &["render", out.to_str().unwrap(), "--views", "eval", "--out", dir.to_str().unwrap()],
+    );
+    assert!(text.contains("PSNR") && text.contains("blended from more than one block"), "{text}");
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).expect("metrics.json")).unwrap();
+    assert_eq!(metrics["views"].as_array().map(Vec::len), Some(src.split_indices(Split::Eval).len()));
+    assert!(metrics["mean_psnr"].as_f64().is_some_and(|p| p.is_finite() && p > 5.0), "{metrics}");
+    assert!(dir.join("contact_sheet.png").is_file());
 }
 
 /// SIGTERM (what Slurm sends before a time limit or a preemption) stops `msnerf train` with a checkpoint, so the
