@@ -12,8 +12,8 @@
 //! over the overlap, not an edge. Colour and accumulation are the weighted means (weights floored at 1e-9, so a
 //! pixel no block claims is the plain mean); depth is the weighted mean of the renders that have one.
 //!
-//! Views are rendered in groups whose accumulators fit `budget_bytes` ((B + 3) float32 per pixel); each block is
-//! loaded once per group.
+//! Views are rendered in groups whose accumulators fit `budget_bytes` ((B + 4) float32 and a byte per pixel);
+//! each block is loaded once per group.
 
 use std::path::{Path, PathBuf};
 
@@ -160,7 +160,7 @@ pub fn render_blocks(
     let mut nb = None;
     while start < views.len() {
         // The group: as many views as the accumulators' budget allows (at least one).
-        let per_pixel = 4 * (nb.unwrap_or(16) + 3);
+        let per_pixel = 4 * (nb.unwrap_or(16) + 4) + 1;
         let mut end = start;
         let mut bytes = 0usize;
         while end < views.len() {

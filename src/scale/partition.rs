@@ -202,10 +202,26 @@ pub fn partition(input: &Path, out: &Path, o: &PartitionOptions) -> Result<Block
     let source: Value = crate::data::transforms::read_json(&ds.transforms_path, "transforms.json")?;
     let src_dir = std::path::absolute(ds.transforms_path.parent().unwrap_or(Path::new(".")))
         .map_err(|e| ScaleError::Output { path: ds.transforms_path.clone(), reason: e.to_string() })?;
+    // The source's sparse points (SfM tracks), read once; each block gets the part its frames observed.
+    let points: Option<(std::path::PathBuf, Value)> = match source.get("sparse_points_path").and_then(Value::as_str) {
+        Some(p) => {
+            let path = src_dir.join(p);
+            let doc: Value = crate::data::transforms::read_json(&path, "sparse_points_path")?;
+            Some((path, doc))
+        }
+        None => None,
+    };
     for (b, frames) in blocks.iter().zip(&members) {
-        let doc = block_transforms(&source, &ds, frames, &src_dir);
+        let mut doc = block_transforms(&source, &ds, frames, &src_dir);
         let dir = stage.path.join(&b.name);
         std::fs::create_dir_all(&dir).map_err(ScaleError::io(&dir))?;
+        if let Some((path, pts)) = &points {
+            let part = block_sparse_points(pts, &ds, frames, &src_dir)
+                .map_err(|reason| ScaleError::Dataset { path: path.clone(), reason })?;
+            let p = dir.join("sparse_points.json");
+            std::fs::write(&p, serde_json::to_vec(&part).expect("json")).map_err(ScaleError::io(&p))?;
+            doc["sparse_points_path"] = Value::String("sparse_points.json".into());
+        }
         let p = dir.join("transforms.json");
         std::fs::write(&p, serde_json::to_vec_pretty(&doc).expect("json")).map_err(ScaleError::io(&p))?;
     }
@@ -270,6 +286,42 @@ fn block_transforms(source: &Value, ds: &Dataset, frames: &[usize], src_dir: &Pa
         .collect();
     top.insert("frames".into(), Value::Array(out));
     doc
+}
+
+/// A block's sparse points: the source's points with their tracks cut to the block's frames (named as the block's
+/// transforms.json names them: absolute paths); a point keeps its other keys and is dropped when no training frame
+/// of the block observed it (depth supervision projects a point into the training frames of its track).
+fn block_sparse_points(points: &Value, ds: &Dataset, frames: &[usize], src_dir: &Path) -> Result<Value, String> {
+    let abs = |p: &str| -> String {
+        if Path::new(p).is_absolute() {
+            p.to_string()
+        } else {
+            src_dir.join(p).display().to_string()
+        }
+    };
+    let members: std::collections::HashMap<&str, bool> = frames
+        .iter()
+        .map(|&f| (ds.frames[f].name.as_str(), matches!(ds.frames[f].split, Split::Train | Split::Unused)))
+        .collect();
+    let list = points.get("points").and_then(Value::as_array).ok_or("no `points` list")?;
+    let mut kept = Vec::new();
+    for (i, p) in list.iter().enumerate() {
+        let track = p.get("frames").and_then(Value::as_array).ok_or_else(|| format!("points[{i}].frames missing"))?;
+        let mut names = Vec::new();
+        let mut trained = false;
+        for name in track.iter().filter_map(Value::as_str) {
+            if let Some(&train) = members.get(name) {
+                names.push(Value::String(abs(name)));
+                trained |= train;
+            }
+        }
+        if trained {
+            let mut q = p.clone();
+            q["frames"] = Value::Array(names);
+            kept.push(q);
+        }
+    }
+    Ok(serde_json::json!({ "points": kept }))
 }
 
 #[cfg(test)]

@@ -579,3 +579,61 @@ fn slurm_time_limit_comes_from_the_train_benchmark() {
     let script = std::fs::read_to_string(out.join("slurm.sh")).expect("slurm.sh");
     assert!(script.contains("#SBATCH --time=00:16:00"), "{script}");
 }
+
+/// A dataset with sparse points (SfM tracks) partitions into blocks that load and train with depth supervision:
+/// each block gets the source's points whose track holds one of its training frames (counted here from the source
+/// file), with the track cut to the block's frames. (Before, every block pointed at the source's file, whose
+/// tracks name frames the block lacks, and refused to load.)
+#[test]
+fn partition_cuts_the_sparse_points_to_each_blocks_frames() {
+    use msnerf::data::sparse_points::read_sparse_points;
+    use msnerf::sim::sparse::SparseOptions;
+    let t = common::TempDir::new("partition-sparse");
+    let data = t.path().join("data");
+    let scene = SceneDesc::load("ci-textured").expect("built-in scene");
+    let so = SimOptions {
+        sparse_points: Some(SparseOptions { count: 2000, noise_m: 0.05, min_views: 2 }),
+        ..Default::default()
+    };
+    simulate(&scene, &so, &data).expect("simulate");
+    let out = t.path().join("blocks");
+    let o = PartitionOptions { blocks: [2, 1], overlap: 0.3, ground_z: None, overwrite: false };
+    let blocks = partition(&data, &out, &o).expect("partition");
+    let src: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("sparse_points.json")).unwrap()).unwrap();
+    let src = src["points"].as_array().expect("points").clone();
+    let data_abs = std::path::absolute(&data).unwrap();
+    for b in &blocks.blocks {
+        let ds = load_dataset(&out.join(&b.name), &LoadOptions::default()).expect("block dataset");
+        let path = ds.sparse_points_path.clone().expect("the block has sparse points");
+        let points = read_sparse_points(&ds, &path).expect("every track frame is one of the block's frames");
+        let train: std::collections::HashSet<String> =
+            ds.split_indices(Split::Train).iter().map(|&f| ds.frames[f].name.clone()).collect();
+        let want = src
+            .iter()
+            .filter(|p| {
+                p["frames"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|n| train.contains(&data_abs.join(n.as_str().unwrap()).display().to_string()))
+            })
+            .count();
+        assert!(want > 0, "{}: its frames see points", b.name);
+        assert_eq!(points.len(), want, "{}", b.name);
+    }
+    // The blocks train with DS-NeRF depth from their points.
+    let yaml = include_str!("../../configs/models/tiny.yaml").replace(
+        "  distortion_mult: 0.002",
+        "  distortion_mult: 0.002\n  depth: {loss: ds_nerf, source: sparse_points, mult: 1.0e-3, sigma: 0.2, ray_fraction: 0.25}",
+    );
+    assert!(yaml.contains("ds_nerf"), "the depth loss was added");
+    let model = t.path().join("tiny-sfm.yaml");
+    std::fs::write(&model, yaml).unwrap();
+    let mut args = tiny_args("3");
+    args[1] = model.display().to_string();
+    let o =
+        TrainBlocksOptions { exe: env!("CARGO_BIN_EXE_msnerf").into(), parallel: 1, devices: vec![], train_args: args };
+    let runs = train_blocks(&out, &o).expect("the blocks train with depth supervision");
+    assert!(runs.iter().all(|r| r.steps == Some(3)), "{runs:?}");
+}
