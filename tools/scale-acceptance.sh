@@ -20,11 +20,11 @@ sed 's/^name: demo$/name: demo-sfm/; s/^  distortion_mult: \(.*\)$/  distortion_
   configs/models/demo.yaml > "$work/demo-sfm.yaml"
 grep -q "depth: {loss: ds_nerf" "$work/demo-sfm.yaml" || { echo "scale-acceptance: could not add loss.depth" >&2; exit 1; }
 per_block=$((steps / 4))
+rm -rf "$work/single" "$work/blocks"  # a rerun starts over
 ts=$(date +%s)
 "$bin" train --data "$work/data" --model "$work/demo-sfm.yaml" --max-steps "$steps" --out "$work/single" --quiet \
   | tee "$work/train-single.txt"
 single_s=$(( $(date +%s) - ts ))
-rm -rf "$work/blocks"
 "$bin" partition "$work/data" --blocks 2x2 --overlap 0.15 --out "$work/blocks" | tee "$work/partition.txt"
 ts=$(date +%s)
 "$bin" train-blocks "$work/blocks" -- --model "$work/demo-sfm.yaml" --max-steps "$per_block" | tee "$work/train-blocks.txt"
