@@ -237,10 +237,12 @@ fn run_survey_blocks(
     opts: &SurveyOptions,
     outputs: &SurveyOutputs,
 ) -> anyhow::Result<()> {
-    use crate::scale::merge_survey::{cores_bounds, merge_survey};
+    use crate::scale::merge_survey::{cores_bounds, flight_top, merge_survey};
     let blocks = crate::scale::runner::read_blocks(&a.run)?;
-    let crs = crate::data::load_dataset(&blocks.source, &crate::data::LoadOptions::default())?.crs;
+    let ds = crate::data::load_dataset(&blocks.source, &crate::data::LoadOptions::default())?;
+    let crs = ds.crs.clone();
     let grid = a.grid(crs.as_ref(), || Ok(cores_bounds(&blocks)))?;
+    let opts = &SurveyOptions { top: Some(opts.top.map_or_else(|| flight_top(&blocks, &ds), Ok)?), ..opts.clone() };
     let bar = indicatif::ProgressBar::new(grid.height as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} rows, ETA {eta}")

@@ -16,8 +16,8 @@ pub struct PartitionArgs {
     /// Each block grown on every side by this fraction of its size, in [0, 1)
     #[arg(long, default_value_t = 0.15)]
     pub overlap: f64,
-    /// Ground height in the dataset's world frame (z for a dataset with a `crs`); default: where the cameras' optical
-    /// axes meet (a nadir grid flight needs it given)
+    /// Ground height in the levelled frame: world z for a dataset with a `crs`, otherwise the height along the
+    /// cameras' mean up; default: where the cameras' optical axes meet (a nadir grid flight needs it given)
     #[arg(long)]
     pub ground_z: Option<f64>,
     /// Output folder: blocks.json and one dataset per block (must not exist unless --overwrite)

@@ -5,13 +5,15 @@
 //! [`crate::nerf::camera_path`]) are `orbit_000`, `path_000`, ... and have no error preview (no ground truth).
 
 use super::Cli;
+use crate::data::pose::PoseTransform;
 use crate::data::Split;
 use crate::gpu::Context;
 use crate::nerf::camera_path::load_camera_path;
-use crate::nerf::evaluate::ground_truth;
+use crate::nerf::evaluate::{ground_truth, ground_truth_of};
 use crate::nerf::run::{LoadedRun, RenderedView};
 use crate::nerf::views::{orbit_views, NovelView, OrbitDesc};
 use crate::output::image::SpectralImage;
+use crate::output::metrics::{image_metrics, MetricOptions};
 use crate::output::raster::colormap::Colormap;
 use crate::output::raster::contact::{contact_sheet, Tile};
 use crate::output::raster::geotiff::{write_geotiff, GeoTiffOptions};
@@ -98,14 +100,15 @@ enum Views {
 
 const VIEWS_CHOICES: &str = "eval, train, all, orbit or a camera-path .json file";
 
-fn parse_views(run: &LoadedRun, a: &RenderArgs) -> anyhow::Result<Views> {
+/// The views `--views` asks for of `ds`; novel views in the normalised frame of `transform`.
+fn parse_views(ds: &crate::data::Dataset, transform: &PoseTransform, a: &RenderArgs) -> anyhow::Result<Views> {
     let views = match a.views.as_str() {
-        "all" => Views::Frames((0..run.ds.frames.len()).collect()),
-        "eval" => Views::Frames(run.ds.split_indices(Split::Eval)),
-        "train" => Views::Frames(run.ds.split_indices(Split::Train)),
-        "orbit" => Views::Novel(orbit_views(&run.ds, &run.transform, &a.orbit.desc())?),
+        "all" => Views::Frames((0..ds.frames.len()).collect()),
+        "eval" => Views::Frames(ds.split_indices(Split::Eval)),
+        "train" => Views::Frames(ds.split_indices(Split::Train)),
+        "orbit" => Views::Novel(orbit_views(ds, transform, &a.orbit.desc())?),
         s if s.ends_with(".json") || Path::new(s).is_file() => {
-            Views::Novel(load_camera_path(Path::new(s), &run.ds, &run.transform)?)
+            Views::Novel(load_camera_path(Path::new(s), ds, transform)?)
         }
         s => anyhow::bail!("--views {s}: expected {VIEWS_CHOICES}"),
     };
@@ -214,7 +217,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
     anyhow::ensure!(!a.partial, "--partial: {} is a run folder, not a `msnerf partition` folder", a.run.display());
     let mut run = LoadedRun::load(&ctx, &a.run)?;
     // Every view is known (and a camera path fully checked) before the output folder is touched.
-    let views = parse_views(&run, a)?;
+    let views = parse_views(&run.ds, &run.transform, a)?;
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
     let mut sheet: Vec<(String, Rgb8)> = Vec::new();
     let n = match &views {
@@ -253,68 +256,49 @@ fn run_blocks(ctx: &Context, a: &RenderArgs) -> anyhow::Result<()> {
     let blocks = crate::scale::runner::read_blocks(&a.run)?;
     let ds = crate::data::load_dataset(&blocks.source, &crate::data::LoadOptions::default())?;
     let transform = ds.pose_transform();
-    let frames: Vec<usize> = match a.views.as_str() {
-        "all" => (0..ds.frames.len()).collect(),
-        "eval" => ds.split_indices(Split::Eval),
-        "train" => ds.split_indices(Split::Train),
-        _ => Vec::new(),
-    };
-    let views: Vec<(WorldView, Option<usize>)> = match a.views.as_str() {
-        "all" | "eval" | "train" => {
-            anyhow::ensure!(!frames.is_empty(), "--views {}: no frames", a.views);
-            frames
-                .iter()
-                .map(|&f| {
-                    let fr = &ds.frames[f];
-                    (WorldView { name: fr.name.clone(), camera: fr.camera, c2w: fr.c2w }, Some(f))
-                })
-                .collect()
-        }
-        s => {
-            let novel = if s == "orbit" {
-                orbit_views(&ds, &transform, &a.orbit.desc())?
-            } else {
-                load_camera_path(Path::new(s), &ds, &transform)?
-            };
-            novel
-                .into_iter()
-                .map(|v| (WorldView { name: v.name, camera: v.camera, c2w: transform.pose_to_world(&v.c2w) }, None))
-                .collect()
-        }
+    // (view in the world frame, its dataset frame)
+    let views: Vec<(WorldView, Option<usize>)> = match parse_views(&ds, &transform, a)? {
+        Views::Frames(frames) => frames
+            .into_iter()
+            .map(|f| {
+                let fr = &ds.frames[f];
+                (WorldView { name: fr.name.clone(), camera: fr.camera, c2w: fr.c2w }, Some(f))
+            })
+            .collect(),
+        Views::Novel(novel) => novel
+            .into_iter()
+            .map(|v| (WorldView { name: v.name, camera: v.camera, c2w: transform.pose_to_world(&v.c2w) }, None))
+            .collect(),
     };
     anyhow::ensure!(a.blend_mib > 0, "--blend-mib must be > 0");
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
     let world: Vec<WorldView> = views.iter().map(|(v, _)| v.clone()).collect();
-    let (rendered, stats) = render_blocks(ctx, &a.run, &blocks, &world, a.partial, a.blend_mib << 20, |b, j, n| {
-        println!("{b}: rendered {j}/{n}")
-    })?;
     let mut sheet: Vec<(String, Rgb8)> = Vec::new();
     let mut metrics = Vec::new();
-    for (k, ((v, frame), rv)) in views.iter().zip(&rendered).enumerate() {
+    let mut write = |k: usize, rv: RenderedView| -> anyhow::Result<()> {
+        let (v, frame) = &views[k];
         let stem = Path::new(&v.name).file_stem().map_or(v.name.clone(), |s| s.to_string_lossy().into_owned());
+        // With `rig_cameras` the image is not the frame camera's registered view (see `write_view`).
         let gt = match frame {
-            Some(f) if ds.rig.is_none() => {
-                let r = ds.read_frame(*f)?;
-                let data: Vec<f32> = (0..r.bands).flat_map(|b| r.band_f32(b)).collect();
-                let mask: Option<Vec<bool>> = r.mask.as_ref().map(|m| m.iter().map(|&x| x != 0).collect());
-                Some((SpectralImage::from_planar(r.width as usize, r.height as usize, ds.bands.clone(), data)?, mask))
-            }
+            Some(f) if ds.rig.is_none() => Some(ground_truth_of(&ds, *f)?),
             _ => None,
         };
-        let files = write_outputs(&ds.bands, rv, &stem, gt.as_ref().map(|g| &g.0), &a.out, a)?;
+        let files = write_outputs(&ds.bands, &rv, &stem, gt.as_ref().map(|g| &g.0), &a.out, a)?;
         if let Some((gt, mask)) = &gt {
             let img = SpectralImage::from_interleaved(rv.width, rv.height, ds.bands.clone(), &rv.colour)?;
-            let px = rv.width * rv.height;
-            let full_mask: Option<Vec<bool>> =
-                mask.as_ref().map(|m| m.iter().cycle().take(px * ds.n_bands()).copied().collect());
-            let p = crate::output::metrics::psnr(&img.data, &gt.data, full_mask.as_deref(), 1.0)?;
-            println!("{}: PSNR {p:.2} dB (blended)", v.name);
-            metrics.push(serde_json::json!({"view": v.name, "psnr": p}));
+            let m = image_metrics(&img, gt, mask.as_deref(), &MetricOptions::default())?;
+            println!("{}: PSNR {:.2} dB, SSIM {:.4} (blended)", v.name, m.psnr, m.ssim);
+            metrics.push(serde_json::json!({"view": v.name, "psnr": m.psnr, "ssim": m.ssim}));
         }
         if k < a.sheet_views {
             sheet.extend(files.tiles);
         }
-    }
+        Ok(())
+    };
+    let progress = |b: &str, j: usize, n: usize| println!("{b}: rendered {j}/{n}");
+    let stats = render_blocks(ctx, &a.run, &blocks, &world, a.partial, a.blend_mib << 20, progress, |k, rv| {
+        write(k, rv).map_err(|e| crate::scale::ScaleError::Output { path: a.out.clone(), reason: format!("{e:#}") })
+    })?;
     println!(
         "blocks {}; {} of {} pixels blended from more than one block",
         stats.blocks.join(", "),
@@ -331,5 +315,5 @@ fn run_blocks(ctx: &Context, a: &RenderArgs) -> anyhow::Result<()> {
             serde_json::json!({"views": metrics, "mean_psnr": mean, "blocks": stats.blocks, "missing": stats.missing});
         crate::util::atomic::write_bytes(&a.out.join("metrics.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
     }
-    write_sheet(&sheet, rendered.len(), a)
+    write_sheet(&sheet, views.len(), a)
 }

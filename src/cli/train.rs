@@ -118,7 +118,9 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         let ds = a.data.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "data".into());
         PathBuf::from("runs").join(format!("{ds}-{}", model.name))
     });
-    if out.join("checkpoints/latest.msnp").exists() && !a.resume {
+    // A checkpoint is complete once its state (latest.json, written after the parameters) exists; `train-blocks` and
+    // the Slurm script resume on the same file, so a run killed between the two writes starts over everywhere.
+    if out.join("checkpoints/latest.json").exists() && !a.resume {
         anyhow::bail!(
             "{} already holds a trained run: pass --resume to continue it, or choose another --out",
             out.display()

@@ -31,9 +31,17 @@ pub enum EvalError {
 
 /// Ground truth of a frame as a spectral image and its mask.
 pub fn ground_truth(run: &LoadedRun, frame: usize) -> Result<(SpectralImage, Option<Vec<bool>>), EvalError> {
-    let r = run.ds.read_frame(frame)?;
+    ground_truth_of(&run.ds, frame)
+}
+
+/// [`ground_truth`] of frame `frame` of `ds`.
+pub fn ground_truth_of(
+    ds: &crate::data::Dataset,
+    frame: usize,
+) -> Result<(SpectralImage, Option<Vec<bool>>), EvalError> {
+    let r = ds.read_frame(frame)?;
     let data: Vec<f32> = (0..r.bands).flat_map(|b| r.band_f32(b)).collect();
-    let img = SpectralImage::from_planar(r.width as usize, r.height as usize, run.ds.bands.clone(), data)?;
+    let img = SpectralImage::from_planar(r.width as usize, r.height as usize, ds.bands.clone(), data)?;
     let mask = r.mask.as_ref().map(|m| m.iter().map(|&v| v != 0).collect());
     Ok((img, mask))
 }

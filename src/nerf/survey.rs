@@ -243,7 +243,15 @@ pub fn seen_bounds(run: &mut LoadedRun) -> Result<[f64; 4], SurveyError> {
 
 /// The training cameras' median height (world z).
 pub fn median_camera_height(run: &LoadedRun) -> f64 {
-    let z: Vec<f64> = run.ds.split_indices(Split::Train).iter().map(|&f| run.ds.frames[f].c2w[2][3]).collect();
+    training_camera_height(&run.ds)
+}
+
+/// The median height (world z) of `ds`'s training cameras; NaN without training frames.
+pub fn training_camera_height(ds: &crate::data::Dataset) -> f64 {
+    let z: Vec<f64> = ds.split_indices(Split::Train).iter().map(|&f| ds.frames[f].c2w[2][3]).collect();
+    if z.is_empty() {
+        return f64::NAN;
+    }
     crate::util::stats::median(&z)
 }
 

@@ -72,6 +72,28 @@ pub fn finished_run(dir: &Path, b: &Block) -> Option<std::path::PathBuf> {
     (run.join("checkpoints/latest.msnp").is_file() && run.join("summary.json").is_file()).then_some(run)
 }
 
+/// Every block's finished run (None where it has none) and the names of the blocks without one. Missing blocks are
+/// refused by name unless `partial`; no finished block at all is refused always.
+pub fn finished_runs(
+    dir: &Path,
+    blocks: &Blocks,
+    partial: bool,
+) -> Result<(Vec<Option<std::path::PathBuf>>, Vec<String>), ScaleError> {
+    let runs: Vec<Option<std::path::PathBuf>> = blocks.blocks.iter().map(|b| finished_run(dir, b)).collect();
+    let missing: Vec<String> =
+        blocks.blocks.iter().zip(&runs).filter(|(_, r)| r.is_none()).map(|(b, _)| b.name.clone()).collect();
+    if !missing.is_empty() && !partial {
+        return Err(ScaleError::Block {
+            block: missing.join(", "),
+            reason: "not trained or not finished (run `msnerf train-blocks`, or use the others with --partial)".into(),
+        });
+    }
+    if runs.iter().all(Option::is_none) {
+        return Err(ScaleError::Block { block: "all".into(), reason: "no block has a finished run".into() });
+    }
+    Ok((runs, missing))
+}
+
 /// Exports every block's cloud with `export` (given the block and its run folder) and joins the core parts. Blocks
 /// without a finished run are refused by name, or left out with `partial` (listed in the stats).
 pub fn merge_clouds(
@@ -80,16 +102,8 @@ pub fn merge_clouds(
     partial: bool,
     mut export: impl FnMut(&Block, &Path) -> Result<PointCloud, ScaleError>,
 ) -> Result<(PointCloud, MergeStats), ScaleError> {
-    let mut stats = MergeStats::default();
-    let runs: Vec<Option<std::path::PathBuf>> = blocks.blocks.iter().map(|b| finished_run(dir, b)).collect();
-    stats.missing = blocks.blocks.iter().zip(&runs).filter(|(_, r)| r.is_none()).map(|(b, _)| b.name.clone()).collect();
-    if !stats.missing.is_empty() && !partial {
-        return Err(ScaleError::Block {
-            block: stats.missing.join(", "),
-            reason: "not trained or not finished (run `msnerf train-blocks`, or merge the others with --partial)"
-                .into(),
-        });
-    }
+    let (runs, missing) = finished_runs(dir, blocks, partial)?;
+    let mut stats = MergeStats { missing, ..Default::default() };
     let owners = Owners::new(blocks);
     let mut merged: Option<PointCloud> = None;
     for (i, (b, run)) in blocks.blocks.iter().zip(&runs).enumerate() {

@@ -15,12 +15,12 @@
 //! Views are rendered in groups whose accumulators fit `budget_bytes` ((B + 4) float32 and a byte per pixel);
 //! each block is loaded once per group.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::{DMat3, DVec3};
 
 use super::error::ScaleError;
-use super::merge::finished_run;
+use super::merge::finished_runs;
 use super::partition::Blocks;
 use crate::data::pose::Mat4;
 use crate::data::Camera;
@@ -128,8 +128,11 @@ pub struct BlendStats {
     pub pixels: usize,
 }
 
-/// Renders `views` with every finished block of `dir` and blends them. Blocks without a finished run are refused by
-/// name, or left out with `partial`. `progress` gets (block, views of the group done, views in the group).
+/// Renders `views` with every finished block of `dir`, blends them and hands each blended view to `sink` (its index
+/// in `views`, in order) as soon as its group is done, so host memory holds one group. Blocks without a finished run
+/// are refused by name, or left out with `partial`. `progress` gets (block, views of the group done, views in the
+/// group).
+#[allow(clippy::too_many_arguments)]
 pub fn render_blocks(
     ctx: &Context,
     dir: &Path,
@@ -138,24 +141,11 @@ pub fn render_blocks(
     partial: bool,
     budget_bytes: usize,
     mut progress: impl FnMut(&str, usize, usize),
-) -> Result<(Vec<RenderedView>, BlendStats), ScaleError> {
-    let runs: Vec<Option<PathBuf>> = blocks.blocks.iter().map(|b| finished_run(dir, b)).collect();
-    let mut stats = BlendStats {
-        missing: blocks.blocks.iter().zip(&runs).filter(|(_, r)| r.is_none()).map(|(b, _)| b.name.clone()).collect(),
-        ..Default::default()
-    };
-    if !stats.missing.is_empty() && !partial {
-        return Err(ScaleError::Block {
-            block: stats.missing.join(", "),
-            reason: "not trained or not finished (run `msnerf train-blocks`, or render with the others: --partial)"
-                .into(),
-        });
-    }
-    if runs.iter().all(Option::is_none) {
-        return Err(ScaleError::Block { block: "all".into(), reason: "no block has a finished run".into() });
-    }
+    mut sink: impl FnMut(usize, RenderedView) -> Result<(), ScaleError>,
+) -> Result<BlendStats, ScaleError> {
+    let (runs, missing) = finished_runs(dir, blocks, partial)?;
+    let mut stats = BlendStats { missing, ..Default::default() };
     let weights = BlendWeights::new(blocks);
-    let mut out: Vec<RenderedView> = Vec::with_capacity(views.len());
     let mut start = 0;
     let mut nb = None;
     while start < views.len() {
@@ -202,14 +192,14 @@ pub fn render_blocks(
                 progress(&b.name, j + 1, group.len());
             }
         }
-        for a in acc {
+        for (j, a) in acc.into_iter().enumerate() {
             stats.blended_pixels += a.blended;
             stats.pixels += a.width * a.height;
-            out.push(a.finish(out.len()));
+            sink(start + j, a.finish(start + j))?;
         }
         start = end;
     }
-    Ok((out, stats))
+    Ok(stats)
 }
 
 /// Weighted sums of one view's renders.

@@ -15,12 +15,14 @@ use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 use super::error::ScaleError;
-use super::merge::{finished_run, Owners};
+use super::merge::{finished_runs, Owners};
 use super::partition::Blocks;
-use crate::data::{load_dataset, LoadOptions, Split};
+use crate::data::{load_dataset, LoadOptions};
 use crate::gpu::Context;
 use crate::nerf::run::LoadedRun;
-use crate::nerf::survey::{render_survey, RowBlock, SurveyError, SurveyGrid, SurveyOptions, SurveyStats};
+use crate::nerf::survey::{
+    render_survey, training_camera_height, RowBlock, SurveyError, SurveyGrid, SurveyOptions, SurveyStats,
+};
 use crate::nerf::survey_products::{write_products, RowSink, SurveyOutputs, SurveyReport, SurveySource};
 
 /// Rows of the merged grid handed to the writers at a time.
@@ -93,14 +95,15 @@ pub fn cores_bounds(blocks: &Blocks) -> [f64; 4] {
     b
 }
 
-/// The flight's median training camera height (world z), from the partitioned dataset.
-pub fn flight_top(blocks: &Blocks) -> Result<f64, ScaleError> {
-    let ds = load_dataset(&blocks.source, &LoadOptions::default())?;
-    let z: Vec<f64> = ds.split_indices(Split::Train).iter().map(|&f| ds.frames[f].c2w[2][3]).collect();
-    if z.is_empty() {
-        return Err(ScaleError::Dataset { path: blocks.source.clone(), reason: "no training frames".into() });
+/// The flight's median training camera height (world z), from the partitioned dataset `ds` (load it with
+/// `load_dataset(&blocks.source, ..)`).
+pub fn flight_top(blocks: &Blocks, ds: &crate::data::Dataset) -> Result<f64, ScaleError> {
+    let top = training_camera_height(ds);
+    if top.is_finite() {
+        Ok(top)
+    } else {
+        Err(ScaleError::Dataset { path: blocks.source.clone(), reason: "no training camera height".into() })
     }
-    Ok(crate::util::stats::median(&z))
 }
 
 /// Removes the scratch folder when the merge ends.
@@ -125,35 +128,29 @@ pub fn merge_survey(
     partial: bool,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<MergedSurvey, ScaleError> {
-    let runs: Vec<Option<PathBuf>> = blocks.blocks.iter().map(|b| finished_run(dir, b)).collect();
-    let missing: Vec<String> =
-        blocks.blocks.iter().zip(&runs).filter(|(_, r)| r.is_none()).map(|(b, _)| b.name.clone()).collect();
-    if !missing.is_empty() && !partial {
-        return Err(ScaleError::Block {
-            block: missing.join(", "),
-            reason: "not trained or not finished (run `msnerf train-blocks`, or merge the others with --partial)"
-                .into(),
-        });
-    }
+    let (runs, missing) = finished_runs(dir, blocks, partial)?;
+    // finished_runs refuses a partition without any finished block.
     let Some(first) = runs.iter().flatten().next() else {
-        return Err(ScaleError::Block { block: "all".into(), reason: "no block has a finished run".into() });
+        return Err(ScaleError::option("BLOCKS", "no finished block"));
     };
     let product = outputs.dsm.as_ref().or(outputs.ortho.as_ref()).expect("a product is asked for");
     let out_dir = product.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
     let top = match opts.top {
         Some(t) => t,
-        None => flight_top(blocks)?,
+        None => flight_top(blocks, &load_dataset(&blocks.source, &LoadOptions::default())?)?,
     };
-    // The products' bands and CRS: the first finished block's (every block's dataset is a part of one flight).
-    let fail = |name: &str| {
-        let name = name.to_string();
-        move |e: &dyn std::fmt::Display| ScaleError::Block { block: name.clone(), reason: e.to_string() }
+    // The products' bands and CRS: the first finished block's run (every block's dataset is a part of one flight),
+    // which renders first, so it is loaded once.
+    let first_k = runs.iter().position(|r| r.as_ref() == Some(first)).unwrap_or(0);
+    let loaded = LoadedRun::load(ctx, first)
+        .map_err(|e| ScaleError::Block { block: blocks.blocks[first_k].name.clone(), reason: e.to_string() })?;
+    let source = SurveySource {
+        bands: loaded.ds.bands.clone(),
+        crs: loaded.ds.crs.clone(),
+        label: dir.display().to_string(),
+        top,
     };
-    let source = {
-        let b = &blocks.blocks[runs.iter().position(|r| r.as_ref() == Some(first)).unwrap_or(0)];
-        let run = LoadedRun::load(ctx, first).map_err(|e| fail(&b.name)(&e))?;
-        SurveySource { bands: run.ds.bands.clone(), crs: run.ds.crs.clone(), label: dir.display().to_string(), top }
-    };
+    let mut first_run = Some(loaded);
     let nb = source.bands.len();
     let cells = CellOwners { owners: Owners::new(blocks), grid, ground_z: blocks.ground_z };
     let rects = cells.rectangles(blocks.blocks.len());
@@ -179,8 +176,11 @@ pub fn merge_survey(
             let io =
                 |e: std::io::Error| SurveyError::Invalid { what: path.display().to_string(), reason: e.to_string() };
             let mut w = BufWriter::new(std::fs::File::create(&path).map_err(io)?);
-            let mut loaded = LoadedRun::load(ctx, run)
-                .map_err(|e| SurveyError::Invalid { what: format!("block {}", b.name), reason: e.to_string() })?;
+            let mut loaded = match first_run.take().filter(|_| k == first_k) {
+                Some(r) => r,
+                None => LoadedRun::load(ctx, run)
+                    .map_err(|e| SurveyError::Invalid { what: format!("block {}", b.name), reason: e.to_string() })?,
+            };
             if loaded.ds.bands.len() != nb {
                 return Err(SurveyError::Invalid {
                     what: format!("block {}", b.name),

@@ -206,6 +206,8 @@ pub fn partition(input: &Path, out: &Path, o: &PartitionOptions) -> Result<Block
     let points: Option<(std::path::PathBuf, Value)> = match source.get("sparse_points_path").and_then(Value::as_str) {
         Some(p) => {
             let path = src_dir.join(p);
+            // Checked as training would check it (frames known, finite points), so a bad file fails here by name.
+            crate::data::sparse_points::read_sparse_points(&ds, &path)?;
             let doc: Value = crate::data::transforms::read_json(&path, "sparse_points_path")?;
             Some((path, doc))
         }

@@ -43,8 +43,34 @@ pub fn read_blocks(dir: &Path) -> Result<Blocks, ScaleError> {
         path: p.clone(),
         reason: format!("{e} (is this a folder written by `msnerf partition`?)"),
     })?;
-    serde_json::from_str(&text)
-        .map_err(|e| ScaleError::Dataset { path: p, reason: format!("invalid blocks.json: {e}") })
+    let b: Blocks = serde_json::from_str(&text)
+        .map_err(|e| ScaleError::Dataset { path: p.clone(), reason: format!("invalid blocks.json: {e}") })?;
+    // Every cell of the grid holds exactly one block: the merges index blocks by grid cell.
+    let [nx, ny] = b.grid;
+    let mut seen = vec![false; nx.saturating_mul(ny)];
+    for blk in &b.blocks {
+        let [ix, iy] = blk.index;
+        let cell = (ix < nx && iy < ny).then(|| iy * nx + ix);
+        match cell {
+            Some(c) if !seen[c] => seen[c] = true,
+            _ => {
+                return Err(ScaleError::Dataset {
+                    path: p,
+                    reason: format!(
+                        "block {}: index {:?} is outside the {nx}x{ny} grid or taken twice",
+                        blk.name, blk.index
+                    ),
+                })
+            }
+        }
+    }
+    if seen.is_empty() || seen.contains(&false) {
+        return Err(ScaleError::Dataset {
+            path: p,
+            reason: format!("the {nx}x{ny} grid has {} blocks: every cell needs one", b.blocks.len()),
+        });
+    }
+    Ok(b)
 }
 
 /// Trains every block of `dir`; returns the runs in block order, or an error naming every block that failed.
@@ -97,7 +123,12 @@ fn run_block(dir: &Path, name: &str, device: Option<&str>, o: &TrainBlocksOption
     let run = data.join("run");
     let resumed = run.join("checkpoints/latest.json").is_file();
     let log_path = data.join("train.log");
-    let log = std::fs::File::create(&log_path).map_err(|e| format!("{}: {e}", log_path.display()))?;
+    // Appended, so a resumed block keeps the log of its earlier runs (as the Slurm script's --open-mode=append).
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .map_err(|e| format!("{}: {e}", log_path.display()))?;
     let err_log = log.try_clone().map_err(|e| format!("{}: {e}", log_path.display()))?;
     let mut cmd = std::process::Command::new(&o.exe);
     cmd.arg("train").arg("--data").arg(&data).arg("--out").arg(&run).arg("--quiet");

@@ -248,7 +248,8 @@ fn merged_survey_takes_each_cell_from_its_owner(g: &msnerf::gpu::Context, out: &
     common::msnerf(env!("CARGO_BIN_EXE_msnerf"), &args);
     let b = cores_bounds(blocks);
     let grid = SurveyGrid::covering(b, (b[2] - b[0]) / 40.0, 1 << 20).expect("grid");
-    let top = flight_top(blocks).expect("the flight's camera height");
+    let source = load_dataset(&blocks.source, &LoadOptions::default()).expect("source");
+    let top = flight_top(blocks, &source).expect("the flight's camera height");
     let opts = SurveyOptions { consistency: None, max_spread_cells: None, top: Some(top), ..Default::default() };
     let products = |tag: &str| SurveyOutputs {
         dsm: Some(tmp.join(format!("{tag}_dsm.tif"))),
@@ -334,7 +335,22 @@ fn render_blends_the_blocks_by_where_each_pixel_lies(
         .take(2)
         .map(|&f| WorldView { name: src.frames[f].name.clone(), camera: src.frames[f].camera, c2w: src.frames[f].c2w })
         .collect();
-    let (merged, stats) = render_blocks(g, out, blocks, &views, false, 1 << 30, |_, _, _| {}).expect("render blocks");
+    let mut merged = Vec::new();
+    let stats = render_blocks(
+        g,
+        out,
+        blocks,
+        &views,
+        false,
+        1 << 30,
+        |_, _, _| {},
+        |k, rv| {
+            assert_eq!(k, merged.len(), "views arrive in order");
+            merged.push(rv);
+            Ok(())
+        },
+    )
+    .expect("render blocks");
     assert_eq!(stats.blocks.len(), 2);
     assert!(stats.blended_pixels > 0, "the overlap is blended somewhere");
     let r = DMat3::from_cols_array_2d(&blocks.rotation).transpose();
@@ -636,4 +652,23 @@ fn partition_cuts_the_sparse_points_to_each_blocks_frames() {
         TrainBlocksOptions { exe: env!("CARGO_BIN_EXE_msnerf").into(), parallel: 1, devices: vec![], train_args: args };
     let runs = train_blocks(&out, &o).expect("the blocks train with depth supervision");
     assert!(runs.iter().all(|r| r.steps == Some(3)), "{runs:?}");
+}
+
+/// A hand-edited blocks.json whose blocks do not tile the grid once each is refused, naming the file and the block.
+#[test]
+fn blocks_json_must_tile_its_grid() {
+    let (_t, _data, out, _) = two_blocks("blocks-json");
+    let path = out.join("blocks.json");
+    let good: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert!(read_blocks(&out).is_ok());
+    let mut outside = good.clone();
+    outside["blocks"][1]["index"] = serde_json::json!([5, 0]);
+    std::fs::write(&path, outside.to_string()).unwrap();
+    let e = read_blocks(&out).expect_err("index outside the grid").to_string();
+    assert!(e.contains("blocks.json") && e.contains("block_1_0") && e.contains("2x1"), "{e}");
+    let mut missing = good.clone();
+    missing["blocks"].as_array_mut().unwrap().pop();
+    std::fs::write(&path, missing.to_string()).unwrap();
+    let e = read_blocks(&out).expect_err("a cell without a block").to_string();
+    assert!(e.contains("blocks.json") && e.contains("every cell needs one"), "{e}");
 }
