@@ -47,9 +47,11 @@ const VARIANTS: &[Variant] = &[
     v("check_finite", "util/check_finite.comp"),
     // encoding: multiresolution hash grid (src/nn/hashgrid.rs)
     v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
+    vd("hashgrid_fwd_texel", "encoding/hashgrid_fwd.comp", &[("HASH_TEXEL", "1")]),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
     v("hashgrid_bwd_runs", "encoding/hashgrid_bwd_runs.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
+    vd("hashgrid_bwd_input_texel", "encoding/hashgrid_bwd_input.comp", &[("HASH_TEXEL", "1")]),
     // network: MLP layer, tile and weight-gradient kernels (src/nn/mlp.rs); not fused across layers
     v("mlp_layer_fwd", "network/mlp_layer_fwd.comp"),
     v("mlp_layer_bwd", "network/mlp_layer_bwd.comp"),

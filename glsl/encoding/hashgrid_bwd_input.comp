@@ -4,7 +4,8 @@
 // dispatch reads); the first level writes dL/dp, the others add to it, each invocation owning its point (the
 // dispatches are ordered by barriers, so no atomics). Points whose output gradient is zero at the level skip the
 // table reads.
-// Bindings: 0 positions (float[3N]), 1 dL/dy (rows of dy_stride), 2 dL/dp (float[3N], written or added to).
+// Bindings: 0 positions (float[3N]), 1 dL/dy (rows of dy_stride), 2 dL/dp (float[3N], written or added to); the
+//           `_texel` variant (HASH_TEXEL) also texel 12, the level's chunk (hashgrid_entry.glsl).
 // Push:     params (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
 //           (first float of the level, in the chunk or in the array), n, dy_stride, dy_col (the level's first
 //           column), scale, res, entries.

@@ -23,6 +23,27 @@ void hash_locate(uint64_t base, uint shift, uint g, out uint64_t addr, out uint 
     }
 }
 
+#ifdef HASH_TEXEL
+// The texel variant (build.rs defines HASH_TEXEL): the level's chunk bound as a uniform texel buffer at binding 12
+// (R32, R32G32 or R32G32B32A32 SFLOAT for F = 1, 2, 4 and 8), read with texelFetch. On lavapipe a texel fetch is
+// a gather without the per-lane branch of a read through a device address. `base` and `shift` are unused: the
+// level lies in the bound chunk (HASH_CHUNKED = 0) and g counts floats from the chunk's start.
+layout(binding = 12) uniform samplerBuffer hash_table;
+#define HASH_ACCUMULATE_ENTRY(base, shift, g, wt_, acc) { \
+    if (F == 1u) { \
+        acc[0] += (wt_) * texelFetch(hash_table, int(g)).x; \
+    } else if (F == 2u) { \
+        vec2 t_ = texelFetch(hash_table, int((g) / 2u)).xy; \
+        acc[0] += (wt_) * t_.x; acc[1 % F] += (wt_) * t_.y; \
+    } else { \
+        [[unroll]] for (uint q_ = 0u; q_ < F / 4u; ++q_) { \
+            vec4 t_ = texelFetch(hash_table, int((g) / 4u + q_)); \
+            acc[(4u * q_) % F] += (wt_) * t_.x; acc[(4u * q_ + 1u) % F] += (wt_) * t_.y; \
+            acc[(4u * q_ + 2u) % F] += (wt_) * t_.z; acc[(4u * q_ + 3u) % F] += (wt_) * t_.w; \
+        } \
+    } \
+}
+#else
 // acc[f] += w * entry[f] for the entry whose first float is element g.
 #define HASH_ACCUMULATE_ENTRY(base, shift, g, w, acc) { \
     uint64_t a_; uint o_; \
@@ -44,3 +65,4 @@ void hash_locate(uint64_t base, uint shift, uint g, out uint64_t addr, out uint 
         } \
     } \
 }
+#endif

@@ -4,7 +4,8 @@
 // One dispatch per level (tcnn's cache-friendly order: the level's table is what the whole dispatch reads) with the
 // level's parameters in push constants, so on lavapipe they are read once for all invocations rather than once per
 // lane; each corner's F features are read in one access (hashgrid_entry.glsl).
-// Bindings: 0 positions (float[3N], in [0,1]^3), 1 output (float rows of out_stride).
+// Bindings: 0 positions (float[3N], in [0,1]^3), 1 output (float rows of out_stride); the `_texel` variant
+//           (build.rs defines HASH_TEXEL) also texel 12, the level's chunk (hashgrid_entry.glsl).
 // Push:     params (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
 //           (first float of the level, in the chunk or in the array), n, out_stride, out_col (the level's first
 //           column), pad_value, scale, res, entries.

@@ -27,6 +27,11 @@ pub struct HashResult {
     /// them): one point per invocation, and with run combining over 8 consecutive points (hashgrid_bwd.comp).
     pub backward_rays_mpts_per_s: f64,
     pub backward_rays_run8_mpts_per_s: f64,
+    /// Speed-up of reading the tables as texel buffers against reading them through device addresses, on
+    /// ray-ordered points: the median of per-repeat ratios of the two timed back to back (this machine's speed
+    /// drifts), for the forward and for the input gradient. `None` where the grid cannot be bound as texels.
+    pub forward_texel_speedup: Option<f64>,
+    pub input_grad_texel_speedup: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -121,6 +126,32 @@ pub fn bench_hash(
     let bwd = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &pos, points, dys)))?;
     let rays = GpuBuffer::from_slice(ctx, "bench ray points", MemoryCategory::Activations, &ray_points(points, 48))?;
     let bwd_rays = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &rays, points, dys)))?;
+    let mut paired = HashGrid::new(ctx, cfg)?;
+    let dp = zeros(ctx, "bench dp", points * 3)?;
+    let mut ratio = |which: usize| -> GpuResult<Option<f64>> {
+        let run = |grid: &HashGrid| {
+            run_recorded(ctx, &|rec| match which {
+                0 => grid.forward(rec, p, &rays, points, &out, slot),
+                _ => grid.backward_input(rec, p, &rays, points, dys, &dp),
+            })
+        };
+        let mut r = Vec::with_capacity(repeats);
+        for k in 0..=repeats.max(1) {
+            let mut t = [0.0; 2];
+            for (texel, t) in [false, true].into_iter().zip(&mut t) {
+                paired.set_texel_reads(texel);
+                let s = Instant::now();
+                run(&paired)?;
+                *t = s.elapsed().as_secs_f64();
+            }
+            if k > 0 {
+                r.push(t[0] / t[1]); // the first pair compiles the pipelines
+            }
+        }
+        Ok(Some(median(r)))
+    };
+    let texels_bind = params.texel_binding(0, ash::vk::Format::R32G32_SFLOAT)?.is_some();
+    let (fwd_texel, input_texel) = if texels_bind { (ratio(0)?, ratio(1)?) } else { (None, None) };
     let grid8 = HashGrid::with_backward_run(ctx, cfg, 8)?;
     let bwd_run8 = time_ms(repeats, || run_recorded(ctx, &|rec| grid8.backward_params(rec, g, &rays, points, dys)))?;
     let atomics = (points * cfg.n_levels as usize * 8 * cfg.features_per_level as usize) as f64;
@@ -133,6 +164,8 @@ pub fn bench_hash(
         backward_matomics_per_s: atomics / bwd / 1e3,
         backward_rays_mpts_per_s: points as f64 / bwd_rays / 1e3,
         backward_rays_run8_mpts_per_s: points as f64 / bwd_run8 / 1e3,
+        forward_texel_speedup: fwd_texel,
+        input_grad_texel_speedup: input_texel,
     })
 }
 
@@ -389,7 +422,7 @@ impl KernelBench {
     pub fn table(&self) -> String {
         let mut s = format!("device: {} ({}), host threads: {}\n\n", self.device, self.driver, self.host_threads);
         s += &format!(
-            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14} {:>14} {:>14}\n",
+            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14} {:>14} {:>14} {:>10} {:>10}\n",
             "hash grid",
             "points",
             "params",
@@ -397,11 +430,13 @@ impl KernelBench {
             "bwd Mpt/s",
             "bwd Matomic/s",
             "rays bwd Mpt/s",
-            "rays run8 Mpt/s"
+            "rays run8 Mpt/s",
+            "texel fwd",
+            "texel dp"
         );
         for h in &self.hash {
             s += &format!(
-                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1} {:>14.2} {:>14.2}\n",
+                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1} {:>14.2} {:>14.2} {:>10} {:>10}\n",
                 h.name,
                 h.points,
                 h.params,
@@ -409,7 +444,9 @@ impl KernelBench {
                 h.backward_mpts_per_s,
                 h.backward_matomics_per_s,
                 h.backward_rays_mpts_per_s,
-                h.backward_rays_run8_mpts_per_s
+                h.backward_rays_run8_mpts_per_s,
+                h.forward_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x")),
+                h.input_grad_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x"))
             );
         }
         s += &format!(

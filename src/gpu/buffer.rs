@@ -96,6 +96,8 @@ impl RawBuffer {
 pub struct GpuBuffer<T: Pod> {
     pub(crate) shared: Arc<DeviceShared>,
     pub(crate) inner: RawBuffer,
+    /// Texel buffer views of this buffer ([`GpuBuffer::texel_binding`]), destroyed before it.
+    texels: super::texel::TexelViews,
     len: usize,
     category: MemoryCategory,
     _t: PhantomData<T>,
@@ -108,6 +110,9 @@ pub struct Binding {
     pub(crate) offset: u64,
     pub(crate) range: u64,
     pub(crate) name: Arc<str>,
+    /// A uniform texel buffer view of the buffer ([`crate::gpu::LargeArray::texel_binding`]): bound to the
+    /// kernel's texel slots (`TEXEL_BINDING_BASE` on), not to a storage-buffer binding.
+    pub(crate) view: Option<vk::BufferView>,
 }
 
 impl<T: Pod> GpuBuffer<T> {
@@ -128,7 +133,14 @@ impl<T: Pod> GpuBuffer<T> {
                 d.cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&b));
             })?;
         }
-        Ok(Self { shared: s.clone(), inner, len: desc.len, category: desc.category, _t: PhantomData })
+        Ok(Self {
+            shared: s.clone(),
+            inner,
+            texels: Default::default(),
+            len: desc.len,
+            category: desc.category,
+            _t: PhantomData,
+        })
     }
 
     /// A new buffer holding `data` (uploaded through staging).
@@ -169,7 +181,15 @@ impl<T: Pod> GpuBuffer<T> {
             offset: 0,
             range: self.inner.bytes.max(MIN_BUFFER_BYTES),
             name: self.inner.name.clone(),
+            view: None,
         }
+    }
+
+    /// The whole buffer as a uniform texel buffer of `format` (see [`super::texel`]), or `None` where the device
+    /// cannot bind it so (too many texels, not a whole number of them, or an unsupported format).
+    pub fn texel_binding(&self, format: vk::Format) -> GpuResult<Option<Binding>> {
+        let max = self.shared.caps.max_texel_buffer_elements;
+        self.texels.binding(&self.shared.device, max, self.binding(), self.inner.bytes, format)
     }
 
     /// Elements `[start, end)` as one binding (start must respect `minStorageBufferOffsetAlignment`).
@@ -183,7 +203,13 @@ impl<T: Pod> GpuBuffer<T> {
                 msg: format!("bad slice {start}..{end} of {} elements (offset alignment {align} bytes)", self.len),
             });
         }
-        Ok(Binding { buffer: self.inner.raw, offset, range: (end - start) as u64 * sz, name: self.inner.name.clone() })
+        Ok(Binding {
+            buffer: self.inner.raw,
+            offset,
+            range: (end - start) as u64 * sz,
+            name: self.inner.name.clone(),
+            view: None,
+        })
     }
 
     /// The buffer's device address (for kernels that read it through `buffer_reference`).
@@ -199,6 +225,7 @@ impl<T: Pod> GpuBuffer<T> {
 impl<T: Pod> Drop for GpuBuffer<T> {
     fn drop(&mut self) {
         let s = &self.shared;
+        self.texels.destroy(&s.device);
         self.inner.release(&mut lock(&s.allocator), &mut lock(&s.ledger), &s.device);
     }
 }

@@ -32,6 +32,9 @@ pub struct DeviceCaps {
     pub max_workgroup_size: [u32; 3],
     pub max_workgroup_count: [u32; 3],
     pub max_push_constants_size: u32,
+    /// Largest uniform texel buffer view, in texels, and the alignment of its offset in bytes.
+    pub max_texel_buffer_elements: u32,
+    pub min_texel_buffer_offset_alignment: u64,
     pub subgroup_size: u32,
     pub min_subgroup_size: u32,
     pub max_subgroup_size: u32,
@@ -132,6 +135,8 @@ impl DeviceCaps {
             max_workgroup_size: l.max_compute_work_group_size,
             max_workgroup_count: l.max_compute_work_group_count,
             max_push_constants_size: l.max_push_constants_size,
+            max_texel_buffer_elements: l.max_texel_buffer_elements,
+            min_texel_buffer_offset_alignment: l.min_texel_buffer_offset_alignment,
             subgroup_size: subgroup.subgroup_size,
             min_subgroup_size: v13p.min_subgroup_size,
             max_subgroup_size: v13p.max_subgroup_size,

@@ -18,6 +18,10 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 /// Storage-buffer bindings in the one descriptor-set layout every kernel shares (ggml uses 12).
 pub const MAX_BINDINGS: u32 = 12;
+/// Uniform texel buffer slots after the storage bindings: a kernel declares them at `binding = 12, 13`
+/// (`TEXEL_BINDING_BASE`), bound from [`crate::gpu::Binding`]s that carry a view.
+pub const TEXEL_BINDING_BASE: u32 = MAX_BINDINGS;
+pub const TEXEL_BINDINGS: u32 = 2;
 /// Push-constant bytes every pipeline layout reserves: the lavapipe limit and Vulkan's guaranteed minimum.
 pub const PUSH_CONSTANT_BYTES: u32 = 128;
 
@@ -255,11 +259,16 @@ impl Context {
         })
         .map_err(|e| GpuError::Alloc { name: "allocator".into(), bytes: 0, source: e })?;
 
-        let bindings: Vec<_> = (0..MAX_BINDINGS)
+        let bindings: Vec<_> = (0..MAX_BINDINGS + TEXEL_BINDINGS)
             .map(|i| {
+                let ty = if i < TEXEL_BINDING_BASE {
+                    vk::DescriptorType::STORAGE_BUFFER
+                } else {
+                    vk::DescriptorType::UNIFORM_TEXEL_BUFFER
+                };
                 vk::DescriptorSetLayoutBinding::default()
                     .binding(i)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_type(ty)
                     .descriptor_count(1)
                     .stage_flags(vk::ShaderStageFlags::COMPUTE)
             })
@@ -477,6 +486,7 @@ impl Context {
 impl DeviceShared {
     pub fn buffer_usage(&self) -> vk::BufferUsageFlags {
         let mut u = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST;
         if self.caps.buffer_device_address {

@@ -9,7 +9,7 @@
 //! group counts (ggml's three asserts). Pipelines are created once and cached by (variant name, specialisation
 //! values by SpecId).
 
-use super::context::{lock, Context, MAX_BINDINGS, PUSH_CONSTANT_BYTES};
+use super::context::{lock, Context, MAX_BINDINGS, PUSH_CONSTANT_BYTES, TEXEL_BINDINGS, TEXEL_BINDING_BASE};
 use super::error::{GpuError, GpuResult};
 use super::push::{check_push_layout, PushLayout};
 use super::spirv::{reflect, ShaderInfo, SpecConstant};
@@ -143,6 +143,14 @@ fn create_pipeline(
     if info.bindings.iter().enumerate().any(|(i, &b)| b != i as u32) || info.bindings.len() as u32 > MAX_BINDINGS {
         return Err(shader_err(format!("bindings {:?} must be 0..n-1 with n <= {MAX_BINDINGS}", info.bindings)));
     }
+    let texels = &info.texel_bindings;
+    if texels.iter().enumerate().any(|(i, &b)| b != TEXEL_BINDING_BASE + i as u32)
+        || texels.len() as u32 > TEXEL_BINDINGS
+    {
+        return Err(shader_err(format!(
+            "texel bindings {texels:?} must be {TEXEL_BINDING_BASE}.. with at most {TEXEL_BINDINGS} of them"
+        )));
+    }
     let ls = info.local_size;
     if ls.iter().zip(caps.max_workgroup_size).any(|(a, m)| *a > m)
         || ls.iter().product::<u32>() > caps.max_workgroup_invocations
@@ -187,6 +195,11 @@ impl<P: Pod> Kernel<P> {
     /// Number of buffer bindings the kernel declares.
     pub fn arity(&self) -> usize {
         self.info.bindings.len()
+    }
+
+    /// Texel buffer slots the kernel reads (`TEXEL_BINDING_BASE` on).
+    pub fn texel_arity(&self) -> usize {
+        self.info.texel_bindings.len()
     }
 
     pub fn local_size(&self) -> [u32; 3] {

@@ -3,7 +3,7 @@
 //! table's device address (`glsl/common/large_array.glsl`); element-wise kernels can instead be dispatched
 //! once per chunk with ordinary bindings ([`LargeArray::chunks`]). Table 1's 256 MiB hash grid is the reason.
 
-use super::buffer::{BufferDesc, GpuBuffer};
+use super::buffer::{Binding, BufferDesc, GpuBuffer};
 use super::context::Context;
 use super::error::{GpuError, GpuResult};
 use super::memory::MemoryCategory;
@@ -95,6 +95,15 @@ impl<T: Pod> LargeArray<T> {
     /// Every buffer a kernel touches through the table (for the recorder's barrier tracking).
     pub fn deps(&self) -> Vec<vk::Buffer> {
         self.chunks.iter().map(|c| c.raw()).chain(self.table.iter().map(|t| t.raw())).collect()
+    }
+
+    /// Chunk `chunk` as a uniform texel buffer of `format` ([`GpuBuffer::texel_binding`]).
+    pub fn texel_binding(&self, chunk: usize, format: vk::Format) -> GpuResult<Option<Binding>> {
+        let c = self.chunks.get(chunk).ok_or_else(|| GpuError::Buffer {
+            name: self.name.clone(),
+            msg: format!("chunk {chunk} of {}", self.chunks.len()),
+        })?;
+        c.texel_binding(format)
     }
 
     /// Writes `data` at logical element `offset`, split across chunks.

@@ -27,6 +27,7 @@ pub mod push;
 pub mod recorder;
 pub mod spirv;
 pub mod staging;
+pub mod texel;
 pub mod timing;
 
 pub use buffer::{Binding, BufferDesc, GpuBuffer};

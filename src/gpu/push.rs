@@ -145,6 +145,7 @@ mod tests {
     fn info(members: Vec<PushMember>, bytes: u32) -> ShaderInfo {
         ShaderInfo {
             bindings: vec![],
+            texel_bindings: vec![],
             local_size: [1, 1, 1],
             push_constant_bytes: bytes,
             push_members: members,

@@ -17,7 +17,7 @@
 //! - Temporaries handed to [`Recorder::keep_alive`] live until the work completes.
 
 use super::buffer::Binding;
-use super::context::{Context, MAX_BINDINGS};
+use super::context::{Context, MAX_BINDINGS, TEXEL_BINDINGS, TEXEL_BINDING_BASE};
 use super::error::{GpuError, GpuResult, VkCheck};
 use super::host_buffer::HostBuffer;
 use super::host_clock::HostWork;
@@ -152,10 +152,17 @@ impl<'a> Recorder<'a> {
     ) -> GpuResult<()> {
         let caps = self.ctx.caps();
         let fail = |msg: String| GpuError::Dispatch { kernel: k.name.to_owned(), msg };
-        if bindings.len() != k.arity() {
-            return Err(fail(format!("{} bindings given, the kernel declares {}", bindings.len(), k.arity())));
+        // Storage bindings in order at 0.., texel views in order at TEXEL_BINDING_BASE.. (kernel.rs checks both).
+        let texels = bindings.iter().filter(|b| b.view.is_some()).count();
+        if bindings.len() - texels != k.arity() || texels != k.texel_arity() {
+            return Err(fail(format!(
+                "{} storage and {texels} texel bindings given, the kernel declares {} and {}",
+                bindings.len() - texels,
+                k.arity(),
+                k.texel_arity()
+            )));
         }
-        if let Some(b) = bindings.iter().find(|b| b.range > caps.max_storage_buffer_range) {
+        if let Some(b) = bindings.iter().find(|b| b.view.is_none() && b.range > caps.max_storage_buffer_range) {
             return Err(fail(format!(
                 "binding {:?} covers {} bytes, over maxStorageBufferRange {} (use LargeArray or a slice)",
                 b.name, b.range, caps.max_storage_buffer_range
@@ -184,13 +191,15 @@ impl<'a> Recorder<'a> {
         let layout = self.ctx.shared.pipeline_layout;
         let infos: Vec<vk::DescriptorBufferInfo> = bindings
             .iter()
+            .filter(|b| b.view.is_none())
             .map(|b| vk::DescriptorBufferInfo { buffer: b.buffer, offset: b.offset, range: b.range })
             .collect();
+        let views: Vec<vk::BufferView> = bindings.iter().filter_map(|b| b.view).collect();
         unsafe { d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, k.pipeline) };
-        if !infos.is_empty() {
+        if !infos.is_empty() || !views.is_empty() {
             let set =
                 if self.ctx.shared.push_descriptor.is_some() { vk::DescriptorSet::null() } else { self.alloc_set()? };
-            let writes: Vec<vk::WriteDescriptorSet> = infos
+            let mut writes: Vec<vk::WriteDescriptorSet> = infos
                 .iter()
                 .enumerate()
                 .map(|(i, info)| {
@@ -201,6 +210,13 @@ impl<'a> Recorder<'a> {
                         .buffer_info(std::slice::from_ref(info))
                 })
                 .collect();
+            writes.extend(views.iter().enumerate().map(|(i, view)| {
+                vk::WriteDescriptorSet::default()
+                    .dst_set(set)
+                    .dst_binding(TEXEL_BINDING_BASE + i as u32)
+                    .descriptor_type(vk::DescriptorType::UNIFORM_TEXEL_BUFFER)
+                    .texel_buffer_view(std::slice::from_ref(view))
+            }));
             match &self.ctx.shared.push_descriptor {
                 Some(pd) => unsafe {
                     pd.cmd_push_descriptor_set(self.cmd, vk::PipelineBindPoint::COMPUTE, layout, 0, &writes)
@@ -435,10 +451,16 @@ impl<'a> Recorder<'a> {
     fn alloc_set(&mut self) -> GpuResult<vk::DescriptorSet> {
         let d = self.ctx.device();
         if self.sets_in_pool == SETS_PER_POOL {
-            let sizes = [vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::STORAGE_BUFFER,
-                descriptor_count: SETS_PER_POOL * MAX_BINDINGS,
-            }];
+            let sizes = [
+                vk::DescriptorPoolSize {
+                    ty: vk::DescriptorType::STORAGE_BUFFER,
+                    descriptor_count: SETS_PER_POOL * MAX_BINDINGS,
+                },
+                vk::DescriptorPoolSize {
+                    ty: vk::DescriptorType::UNIFORM_TEXEL_BUFFER,
+                    descriptor_count: SETS_PER_POOL * TEXEL_BINDINGS,
+                },
+            ];
             let info = vk::DescriptorPoolCreateInfo::default().max_sets(SETS_PER_POOL).pool_sizes(&sizes);
             self.desc_pools.push(unsafe { d.create_descriptor_pool(&info, None) }.vk("vkCreateDescriptorPool")?);
             self.sets_in_pool = 0;

@@ -13,6 +13,8 @@ use std::collections::HashMap;
 pub struct ShaderInfo {
     /// Sorted binding numbers (descriptor set 0) of storage and uniform buffers.
     pub bindings: Vec<u32>,
+    /// Sorted binding numbers of texel buffers and other `UniformConstant` resources.
+    pub texel_bindings: Vec<u32>,
     pub local_size: [u32; 3],
     pub push_constant_bytes: u32,
     /// The push-constant block's members in declaration order (empty without a block).
@@ -101,6 +103,7 @@ const DEC_BINDING: u32 = 33;
 const DEC_OFFSET: u32 = 35;
 const BUILTIN_WORKGROUP_SIZE: u32 = 25;
 const MODE_LOCAL_SIZE: u32 = 17;
+const SC_UNIFORM_CONSTANT: u32 = 0;
 const SC_UNIFORM: u32 = 2;
 const SC_WORKGROUP: u32 = 4;
 const SC_PUSH_CONSTANT: u32 = 9;
@@ -233,6 +236,7 @@ pub fn reflect(words: &[u32], spec: &[(u32, u32)]) -> Result<ShaderInfo, String>
     let mut push_members = Vec::new();
     let mut shared_bytes = 0;
     let mut binding_list = Vec::new();
+    let mut texel_list = Vec::new();
     for &(ptr, id, sc) in &vars {
         let pointee = match types.get(&ptr) {
             Some(Ty::Pointer(t)) => *t,
@@ -265,13 +269,21 @@ pub fn reflect(words: &[u32], spec: &[(u32, u32)]) -> Result<ShaderInfo, String>
                     binding_list.push(b);
                 }
             }
+            SC_UNIFORM_CONSTANT => {
+                if let Some(&b) = bindings.get(&id) {
+                    texel_list.push(b);
+                }
+            }
             _ => {}
         }
     }
     binding_list.sort_unstable();
     binding_list.dedup();
+    texel_list.sort_unstable();
+    texel_list.dedup();
     Ok(ShaderInfo {
         bindings: binding_list,
+        texel_bindings: texel_list,
         local_size,
         push_constant_bytes,
         push_members,

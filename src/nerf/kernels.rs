@@ -129,7 +129,7 @@ crate::push_constants! {
         grads: u64,
         shift: u32,
         emb_offset: u32,
-        n_samples: u32,
+        n_rays: u32,
         n: u32,
         dim: u32,
         dx_stride: u32,
@@ -520,14 +520,15 @@ impl RenderKernels {
             grads: grads.table_address()?,
             shift: grads.chunk_shift(),
             emb_offset: emb_offset as u32,
-            n_samples: (n_rays * n) as u32,
+            n_rays: n_rays as u32,
             n: n as u32,
             dim: dim as u32,
             dx_stride: dx.1 as u32,
             dx_col: dx.2 as u32,
             pad: 0,
         };
-        let work = (n_rays * n * dim) as u64;
+        // One invocation per (ray, dimension): the ray's samples are summed before the one atomic.
+        let work = (n_rays * dim) as u64;
         rec.dispatch_named(
             "appearance_grad",
             &self.appearance_grad,

@@ -11,12 +11,15 @@
 //!   lavapipe; `MSNERF_HASH_BWD_RUN`).
 //! - `hashgrid_bwd_input`: gradient to the positions, one dispatch per level (the first writes, the others add),
 //!   one invocation per point.
+//! - `_texel` variants of the forward and the input gradient read a level's table as a uniform texel buffer of
+//!   the chunk holding it ([`LargeArray::texel_binding`]) instead of through its device address: on lavapipe a
+//!   texel fetch is a branch-free gather. Levels that straddle chunks keep the device-address read.
 //!
 //! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
 
 use super::SettingError;
 use super::{vec_width, ParamSlice, RowSlice};
-use crate::gpu::{BufferDesc, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, MemoryCategory, Recorder};
+use crate::gpu::{Binding, BufferDesc, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, MemoryCategory, Recorder};
 use crate::shaders;
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
@@ -183,6 +186,9 @@ pub struct HashGrid {
     bwd_runs: Option<Kernel<BwdPush>>,
     /// Consecutive points one `hashgrid_bwd` invocation combines (1: one point per invocation).
     bwd_run: u32,
+    /// The forward and the input gradient read each level's table as a texel buffer where the level lies in one
+    /// chunk (the `_texel` kernel variants); see [`default_texel_reads`].
+    texel_reads: bool,
 }
 
 /// Points per `hashgrid_bwd` invocation: `MSNERF_HASH_BWD_RUN` when set (benchmarks), else 1; a value that is
@@ -219,13 +225,37 @@ fn grid_base(a: &LargeArray<f32>, offset: usize, len: usize) -> GpuResult<(u64, 
     }
 }
 
-/// Where one level's dispatch reads its table: level index and table, the address and offset `grid_base` gives.
+/// Where one level's dispatch reads its table: level index and table, the address and offset `grid_base` gives,
+/// and the chunk holding the whole level (when one does).
 struct LevelRead {
     l: usize,
     lv: HashLevel,
     base: u64,
     offset: usize,
     chunked: bool,
+    chunk: usize,
+}
+
+/// Texel format of one hash table entry (F floats) for the `_texel` kernel variants.
+fn texel_format(f: u32) -> ash::vk::Format {
+    match f {
+        1 => ash::vk::Format::R32_SFLOAT,
+        2 => ash::vk::Format::R32G32_SFLOAT,
+        _ => ash::vk::Format::R32G32B32A32_SFLOAT,
+    }
+}
+
+/// Whether the hash grid kernels read tables as texel buffers on this device: `MSNERF_HASH_TEXEL` (`1` or `0`)
+/// when set, else on CPU devices (lavapipe), where a texel fetch is a branch-free gather and a buffer read through
+/// a device address a loop over the lanes with a branch each (docs/benchmarks.md). A value other than 0 or 1 is an
+/// error naming the variable.
+pub fn default_texel_reads(ctx: &crate::gpu::Context) -> GpuResult<bool> {
+    match crate::util::env::settings().hash_texel.as_deref() {
+        None => Ok(ctx.caps().is_cpu),
+        Some("0") => Ok(false),
+        Some("1") => Ok(true),
+        Some(v) => Err(GpuError::Config { what: "MSNERF_HASH_TEXEL".into(), msg: format!("{v:?} is not 0 or 1") }),
+    }
 }
 
 impl HashGrid {
@@ -256,7 +286,26 @@ impl HashGrid {
                 None
             },
             bwd_run: run,
+            texel_reads: default_texel_reads(ctx)?,
         })
+    }
+
+    /// The chunk holding a level's table as a texel buffer, when this grid reads texels, the level lies in one
+    /// chunk and the device can bind that chunk so.
+    fn table_texels(&self, array: &LargeArray<f32>, chunked: bool, chunk: usize) -> GpuResult<Option<Binding>> {
+        if !self.texel_reads || chunked {
+            return Ok(None);
+        }
+        array.texel_binding(chunk, texel_format(self.config.features_per_level))
+    }
+
+    /// Chooses how the forward and the input gradient read the tables (tests and benchmarks compare both).
+    pub fn set_texel_reads(&mut self, on: bool) {
+        self.texel_reads = on;
+    }
+
+    pub fn texel_reads(&self) -> bool {
+        self.texel_reads
     }
 
     fn grid(&self, rec: &Recorder, kernel: &Kernel<BwdPush>, n: usize) -> GpuResult<[u32; 3]> {
@@ -294,17 +343,21 @@ impl HashGrid {
         let levels = self.level_reads(params, param_offset)?;
         // The levels write disjoint columns of `out`: no barrier among them.
         rec.independent(|rec| {
-            for LevelRead { l, lv, base, offset, chunked } in levels {
+            for LevelRead { l, lv, base, offset, chunked, chunk } in levels {
                 let col = slot.col + l * f;
+                let texel = self.table_texels(params, chunked, chunk)?;
                 let pad = if l + 1 == c.n_levels as usize { slot.pad_to - c.n_output() } else { 0 };
-                let spec = [
+                let mut spec = vec![
                     ("F", c.features_per_level),
                     ("HASHED", lv.hashed),
-                    ("HASH_CHUNKED", u32::from(chunked)),
                     ("PAD", pad as u32),
                     ("VEC_OUT", vec_width(&[slot.stride, col])),
                 ];
-                let kernel = Kernel::<FwdPush>::with_spec(rec.context(), &shaders::HASHGRID_FWD, &spec)?;
+                if texel.is_none() {
+                    spec.push(("HASH_CHUNKED", u32::from(chunked)));
+                }
+                let blob = if texel.is_some() { &shaders::HASHGRID_FWD_TEXEL } else { &shaders::HASHGRID_FWD };
+                let kernel = Kernel::<FwdPush>::with_spec(rec.context(), blob, &spec)?;
                 let push = FwdPush {
                     params: base,
                     shift: params.chunk_shift(),
@@ -318,7 +371,8 @@ impl HashGrid {
                     entries: lv.entries,
                     pad: 0,
                 };
-                let bindings = [positions.binding(), out.binding()];
+                let mut bindings = vec![positions.binding(), out.binding()];
+                bindings.extend(texel);
                 rec.dispatch_named("hashgrid_fwd", &kernel, &bindings, &params.deps(), &push, n as u64)?;
             }
             Ok(())
@@ -406,19 +460,23 @@ impl HashGrid {
         let f = c.features_per_level as usize;
         let levels = self.level_reads(array, param_offset)?;
         let record = |rec: &mut Recorder| -> GpuResult<()> {
-            for LevelRead { l, lv, base, offset, chunked } in levels {
+            for LevelRead { l, lv, base, offset, chunked, chunk } in levels {
                 let col = dy.col + l * f;
-                let mut spec = vec![
-                    ("F", c.features_per_level),
-                    ("HASHED", lv.hashed),
-                    ("HASH_CHUNKED", u32::from(chunked)),
-                    ("VEC_DY", vec_width(&[dy.stride, col])),
-                ];
+                // The input gradient reads the level's table as texels where the forward does; the parameter
+                // gradient's table takes atomics.
+                let texel = if dp.is_some() { self.table_texels(array, chunked, chunk)? } else { None };
+                let mut spec =
+                    vec![("F", c.features_per_level), ("HASHED", lv.hashed), ("VEC_DY", vec_width(&[dy.stride, col]))];
+                if texel.is_none() {
+                    spec.push(("HASH_CHUNKED", u32::from(chunked)));
+                }
                 let mut bindings = vec![positions.binding(), dy.buf.binding()];
                 if let Some(dp) = dp {
                     spec.push(("FIRST", u32::from(l == 0)));
                     bindings.push(dp.binding());
                 }
+                let blob = if texel.is_some() { &shaders::HASHGRID_BWD_INPUT_TEXEL } else { blob };
+                bindings.extend(texel);
                 let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), blob, &spec)?;
                 let push = LevelBwdPush {
                     table: base,
@@ -450,9 +508,9 @@ impl HashGrid {
         let f = self.config.features_per_level as usize;
         (self.config.levels().into_iter().enumerate())
             .map(|(l, lv)| {
-                let (base, offset, chunked) =
-                    grid_base(array, param_offset + lv.offset as usize * f, lv.entries as usize * f)?;
-                Ok(LevelRead { l, lv, base, offset, chunked })
+                let start = param_offset + lv.offset as usize * f;
+                let (base, offset, chunked) = grid_base(array, start, lv.entries as usize * f)?;
+                Ok(LevelRead { l, lv, base, offset, chunked, chunk: start >> array.chunk_shift() })
             })
             .collect()
     }

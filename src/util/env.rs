@@ -12,6 +12,7 @@
 //! | `MSNERF_POISON_BUFFERS` | fresh GPU buffers hold NaN bits (`make test`) |
 //! | `MSNERF_MLP_TILING` | MLP kernel family and block sizes (benchmarks; `nn::mlp::MlpTiling`) |
 //! | `MSNERF_HASH_BWD_RUN` | points per hash-grid backward invocation (benchmarks) |
+//! | `MSNERF_HASH_TEXEL` | hash tables read as texel buffers: `1` on, `0` off (default: on CPU devices) |
 
 use std::sync::OnceLock;
 
@@ -26,6 +27,7 @@ pub struct EnvSettings {
     pub poison_buffers: bool,
     pub mlp_tiling: Option<String>,
     pub hash_bwd_run: Option<String>,
+    pub hash_texel: Option<String>,
 }
 
 fn text(name: &str) -> Option<String> {
@@ -48,6 +50,7 @@ impl EnvSettings {
             poison_buffers: flag("MSNERF_POISON_BUFFERS"),
             mlp_tiling: text("MSNERF_MLP_TILING"),
             hash_bwd_run: text("MSNERF_HASH_BWD_RUN"),
+            hash_texel: text("MSNERF_HASH_TEXEL"),
         }
     }
 
@@ -68,6 +71,7 @@ impl EnvSettings {
             ("MSNERF_DEVICE", &self.device),
             ("MSNERF_MLP_TILING", &self.mlp_tiling),
             ("MSNERF_HASH_BWD_RUN", &self.hash_bwd_run),
+            ("MSNERF_HASH_TEXEL", &self.hash_texel),
         ] {
             if let Some(x) = value {
                 v.push(format!("{name}={x}"));

@@ -132,6 +132,11 @@ fn reflection_reads_push_members_and_specialisation_constants() {
     let c = |id, name: &str, default| SpecConstant { id, name: name.into(), default };
     let expected = [c(0, "F", 2), c(1, "HASHED", 1), c(2, "HASH_CHUNKED", 0), c(3, "PAD", 0), c(4, "VEC_OUT", 1)];
     assert_eq!(info.spec_constants, expected);
+    assert!(info.texel_bindings.is_empty());
+    // Its texel variant reads the level's chunk from the first texel slot, after the same two storage bindings.
+    let words = ash::util::read_spv(&mut std::io::Cursor::new(shaders::HASHGRID_FWD_TEXEL.spirv)).expect("SPIR-V");
+    let info = msnerf::gpu::spirv::reflect(&words, &[]).expect("reflect");
+    assert_eq!((info.bindings, info.texel_bindings), (vec![0, 1], vec![12]));
     // Every kernel's names survive the build (build.rs keeps OpName / OpMemberName).
     for blob in shaders::ALL {
         let words = ash::util::read_spv(&mut std::io::Cursor::new(blob.spirv)).expect("SPIR-V words");
@@ -167,7 +172,11 @@ fn dispatch_asserts_binding_count_and_range() {
     let push = FillPush { n: 64, offset: 0, value: 7 };
     let err =
         rec.dispatch(&k, &[a.binding(), a.binding()], &push, 64).expect_err("two bindings for a one-binding kernel");
-    assert!(err.to_string().contains("2 bindings given, the kernel declares 1"), "{err}");
+    assert!(err.to_string().contains("2 storage and 0 texel bindings given, the kernel declares 1 and 0"), "{err}");
+    // A texel view for a kernel without texel slots is refused the same way.
+    let view = a.texel_binding(ash::vk::Format::R32_SFLOAT).expect("view").expect("64 texels bind on every device");
+    let err = rec.dispatch(&k, &[a.binding(), view], &push, 64).expect_err("a texel binding for a kernel without one");
+    assert!(err.to_string().contains("1 storage and 1 texel bindings given, the kernel declares 1 and 0"), "{err}");
     let err = a.slice(3, 9).expect_err("offset 12 bytes is not aligned to 16 on lavapipe");
     assert!(err.to_string().contains("alignment"), "{err}");
     drop(rec);
@@ -278,6 +287,35 @@ fn descriptor_pool_fallback_gives_the_same_results() {
     ops::copy(&mut rec, &src, 300, &dst, 300, 4700).expect("copy");
     rec.submit_and_wait().expect("submit");
     common::assert_same(&g.download(&dst).expect("download"), &data, "pool fallback copy");
+    // Texel buffer views go through the pools too: a hash grid forward reading its tables as texels.
+    use msnerf::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
+    let cfg = HashGridConfig {
+        n_levels: 4,
+        features_per_level: 2,
+        log2_hashmap_size: 10,
+        base_resolution: 4,
+        max_resolution: 64,
+    };
+    let mut grid = HashGrid::new(&g, &cfg).expect("grid");
+    grid.set_texel_reads(true);
+    let host: Vec<f32> = (0..cfg.n_params()).map(|i| ((i * 37 % 101) as f32 - 50.0) / 50.0).collect();
+    let params =
+        msnerf::gpu::LargeArray::<f32>::new(&g, "params", cfg.n_params(), MemoryCategory::Parameters).expect("params");
+    params.upload(&g, 0, &host).expect("upload");
+    let pts: Vec<[f32; 3]> =
+        (0..97).map(|i| [(i as f32 * 0.37) % 1.0, (i as f32 * 0.61) % 1.0, (i as f32 * 0.13) % 1.0]).collect();
+    let flat: Vec<f32> = pts.iter().flatten().copied().collect();
+    let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat).expect("pos");
+    let w = cfg.n_output();
+    let out = grid.output_buffer(&g, pts.len(), w).expect("out");
+    let mut rec = g.recorder("pools, texels").expect("recorder");
+    let slot = OutputSlot { stride: w, col: 0, pad_to: w, pad_value: 0.0 };
+    let slice = msnerf::nn::ParamSlice { array: &params, offset: 0 };
+    grid.forward(&mut rec, slice, &pos, pts.len(), &out, slot).expect("forward");
+    rec.submit_and_wait().expect("submit");
+    let levels = cfg.levels();
+    let want: Vec<f32> = pts.iter().flat_map(|p| msnerf::reference::hashgrid::forward(&levels, 2, &host, *p)).collect();
+    common::assert_all_close_f32(&g.download(&out).expect("download"), &want, "pool fallback, texel reads");
 }
 
 #[test]

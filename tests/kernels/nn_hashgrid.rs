@@ -103,9 +103,20 @@ fn setup(g: &Context, cfg: &HashGridConfig, offset: usize, seed: u64) -> Setup {
 
 #[test]
 fn forward_matches_twin_with_padding() {
+    check_forward_with_padding(false);
+}
+
+#[test]
+fn forward_matches_twin_with_padding_from_texel_buffers() {
+    check_forward_with_padding(true);
+}
+
+/// The forward against the twin, its tables read through device addresses or as texel buffers.
+fn check_forward_with_padding(texel: bool) {
     let g = gpu();
     let cfg = small();
-    let s = setup(&g, &cfg, 24, 5);
+    let mut s = setup(&g, &cfg, 24, 5);
+    s.grid.set_texel_reads(texel);
     let n = 1013; // not a multiple of the 128-wide workgroup
     let pts = points(&cfg, n, 6, 0.0);
     let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
@@ -132,6 +143,33 @@ fn forward_matches_twin_with_padding() {
         want[i * stride + col + 12..i * stride + col + 16].fill(1.0);
     }
     assert_all_close_f32(&got, &want, "hash grid forward");
+}
+
+#[test]
+fn forward_with_1_4_and_8_features_reads_texels_as_buffers_do() {
+    // Each entry width has its own texel format (R32, R32G32B32A32, two of those): both ways against the twin.
+    let g = gpu();
+    for f in [1u32, 4, 8] {
+        let cfg = HashGridConfig { features_per_level: f, ..small() };
+        let width = cfg.n_output();
+        let mut s = setup(&g, &cfg, 16, 40 + f as u64);
+        let n = 300;
+        let pts = points(&cfg, n, 41, 0.0);
+        let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
+        let levels = cfg.levels();
+        let want: Vec<f32> = pts.iter().flat_map(|p| twin::forward(&levels, f as usize, &s.host, *p)).collect();
+        for texel in [false, true] {
+            s.grid.set_texel_reads(texel);
+            let out = s.grid.output_buffer(&g, n, width).expect("out");
+            let mut rec = g.recorder("fwd").expect("recorder");
+            let slot = OutputSlot { stride: width, col: 0, pad_to: width, pad_value: 0.0 };
+            let params = ParamSlice { array: &s.params, offset: s.offset };
+            s.grid.forward(&mut rec, params, &pos, n, &out, slot).expect("fwd");
+            rec.submit_and_wait().expect("submit");
+            let got = g.download(&out).expect("download");
+            assert_all_close_f32(&got, &want, &format!("forward, {f} features, texel reads {texel}"));
+        }
+    }
 }
 
 #[test]
@@ -211,9 +249,20 @@ fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f6
 
 #[test]
 fn backward_input_matches_twin_and_finite_differences() {
+    check_backward_input(false);
+}
+
+#[test]
+fn backward_input_matches_twin_and_finite_differences_from_texel_buffers() {
+    check_backward_input(true);
+}
+
+/// The input gradient against the twin and central differences, its tables read either way.
+fn check_backward_input(texel: bool) {
     let g = gpu();
     let cfg = small();
-    let s = setup(&g, &cfg, 8, 11);
+    let mut s = setup(&g, &cfg, 8, 11);
+    s.grid.set_texel_reads(texel);
     let n = 300;
     let pts = points(&cfg, n, 12, 0.05);
     let dy_host = random_params(n * 12, 13, 1.0);
@@ -288,6 +337,16 @@ fn parameter_gradient_matches_finite_differences() {
 
 #[test]
 fn table1_grid_of_256_mib_works_on_every_device() {
+    check_table1_grid(false);
+}
+
+#[test]
+fn table1_grid_of_256_mib_works_on_every_device_from_texel_buffers() {
+    check_table1_grid(true);
+}
+
+/// Table 1's grid over two chunks: with texel reads the levels inside one chunk use texels, the one across chunks the device address.
+fn check_table1_grid(texel: bool) {
     // Multispectral-NeRF Table 1: 16 levels x 2 features x 2^21 entries: 256 MiB of fp32, more than one binding.
     let g = gpu();
     let cfg = HashGridConfig {
@@ -299,7 +358,8 @@ fn table1_grid_of_256_mib_works_on_every_device() {
     };
     let n_params = cfg.n_params();
     assert!(n_params * 4 > g.caps().max_storage_buffer_range as usize || g.caps().max_storage_buffer_range > 1 << 28);
-    let s = setup(&g, &cfg, 0, 21);
+    let mut s = setup(&g, &cfg, 0, 21);
+    s.grid.set_texel_reads(texel);
     assert!(s.params.chunks().len() >= 2 || g.caps().max_storage_buffer_range as usize >= n_params * 4);
     let n = 257;
     let pts = points(&cfg, n, 22, 0.0);
