@@ -29,9 +29,11 @@ pub struct HashResult {
     pub backward_rays_run8_mpts_per_s: f64,
     /// Speed-up of reading the tables as texel buffers against reading them through device addresses, on
     /// ray-ordered points: the median of per-repeat ratios of the two timed back to back (this machine's speed
-    /// drifts), for the forward and for the input gradient. `None` where the grid cannot be bound as texels.
+    /// drifts), for the forward and for the input gradient. `None` where no level can be bound as texels.
     pub forward_texel_speedup: Option<f64>,
     pub input_grad_texel_speedup: Option<f64>,
+    /// Levels read as texels in those (the others straddle chunks and keep the device-address read).
+    pub texel_levels: usize,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -127,6 +129,8 @@ pub fn bench_hash(
     let rays = GpuBuffer::from_slice(ctx, "bench ray points", MemoryCategory::Activations, &ray_points(points, 48))?;
     let bwd_rays = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &rays, points, dys)))?;
     let mut paired = HashGrid::new(ctx, cfg)?;
+    paired.set_texel_reads(true);
+    let texel_levels = paired.texel_levels(p)?;
     let dp = zeros(ctx, "bench dp", points * 3)?;
     let mut ratio = |which: usize| -> GpuResult<Option<f64>> {
         let run = |grid: &HashGrid| {
@@ -150,8 +154,7 @@ pub fn bench_hash(
         }
         Ok(Some(median(r)))
     };
-    let texels_bind = params.texel_binding(0, ash::vk::Format::R32G32_SFLOAT)?.is_some();
-    let (fwd_texel, input_texel) = if texels_bind { (ratio(0)?, ratio(1)?) } else { (None, None) };
+    let (fwd_texel, input_texel) = if texel_levels > 0 { (ratio(0)?, ratio(1)?) } else { (None, None) };
     let grid8 = HashGrid::with_backward_run(ctx, cfg, 8)?;
     let bwd_run8 = time_ms(repeats, || run_recorded(ctx, &|rec| grid8.backward_params(rec, g, &rays, points, dys)))?;
     let atomics = (points * cfg.n_levels as usize * 8 * cfg.features_per_level as usize) as f64;
@@ -166,6 +169,7 @@ pub fn bench_hash(
         backward_rays_run8_mpts_per_s: points as f64 / bwd_run8 / 1e3,
         forward_texel_speedup: fwd_texel,
         input_grad_texel_speedup: input_texel,
+        texel_levels,
     })
 }
 

@@ -351,6 +351,7 @@ impl<'a> Recorder<'a> {
             .dst_stage_mask(all)
             .dst_access_mask(
                 vk::AccessFlags2::SHADER_STORAGE_READ
+                    | vk::AccessFlags2::SHADER_SAMPLED_READ
                     | vk::AccessFlags2::SHADER_STORAGE_WRITE
                     | vk::AccessFlags2::TRANSFER_READ
                     | vk::AccessFlags2::TRANSFER_WRITE,
@@ -416,7 +417,12 @@ impl<'a> Recorder<'a> {
             .src_stage_mask(src_stage)
             .src_access_mask(src_access)
             .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-            .dst_access_mask(vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE)];
+            // Sampled reads: kernels read some buffers as uniform texel buffers (gpu/texel.rs).
+            .dst_access_mask(
+                vk::AccessFlags2::SHADER_STORAGE_READ
+                    | vk::AccessFlags2::SHADER_SAMPLED_READ
+                    | vk::AccessFlags2::SHADER_STORAGE_WRITE,
+            )];
         unsafe {
             self.ctx.device().cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().memory_barriers(&b))
         };

@@ -299,6 +299,16 @@ impl HashGrid {
         array.texel_binding(chunk, texel_format(self.config.features_per_level))
     }
 
+    /// How many of the grid's levels, stored at `params`, the forward and the input gradient read as texels (0 with
+    /// texel reads off; tests check that the texel kernels run).
+    pub fn texel_levels(&self, params: ParamSlice) -> GpuResult<usize> {
+        let mut n = 0;
+        for r in self.level_reads(params.array, params.offset)? {
+            n += usize::from(self.table_texels(params.array, r.chunked, r.chunk)?.is_some());
+        }
+        Ok(n)
+    }
+
     /// Chooses how the forward and the input gradient read the tables (tests and benchmarks compare both).
     pub fn set_texel_reads(&mut self, on: bool) {
         self.texel_reads = on;

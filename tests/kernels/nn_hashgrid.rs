@@ -117,6 +117,8 @@ fn check_forward_with_padding(texel: bool) {
     let cfg = small();
     let mut s = setup(&g, &cfg, 24, 5);
     s.grid.set_texel_reads(texel);
+    let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
+    assert_eq!(levels_read, if texel { cfg.n_levels as usize } else { 0 }, "the texel kernels run");
     let n = 1013; // not a multiple of the 128-wide workgroup
     let pts = points(&cfg, n, 6, 0.0);
     let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
@@ -146,8 +148,9 @@ fn check_forward_with_padding(texel: bool) {
 }
 
 #[test]
-fn forward_with_1_4_and_8_features_reads_texels_as_buffers_do() {
-    // Each entry width has its own texel format (R32, R32G32B32A32, two of those): both ways against the twin.
+fn one_four_and_eight_features_read_texels_as_buffers_do() {
+    // Each entry width has its own texel format (R32, R32G32B32A32, two of those): the forward and the input
+    // gradient both ways against the twin.
     let g = gpu();
     for f in [1u32, 4, 8] {
         let cfg = HashGridConfig { features_per_level: f, ..small() };
@@ -168,6 +171,27 @@ fn forward_with_1_4_and_8_features_reads_texels_as_buffers_do() {
             rec.submit_and_wait().expect("submit");
             let got = g.download(&out).expect("download");
             assert_all_close_f32(&got, &want, &format!("forward, {f} features, texel reads {texel}"));
+            let read = s.grid.texel_levels(params).expect("levels");
+            assert_eq!(read, if texel { cfg.n_levels as usize } else { 0 }, "{f} features: the texel kernels run");
+            // The input gradient reads the same entries.
+            let dy_host = random_params(n * width, 42, 1.0);
+            let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
+            let dp = s.grid.output_buffer(&g, n, 3).expect("dp");
+            let mut rec = g.recorder("bwd input").expect("recorder");
+            let dys = RowSlice { buf: &dy, stride: width, col: 0 };
+            s.grid.backward_input(&mut rec, params, &pos, n, dys, &dp).expect("bwd input");
+            rec.submit_and_wait().expect("submit");
+            let got = g.download(&dp).expect("download");
+            let host64: Vec<f64> = s.host.iter().map(|&v| v as f64).collect();
+            for (i, p) in pts.iter().enumerate() {
+                let p64 = [p[0] as f64, p[1] as f64, p[2] as f64];
+                let d64: Vec<f64> = dy_host[i * width..(i + 1) * width].iter().map(|&v| v as f64).collect();
+                let want = twin::backward_input(&levels, f as usize, &host64, p64, &d64);
+                for d in 0..3 {
+                    let (a, b) = (got[3 * i + d] as f64, want[d]);
+                    assert!(common::close(a, b, 1e-3, 1e-4), "{f} features, texel {texel}: dp[{i}][{d}] {a} vs {b}");
+                }
+            }
         }
     }
 }
@@ -263,6 +287,8 @@ fn check_backward_input(texel: bool) {
     let cfg = small();
     let mut s = setup(&g, &cfg, 8, 11);
     s.grid.set_texel_reads(texel);
+    let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
+    assert_eq!(levels_read, if texel { cfg.n_levels as usize } else { 0 }, "the texel kernels run");
     let n = 300;
     let pts = points(&cfg, n, 12, 0.05);
     let dy_host = random_params(n * 12, 13, 1.0);
@@ -360,6 +386,8 @@ fn check_table1_grid(texel: bool) {
     assert!(n_params * 4 > g.caps().max_storage_buffer_range as usize || g.caps().max_storage_buffer_range > 1 << 28);
     let mut s = setup(&g, &cfg, 0, 21);
     s.grid.set_texel_reads(texel);
+    let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
+    assert!(if texel { levels_read > 0 } else { levels_read == 0 }, "{levels_read} levels read as texels");
     assert!(s.params.chunks().len() >= 2 || g.caps().max_storage_buffer_range as usize >= n_params * 4);
     let n = 257;
     let pts = points(&cfg, n, 22, 0.0);
