@@ -314,10 +314,6 @@ impl HashGrid {
         self.texel_reads = on;
     }
 
-    pub fn texel_reads(&self) -> bool {
-        self.texel_reads
-    }
-
     fn grid(&self, rec: &Recorder, kernel: &Kernel<BwdPush>, n: usize) -> GpuResult<[u32; 3]> {
         let groups = kernel.groups_for(n as u64);
         let caps = rec.context().caps();

@@ -38,6 +38,13 @@ pub struct WorldView {
     pub c2w: Mat4,
 }
 
+impl WorldView {
+    /// The view in `t`'s normalised frame, as one run renders it.
+    pub fn normalized(&self, t: &crate::data::PoseTransform) -> NovelView {
+        NovelView { name: self.name.clone(), camera: self.camera, c2w: t.pose_to_normalized(&self.c2w) }
+    }
+}
+
 /// The blend weights of the blocks (see the module docs).
 pub struct BlendWeights {
     /// World -> levelled frame.
@@ -171,14 +178,7 @@ pub fn render_blocks(
             if *nb.get_or_insert(bands) != bands {
                 return Err(fail(&format!("{bands} bands, the other blocks {}", nb.unwrap_or(0))));
             }
-            let novel: Vec<NovelView> = group
-                .iter()
-                .map(|v| NovelView {
-                    name: v.name.clone(),
-                    camera: v.camera,
-                    c2w: loaded.transform.pose_to_normalized(&v.c2w),
-                })
-                .collect();
+            let novel: Vec<NovelView> = group.iter().map(|v| v.normalized(&loaded.transform)).collect();
             loaded.set_novel_views(&novel).map_err(|e| fail(&e))?;
             if start == 0 {
                 stats.blocks.push(b.name.clone());

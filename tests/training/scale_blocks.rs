@@ -374,14 +374,7 @@ fn render_blends_the_blocks_by_where_each_pixel_lies(
     let mut alone = Vec::new();
     for b in &blocks.blocks {
         let mut run = LoadedRun::load(g, &out.join(&b.name).join("run")).expect("block run");
-        let novel: Vec<NovelView> = views
-            .iter()
-            .map(|v| NovelView {
-                name: v.name.clone(),
-                camera: v.camera,
-                c2w: run.transform.pose_to_normalized(&v.c2w),
-            })
-            .collect();
+        let novel: Vec<NovelView> = views.iter().map(|v| v.normalized(&run.transform)).collect();
         run.set_novel_views(&novel).expect("views");
         alone.push((0..views.len()).map(|j| run.render_novel_view(j).expect("render")).collect::<Vec<_>>());
     }
