@@ -57,10 +57,45 @@ pub fn validation_available(entry: &ash::Entry) -> bool {
 /// context to go (tests create and drop them on several threads at once) unloaded the loader, and with it the
 /// driver and layer libraries, possibly while a driver thread still ran their code: an unexplained segfault in one
 /// H100 run of the suite (docs/benchmarks.md) fits that pattern. One load also makes each context cheaper.
+///
+/// With the loader it pins the drivers: see [`pin_drivers`].
 pub fn load_entry() -> GpuResult<ash::Entry> {
     static ENTRY: OnceLock<Result<ash::Entry, String>> = OnceLock::new();
-    // SAFETY: loading the system Vulkan loader; nothing else in the process has loaded a conflicting one.
-    ENTRY.get_or_init(|| unsafe { ash::Entry::load() }.map_err(|e| e.to_string())).clone().map_err(GpuError::Loader)
+    ENTRY
+        .get_or_init(|| {
+            // SAFETY: loading the system Vulkan loader; nothing else in the process has loaded a conflicting one.
+            let entry = unsafe { ash::Entry::load() }.map_err(|e| e.to_string())?;
+            pin_drivers(&entry);
+            Ok(entry)
+        })
+        .clone()
+        .map_err(GpuError::Loader)
+}
+
+/// Creates one instance that is never destroyed, so that the loader keeps the drivers (ICD libraries) loaded for
+/// the life of the process. The loader loads each driver when an instance is created and unloads it when the last
+/// instance goes. NVIDIA's driver takes a block of static TLS each time it is loaded, and glibc does not give it
+/// back on unload: on an H100 (driver 580) the 34th instance created one after another in a process failed with
+/// "libnvidia-tls.so: cannot allocate memory in static TLS block" and the loader found no driver
+/// (docs/benchmarks.md). The `msnerf` commands open one context per process; the test suite, which opens one per
+/// test, hit it, and so would any program that uses the library that way. The instance has no
+/// layers and no extensions; when it cannot be created, nothing is pinned and the context's own instance creation
+/// reports the error.
+fn pin_drivers(entry: &ash::Entry) {
+    let app = vk::ApplicationInfo::default().application_name(c"msnerf driver pin").api_version(vk::API_VERSION_1_3);
+    // SAFETY: a plain instance, never destroyed on purpose.
+    match unsafe { entry.create_instance(&vk::InstanceCreateInfo::default().application_info(&app), None) } {
+        // `ash::Instance` has no destructor: dropping the handle leaves the instance alive.
+        Ok(_instance) => DRIVERS_PINNED.store(true, std::sync::atomic::Ordering::Relaxed),
+        Err(e) => log::debug!("no instance to pin the drivers with: {e}"),
+    }
+}
+
+static DRIVERS_PINNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Whether this process holds the instance that keeps the drivers loaded ([`pin_drivers`]).
+pub fn drivers_pinned() -> bool {
+    DRIVERS_PINNED.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 impl InstanceShared {

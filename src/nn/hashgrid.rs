@@ -7,8 +7,9 @@
 //!   invocation per point; writes F features per row, and the last level the padding columns. The levels are one
 //!   [`Recorder::independent`] group: no barrier among them (they write disjoint columns).
 //! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array, one dispatch per level
-//!   as the forward, also one independent group (each level adds into its own range); `hashgrid_bwd_runs` combines runs of consecutive points in one cell first (measured slower on
-//!   lavapipe; `MSNERF_HASH_BWD_RUN`).
+//!   as the forward, also one independent group (each level adds into its own range). `hashgrid_bwd_runs` combines
+//!   runs of consecutive points in one cell first: the default on GPUs (8 points per invocation; 1.1-1.9x on an
+//!   H100, where the atomics contend), not on CPU devices (slower on lavapipe); see [`default_backward_run`].
 //! - `hashgrid_bwd_input`: gradient to the positions, one dispatch per level (the first writes, the others add),
 //!   one invocation per point.
 //! - `_texel` variants of the forward and the input gradient read a level's table as a uniform texel buffer of
@@ -182,7 +183,7 @@ crate::push_constants! {
 pub struct HashGrid {
     pub config: HashGridConfig,
     levels: GpuBuffer<HashLevel>,
-    /// `hashgrid_bwd_runs`, built only when `bwd_run` > 1 (a benchmark setting: it measured slower).
+    /// `hashgrid_bwd_runs`, built only when `bwd_run` > 1 (the default on GPUs; see [`default_backward_run`]).
     bwd_runs: Option<Kernel<BwdPush>>,
     /// Consecutive points one `hashgrid_bwd` invocation combines (1: one point per invocation).
     bwd_run: u32,
@@ -191,17 +192,23 @@ pub struct HashGrid {
     texel_reads: bool,
 }
 
-/// Points per `hashgrid_bwd` invocation: `MSNERF_HASH_BWD_RUN` when set (benchmarks), else 1; a value that is
-/// not a positive number is an error naming the variable.
-pub fn default_backward_run() -> GpuResult<u32> {
+/// Points per `hashgrid_bwd` invocation: `MSNERF_HASH_BWD_RUN` when set, else 1 on CPU devices and
+/// [`GPU_BACKWARD_RUN`] on GPUs. Training hands the grid a ray's samples one after another, so at coarse levels
+/// neighbouring points share a cell: combining them saves contended atomics on a GPU (an H100: 1.1-1.9x per grid,
+/// 5 % of a Table 1 step), while on lavapipe the extra loop costs more than the atomics it saves
+/// (docs/benchmarks.md). A value that is not a positive number is an error naming the variable.
+pub fn default_backward_run(ctx: &crate::gpu::Context) -> GpuResult<u32> {
     match &crate::util::env::settings().hash_bwd_run {
-        None => Ok(1),
+        None => Ok(if ctx.caps().is_cpu { 1 } else { GPU_BACKWARD_RUN }),
         Some(v) => v.trim().parse().ok().filter(|&n: &u32| n >= 1).ok_or_else(|| GpuError::Config {
             what: "MSNERF_HASH_BWD_RUN".into(),
             msg: format!("{v:?} is not a positive number of points"),
         }),
     }
 }
+
+/// Points per backward invocation on GPUs (measured on an H100 against 4 and 16; docs/benchmarks.md).
+pub const GPU_BACKWARD_RUN: u32 = 8;
 
 fn check_array(a: &LargeArray<f32>, offset: usize, n_params: usize) -> GpuResult<()> {
     if offset + n_params > a.len() || offset % 8 != 0 {
@@ -260,7 +267,7 @@ pub fn default_texel_reads(ctx: &crate::gpu::Context) -> GpuResult<bool> {
 
 impl HashGrid {
     pub fn new(ctx: &crate::gpu::Context, config: &HashGridConfig) -> GpuResult<Self> {
-        Self::with_backward_run(ctx, config, default_backward_run()?)
+        Self::with_backward_run(ctx, config, default_backward_run(ctx)?)
     }
 
     /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (see hashgrid_bwd.comp).

@@ -11,7 +11,7 @@
 //! | `MSNERF_DISABLE_F16` | no fp16 hidden activations |
 //! | `MSNERF_POISON_BUFFERS` | fresh GPU buffers hold NaN bits (`make test`) |
 //! | `MSNERF_MLP_TILING` | MLP kernel family and block sizes (benchmarks; `nn::mlp::MlpTiling`) |
-//! | `MSNERF_HASH_BWD_RUN` | points per hash-grid backward invocation (benchmarks) |
+//! | `MSNERF_HASH_BWD_RUN` | points per hash-grid backward invocation (default 8 on GPUs, 1 on CPU devices) |
 //! | `MSNERF_HASH_TEXEL` | hash tables read as texel buffers: `1` on, `0` off (default: on CPU devices) |
 
 use std::sync::OnceLock;

@@ -23,6 +23,23 @@ msnerf::push_constants! {
 /// `fill_u32`'s one specialisation constant, set as `ops::fill` sets it for an unaligned range.
 const FILL_SPEC: &[(&str, u32)] = &[("VEC", 1)];
 
+/// NVIDIA's driver could be loaded about 33 times in one process (each load takes static TLS that glibc never gives
+/// back), and the loader loads it for every instance when no other instance is alive: the 34th context opened one
+/// after another found no driver (an H100, 2026-11-26). The process now pins the drivers; 48 contexts in a row,
+/// each with a dispatch, must all work.
+#[test]
+fn contexts_opened_one_after_another_keep_finding_the_driver() {
+    for i in 0..48 {
+        let g = gpu();
+        let buf = GpuBuffer::from_slice(&g, "pin check", MemoryCategory::Other, &[0u32; 64]).expect("buffer");
+        let mut rec = g.recorder("pin check").expect("recorder");
+        ops::fill(&mut rec, &buf, i, 0, 64).expect("fill");
+        rec.submit_and_wait().unwrap_or_else(|e| panic!("context {i}: {e}"));
+        assert_eq!(g.download(&buf).expect("download"), vec![i; 64], "context {i}");
+    }
+    assert!(msnerf::gpu::instance::drivers_pinned(), "the drivers are pinned once a context was opened");
+}
+
 #[test]
 fn caps_are_read_and_sane() {
     let g = gpu();
