@@ -5,7 +5,7 @@ export MSNERF_REQUIRE_VALIDATION ?= 1
 # Fresh GPU buffers hold NaN bits, so a read of memory nobody wrote fails a test on lavapipe as it would on NVIDIA.
 export MSNERF_POISON_BUFFERS ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep survey-report import-bench rig-parallax test-slurm scale-acceptance
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance
 
 setup:
 	@bash tools/setup-debian.sh
@@ -50,6 +50,10 @@ geometry-sweep: build
 # docs/geometry/: the raw numbers behind docs/geometry.md's ten-minute table (campus, demo profile, 600 s, images only and with SfM points; ~26 min).
 geometry-report: build
 	bash tools/geometry-report.sh geometry-report-output 600
+
+# docs/geometry.md's "A transparent field": last_sample against random background over four seeds, 4,000 steps each (~28 min).
+background-seeds: build
+	bash tools/background-seeds.sh background-seeds-output
 
 # docs/geometry.md's survey products (DSM, true ortho) from geometry-report's two campus runs (~2 min).
 survey-report: build

@@ -129,7 +129,7 @@ pub fn bench_hash(
     let bwd = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &pos, points, dys)))?;
     let rays = GpuBuffer::from_slice(ctx, "bench ray points", MemoryCategory::Activations, &ray_points(points, 48))?;
     let bwd_rays = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &rays, points, dys)))?;
-    let mut paired = HashGrid::new(ctx, cfg)?;
+    let mut paired = HashGrid::with_backward_run(ctx, cfg, 1)?;
     paired.set_texel_reads(true);
     let texel_levels = paired.texel_levels(p)?;
     let dp = zeros(ctx, "bench dp", points * 3)?;

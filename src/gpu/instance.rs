@@ -80,7 +80,8 @@ pub fn load_entry() -> GpuResult<ash::Entry> {
 /// (docs/benchmarks.md). The `msnerf` commands open one context per process; the test suite, which opens one per
 /// test, hit it, and so would any program that uses the library that way. The instance has no
 /// layers and no extensions; when it cannot be created, nothing is pinned and the context's own instance creation
-/// reports the error.
+/// reports the error. Layers that the environment or the system enables implicitly (`VK_INSTANCE_LAYERS`, implicit
+/// layer manifests) load into this instance too and stay loaded; only the drivers found at the first load are pinned.
 fn pin_drivers(entry: &ash::Entry) {
     let app = vk::ApplicationInfo::default().application_name(c"msnerf driver pin").api_version(vk::API_VERSION_1_3);
     // SAFETY: a plain instance, never destroyed on purpose.

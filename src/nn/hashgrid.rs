@@ -270,7 +270,8 @@ impl HashGrid {
         Self::with_backward_run(ctx, config, default_backward_run(ctx)?)
     }
 
-    /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (see hashgrid_bwd.comp).
+    /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (1: hashgrid_bwd.comp;
+    /// more: hashgrid_bwd_runs.comp).
     pub fn with_backward_run(ctx: &crate::gpu::Context, config: &HashGridConfig, run: u32) -> GpuResult<Self> {
         config.validate().map_err(|e| GpuError::Config { what: "hash grid config".into(), msg: e.to_string() })?;
         if !(1..=64).contains(&run) {

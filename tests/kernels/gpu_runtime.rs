@@ -38,6 +38,20 @@ fn contexts_opened_one_after_another_keep_finding_the_driver() {
         assert_eq!(g.download(&buf).expect("download"), vec![i; 64], "context {i}");
     }
     assert!(msnerf::gpu::instance::drivers_pinned(), "the drivers are pinned once a context was opened");
+    // What the pin is for, seen on any driver: the libraries a context loaded stay mapped after it is gone (the
+    // validation layer, loaded per instance, excepted). Without the pin lavapipe's libvulkan_lvp and its LLVM go.
+    let g = gpu();
+    let during = mapped_libraries();
+    drop(g);
+    let after = mapped_libraries();
+    let gone: Vec<_> = during.difference(&after).filter(|p| !p.contains("VkLayer")).collect();
+    assert!(gone.is_empty(), "libraries unloaded with the context: {gone:?}");
+}
+
+/// Shared objects mapped into this process (/proc/self/maps).
+fn mapped_libraries() -> std::collections::BTreeSet<String> {
+    let maps = std::fs::read_to_string("/proc/self/maps").expect("/proc/self/maps");
+    maps.lines().filter_map(|l| l.split_whitespace().nth(5)).filter(|p| p.contains(".so")).map(str::to_owned).collect()
 }
 
 #[test]

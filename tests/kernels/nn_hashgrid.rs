@@ -5,7 +5,7 @@
 use crate::common;
 use common::{assert_all_close_f32, gpu, rng};
 use msnerf::gpu::{BufferDesc, Context, GpuBuffer, LargeArray, MemoryCategory};
-use msnerf::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
+use msnerf::nn::hashgrid::{self, HashGrid, HashGridConfig, OutputSlot};
 use msnerf::nn::{ParamSlice, RowSlice};
 use msnerf::ops;
 use msnerf::reference::hashgrid as twin;
@@ -200,6 +200,19 @@ fn one_four_and_eight_features_read_texels_as_buffers_do() {
 fn backward_params_matches_twin_at_99th_percentile() {
     let cfg = small();
     check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4);
+}
+
+/// Run combining is the default on GPUs and off on CPU devices, where it measured slower (docs/benchmarks.md);
+/// `MSNERF_HASH_BWD_RUN` overrides both.
+#[test]
+fn backward_run_default_follows_the_device_kind() {
+    let g = gpu();
+    let want = match std::env::var("MSNERF_HASH_BWD_RUN") {
+        Ok(v) => v.trim().parse().expect("MSNERF_HASH_BWD_RUN is a number"),
+        Err(_) if g.caps().is_cpu => 1,
+        Err(_) => hashgrid::GPU_BACKWARD_RUN,
+    };
+    assert_eq!(hashgrid::default_backward_run(&g).expect("default"), want);
 }
 
 #[test]
