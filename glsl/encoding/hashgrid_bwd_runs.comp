@@ -1,9 +1,9 @@
 // hashgrid_bwd_runs: hashgrid_bwd's gradient with run combining, the alternative to one atomic per contribution that
 // docs/benchmarks.md measures: slower on lavapipe, 1.1-1.9x faster on an H100, where atomic contention on coarse
-// levels costs more; the default on GPUs (`nn::hashgrid::default_backward_run`). An invocation takes RUN consecutive points (the samples of a ray are consecutive) and
-// adds up, in registers, the contributions of points that fall in the same cell as the point before, issuing the
-// 8 x F atomics once per run of equal cells instead of once per point. Coarse levels, where many samples of a ray
-// share a cell, need far fewer atomics.
+// levels costs more; the default on GPUs (`nn::hashgrid::default_backward_run`). An invocation takes RUN
+// consecutive points (the samples of a ray are consecutive) and adds up, in registers, the contributions of points
+// that fall in the same cell as the point before, issuing the 8 x F atomics once per run of equal cells instead of
+// once per point. Coarse levels, where many samples of a ray share a cell, need far fewer atomics.
 // Bindings: 0 positions (float[3N]), 1 levels (HashLevel[L]), 2 dL/dy (float rows of dy_stride).
 // Push:     grads (chunk-table address), shift, param_offset, n, dy_stride, dy_col.
 // Spec:     0 F, 1 RUN.
