@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Regenerates docs/geometry.md's "A transparent field" table (issue 18): the `demo` profile trained on the campus
-# scene, images only, for 4,000 steps with each background (`last_sample`, nerfstudio's default and the profile's,
-# and `random`) and each seed, then `eval --depth` on all held-out views. One JSON line per run (PSNR overall and per
-# band, depth overall and each view's median bias) goes to docs/geometry/background-seeds.jsonl once every run
-# has finished, and a markdown table is printed. The committed file has a ninth line, seed 2 with
-# `MSNERF_HASH_TEXEL=0` (docs/geometry.md), which this script does not repeat. About 3.5 minutes per run on 2 cores
+# scene, images only, for 4,000 steps with each background variant and each seed, then `eval --depth` on all held-out
+# views. The variants: `last_sample` (nerfstudio's default), `random`, and `last_sample` after a 1,000-step `random`
+# warm-up (`rendering.random_background_steps`, off in the profile). One JSON line per run (PSNR overall and per
+# band, depth overall and each view's median bias) goes to docs/geometry/background-seeds.jsonl once every run has
+# finished, and a markdown table is printed. The committed file also has seed 2 with `MSNERF_HASH_TEXEL=0` (line 9)
+# and the four 300-step warm-up runs (the last lines), which this script does not repeat. About 3.5 minutes per run on 2 cores
 # with lavapipe (a step budget: the figures do not depend on the machine's speed).
 #   usage: tools/background-seeds.sh [WORKDIR] [SEEDS]      (default: background-seeds-output "42 1 2 3")
 set -euo pipefail
@@ -17,20 +18,27 @@ mkdir -p "$work"
 "$bin" simulate --scene campus --out "$work/data" --overwrite
 grep -q '^  background: last_sample$' configs/models/demo.yaml || { echo "background-seeds: demo.yaml changed" >&2; exit 1; }
 : > "$work/runs.jsonl"
-for bg in last_sample random; do
-  sed "s/^name: demo$/name: demo-$bg/; s/^  background: last_sample$/  background: $bg/" configs/models/demo.yaml > "$work/demo-$bg.yaml"
+for variant in last_sample:0 random:0 last_sample:1000; do
+  bg=${variant%:*}
+  warm=${variant#*:}
+  name="$bg-$warm"
+  # The profile with this background and warm-up (its own warm-up line, if any, replaced).
+  sed "/^  random_background_steps: /d; s/^name: demo$/name: demo-$name/; s/^  background: last_sample$/  background: $bg/" \
+    configs/models/demo.yaml > "$work/demo-$name.yaml"
+  [ "$warm" = 0 ] || sed -i "s/^  background: $bg$/  background: $bg\n  random_background_steps: $warm/" "$work/demo-$name.yaml"
   for seed in $seeds; do
-    run="$work/run-$bg-$seed"
+    run="$work/run-$name-$seed"
     rm -rf "$run"
-    "$bin" train --data "$work/data" --model "$work/demo-$bg.yaml" --seed "$seed" --max-steps 4000 --out "$run" --quiet
+    "$bin" train --data "$work/data" --model "$work/demo-$name.yaml" --seed "$seed" --max-steps 4000 --out "$run" --quiet
     "$bin" eval "$run" --depth > /dev/null
-    python3 - "$bg" "$seed" "$run/eval.json" >> "$work/runs.jsonl" <<'PY'
+    python3 - "$bg" "$warm" "$seed" "$run/eval.json" >> "$work/runs.jsonl" <<'PY'
 import json, sys
-bg, seed, path = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+bg, warm, seed, path = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 e = json.load(open(path))
 d = e["depth"]["overall"]
 psnr = e["results"]["psnr"]
-print(json.dumps({"background": bg, "seed": seed, "steps": 4000, "env": None, "psnr": psnr, "views": e["num_views"],
+print(json.dumps({"background": bg, "random_background_steps": warm, "seed": seed, "steps": 4000, "env": None,
+                  "psnr": psnr, "views": e["num_views"],
                   "band_psnr": {b["name"]: b["psnr"] for b in e["bands"]},
                   "depth_median_abs": d["median_abs_error"], "depth_mean_abs": d["mean_abs_error"],
                   "depth_bias": d["median_bias"], "depth_bias_fp": d["median_bias_footprints"],
@@ -46,6 +54,8 @@ print("| background | seed | held-out PSNR | depth median abs err | mean abs err
 print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
 for line in open(sys.argv[1]):
     r = json.loads(line)
-    print(f"| `{r['background']}` | {r['seed']} | {r['psnr']:.2f} dB | {r['depth_median_abs']:.2f} m | {r['depth_mean_abs']:.1f} m "
+    warm = r.get("random_background_steps", 0)
+    name = f"`{r['background']}`" + (f" after {warm} `random`" if warm else "")
+    print(f"| {name} | {r['seed']} | {r['psnr']:.2f} dB | {r['depth_median_abs']:.2f} m | {r['depth_mean_abs']:.1f} m "
           f"| {r['depth_bias']:+.2f} m ({r['depth_bias_fp']:+.2f} fp) | {100 * r['within_one_fp']:.1f} % |")
 PY

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::scale::partition::{parse_grid, partition, PartitionOptions};
+use crate::scale::partition::{parse_grid, partition_with, PartitionOptions};
 use crate::scale::runner::{train_blocks, TrainBlocksOptions};
 
 #[derive(clap::Args, Debug)]
@@ -92,16 +92,33 @@ pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
         (Some(t), _) => t.clone(),
         _ => "08:00:00".to_string(),
     };
-    if a.slurm {
+    // Every Slurm option is checked before anything is written; the script goes into the blocks folder before it
+    // is renamed into place, so the folder appears complete or not at all.
+    let slurm = if a.slurm {
         crate::scale::slurm::check_time(&time)?;
-    }
+        anyhow::ensure!(
+            a.host_budget_gib.is_finite() && a.host_budget_gib > 0.0,
+            "--host-budget-gib must be > 0, got {}",
+            a.host_budget_gib
+        );
+        Some(crate::scale::slurm::SlurmOptions {
+            time: time.clone(),
+            host_budget_bytes: (a.host_budget_gib * (1u64 << 30) as f64) as u64,
+            cpus_per_task: a.slurm_cpus,
+            gres: if a.slurm_gres == "none" { String::new() } else { a.slurm_gres.clone() },
+            exe: std::env::current_exe()?,
+            train_args: a.train_args.clone(),
+        })
+    } else {
+        None
+    };
     let o = PartitionOptions {
         blocks: parse_grid(&a.blocks)?,
         overlap: a.overlap,
         ground_z: a.ground_z,
         overwrite: a.overwrite,
     };
-    let b = partition(&a.dataset, &a.out, &o)?;
+    let (b, gib) = partition_with(&a.dataset, &a.out, &o, slurm.as_ref())?;
     println!(
         "wrote {}: {} blocks ({}x{}), overlap {}",
         a.out.display(),
@@ -119,21 +136,7 @@ pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
     for w in &b.warnings {
         println!("warning: {w}");
     }
-    if a.slurm {
-        anyhow::ensure!(
-            a.host_budget_gib.is_finite() && a.host_budget_gib > 0.0,
-            "--host-budget-gib must be > 0, got {}",
-            a.host_budget_gib
-        );
-        let so = crate::scale::slurm::SlurmOptions {
-            time: time.clone(),
-            host_budget_bytes: (a.host_budget_gib * (1u64 << 30) as f64) as u64,
-            cpus_per_task: a.slurm_cpus,
-            gres: if a.slurm_gres == "none" { String::new() } else { a.slurm_gres.clone() },
-            exe: std::env::current_exe()?,
-            train_args: a.train_args.clone(),
-        };
-        let gib = crate::scale::slurm::write_job_array(&a.out, &b, &so)?;
+    if let Some(gib) = gib {
         println!(
             "Slurm job array: sbatch {} ({} tasks, {gib} GiB each)",
             a.out.join("slurm.sh").display(),

@@ -60,6 +60,12 @@ impl AlphaBackground {
             Background::Random => AlphaBackground::Black,
         }
     }
+
+    /// [`AlphaBackground::for_model`] for a model's whole `rendering` section: training with a `random` warm-up
+    /// (`random_background_steps`) refuses alpha as `random` does, since its first steps blend with random colours.
+    pub fn for_rendering(r: &crate::nerf::config::RenderingConfig, training: bool) -> AlphaBackground {
+        AlphaBackground::for_model(r.background_at(0, training), training)
+    }
 }
 
 /// Where a frame's pixels come from.
@@ -628,9 +634,10 @@ impl Dataset {
                     path: p.to_path_buf(),
                     key: "rendering.background".into(),
                     frame: Some(frame_of(f)),
-                    reason: "the image has an alpha channel and the model's background is `random`: nerfstudio \
-                             blends such ground truth with each ray's random colour in the loss, which msnerf does \
-                             not; use background black, white or last_sample, or remove the alpha channel"
+                    reason: "the image has an alpha channel and the model trains with the `random` background \
+                             (rendering.background or rendering.random_background_steps): nerfstudio blends such \
+                             ground truth with each ray's random colour in the loss, which msnerf does not; use \
+                             background black, white or last_sample without the warm-up, or remove the alpha channel"
                         .into(),
                 })
             }

@@ -118,6 +118,28 @@ pub enum Background {
 pub struct RenderingConfig {
     #[serde(default)]
     pub background: Background,
+    /// Train the first this many steps with the `random` background, then with `background` (0, the default: off).
+    /// A warm-up that makes leftover transmittance cost loss while the field forms, so the field turns opaque at the
+    /// surface instead of leaving the `last_sample` colour to paint it from behind (docs/geometry.md, "A transparent
+    /// field"); evaluation always uses `background`.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub random_background_steps: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
+}
+
+impl RenderingConfig {
+    /// The background of a training step (`train`) or of evaluation: `random` during the warm-up of
+    /// [`RenderingConfig::random_background_steps`], `background` otherwise.
+    pub fn background_at(&self, step: u64, train: bool) -> Background {
+        if train && step < self.random_background_steps {
+            Background::Random
+        } else {
+            self.background
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -433,6 +455,12 @@ impl ModelConfig {
         }
         if s.num_nerf_samples == 0 {
             return Err(ConfigError::key("sampling.num_nerf_samples must be > 0"));
+        }
+        if self.rendering.random_background_steps > 0 && self.rendering.background == Background::Random {
+            return Err(ConfigError::key(
+                "rendering.random_background_steps: a random-background warm-up needs another rendering.background \
+                 to follow it (it is `random` already)",
+            ));
         }
         if let Some(r) = &self.loss.distortion_ramp {
             if r.to_step <= r.from_step || !(r.mult.is_finite() && r.mult >= 0.0) {

@@ -221,7 +221,7 @@ impl Pipeline {
     }
 
     fn background(&self, train: bool) -> BackgroundMode {
-        match self.model.cfg.rendering.background {
+        match self.model.cfg.rendering.background_at(self.step, train) {
             Background::LastSample => BackgroundMode::LastSample,
             Background::Black => BackgroundMode::Constant(0.0),
             Background::White => BackgroundMode::Constant(1.0),

@@ -62,7 +62,7 @@ impl LoadedRun {
         let band_indices: Option<Vec<usize>> = serde_json::from_value(info["band_indices"].clone())
             .map_err(|e| NerfError::key(&info_path, "band_indices", e))?;
         let mut ds = load_run_dataset(Path::new(data), band_indices.as_deref(), &cfg.sampling)?;
-        ds.options.alpha_background = crate::data::AlphaBackground::for_model(cfg.rendering.background, false);
+        ds.options.alpha_background = crate::data::AlphaBackground::for_rendering(&cfg.rendering, false);
         let checkpoint = dir.join("checkpoints/latest.msnp");
         let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len())?;
         model.store.load(&checkpoint)?;

@@ -249,7 +249,7 @@ pub fn load_run_dataset(
 pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let cfg = &opts.model;
     let mut ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &cfg.sampling)?;
-    ds.options.alpha_background = crate::data::AlphaBackground::for_model(cfg.rendering.background, true);
+    ds.options.alpha_background = crate::data::AlphaBackground::for_rendering(&cfg.rendering, true);
     let bands = ds.n_bands();
     cfg.band_weights(bands)?;
     let train_frames = ds.split_indices(Split::Train);

@@ -52,7 +52,8 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
     let dist_norm = cfg.loss.distortion_mult as f64 / total_w;
     let inter_norm = cfg.loss.interlevel_mult as f64 / (rays.len() * s.num_nerf_samples) as f64;
     let band_w: Vec<f64> = cfg.band_weights(bands).expect("validated").iter().map(|&v| v as f64).collect();
-    let background = match cfg.rendering.background {
+    let chosen = cfg.rendering.background_at(step, true);
+    let background = match chosen {
         crate::nerf::config::Background::LastSample => render::Background::LastSample,
         crate::nerf::config::Background::Black => render::Background::Constant(0.0),
         crate::nerf::config::Background::White => render::Background::Constant(1.0),
@@ -145,7 +146,7 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
             ray_weight: ray.weight,
             band_weights: &band_w,
             density_scale: scale,
-            background: if matches!(cfg.rendering.background, crate::nerf::config::Background::Random) {
+            background: if matches!(chosen, crate::nerf::config::Background::Random) {
                 render::Background::Random { seed, step: step as u32, ray: gi as u32 }
             } else {
                 background

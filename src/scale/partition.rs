@@ -125,6 +125,17 @@ fn frame_rays(ds: &Dataset, f: usize, r: &glam::DMat3) -> (DVec3, Vec<DVec3>) {
 
 /// Makes the blocks of `input` (a dataset folder or its transforms.json) in `out`.
 pub fn partition(input: &Path, out: &Path, o: &PartitionOptions) -> Result<Blocks, ScaleError> {
+    partition_with(input, out, o, None).map(|(b, _)| b)
+}
+
+/// [`partition`], and with `slurm` the job array `out/slurm.sh` written into the staging folder before it is
+/// renamed, so a failure leaves no blocks folder behind; returns the memory per task the script asks for, GiB.
+pub fn partition_with(
+    input: &Path,
+    out: &Path,
+    o: &PartitionOptions,
+    slurm: Option<&super::slurm::SlurmOptions>,
+) -> Result<(Blocks, Option<u64>), ScaleError> {
     if !(0.0..1.0).contains(&o.overlap) {
         return Err(ScaleError::option("--overlap", format!("{} is outside [0, 1)", o.overlap)));
     }
@@ -240,8 +251,12 @@ pub fn partition(input: &Path, out: &Path, o: &PartitionOptions) -> Result<Block
     };
     let p = stage.path.join("blocks.json");
     std::fs::write(&p, serde_json::to_vec_pretty(&result).expect("json")).map_err(ScaleError::io(&p))?;
+    let gib = match slurm {
+        Some(so) => Some(super::slurm::write_job_array_into(&stage.path, out, &result, so)?),
+        None => None,
+    };
     stage.commit().map_err(|e| ScaleError::Output { path: out.to_path_buf(), reason: e.to_string() })?;
-    Ok(result)
+    Ok((result, gib))
 }
 
 /// A block's transforms.json: the source's top-level keys (split lists left out: each frame says its split), its

@@ -49,10 +49,23 @@ pub fn check_time(time: &str) -> Result<(), ScaleError> {
 
 /// Writes `dir/slurm.sh` for `blocks`; returns the memory per task it asks for, in GiB.
 pub fn write_job_array(dir: &Path, blocks: &Blocks, o: &SlurmOptions) -> Result<u64, ScaleError> {
+    write_job_array_into(dir, dir, blocks, o)
+}
+
+/// Writes `slurm.sh` into `write_dir`, a blocks folder that will be found at `final_dir` (the staging folder of
+/// [`super::partition::partition_with`] before its rename, so the folder appears with its script or not at all):
+/// the block datasets are read from `write_dir`, the script names `final_dir`.
+pub fn write_job_array_into(
+    write_dir: &Path,
+    final_dir: &Path,
+    blocks: &Blocks,
+    o: &SlurmOptions,
+) -> Result<u64, ScaleError> {
     check_time(&o.time)?;
+    let dir = final_dir;
     let mut largest = 0u64;
     for b in &blocks.blocks {
-        let ds = load_dataset(&dir.join(&b.name), &LoadOptions::default())?;
+        let ds = load_dataset(&write_dir.join(&b.name), &LoadOptions::default())?;
         let shape = crate::plan::DatasetShape::from_dataset(&ds);
         largest = largest.max(shape.bytes_per_image * shape.n_train as u64);
     }
@@ -92,7 +105,7 @@ exec {exe} train --data \"$DIR/$B\" --out \"$DIR/$B/run\" \"${{RESUME[@]}}\" --q
         exe = quote(&o.exe.display().to_string()),
         extra = extra.join(" "),
     );
-    let p = dir.join("slurm.sh");
+    let p = write_dir.join("slurm.sh");
     crate::util::atomic::write_bytes(&p, script.as_bytes())
         .map_err(|e| ScaleError::Output { path: p.clone(), reason: e.to_string() })?;
     #[cfg(unix)]

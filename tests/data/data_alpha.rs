@@ -105,6 +105,12 @@ fn background_follows_the_model() {
     assert_eq!(AlphaBackground::for_model(Background::White, false), AlphaBackground::White);
     assert_eq!(AlphaBackground::for_model(Background::Random, true), AlphaBackground::Refuse);
     assert_eq!(AlphaBackground::for_model(Background::Random, false), AlphaBackground::Black);
+    // A `random` warm-up before `last_sample`: refused in training, black in evaluation.
+    let r = msnerf::nerf::config::RenderingConfig { background: Background::LastSample, random_background_steps: 100 };
+    assert_eq!(AlphaBackground::for_rendering(&r, true), AlphaBackground::Refuse);
+    assert_eq!(AlphaBackground::for_rendering(&r, false), AlphaBackground::Black);
+    let r = msnerf::nerf::config::RenderingConfig { random_background_steps: 0, ..r };
+    assert_eq!(AlphaBackground::for_rendering(&r, true), AlphaBackground::Black);
 }
 
 fn write_dataset(dir: &Path, bytes: &[u8], bands: usize) {

@@ -520,6 +520,39 @@ fn slurm_job_array_script_trains_its_task_block() {
     assert!(write_job_array(&out, &blocks, &bad).unwrap_err().to_string().contains("--slurm-time"));
 }
 
+/// `partition --slurm` writes the job array into the blocks folder before it is renamed into place: the script
+/// names the final folder, and a script that cannot be written leaves no blocks folder behind.
+#[test]
+fn partition_with_slurm_writes_the_script_before_the_folder_appears() {
+    use msnerf::scale::partition::partition_with;
+    use msnerf::scale::slurm::SlurmOptions;
+    let t = common::TempDir::new("partition-slurm");
+    let data = t.path().join("data");
+    textured(&data);
+    let o = PartitionOptions { blocks: [2, 1], overlap: 0.3, ground_z: None, overwrite: false };
+    let so = SlurmOptions {
+        time: "02:00:00".into(),
+        host_budget_bytes: 1 << 30,
+        cpus_per_task: 2,
+        gres: String::new(),
+        exe: env!("CARGO_BIN_EXE_msnerf").into(),
+        train_args: tiny_args("3"),
+    };
+    let out = t.path().join("blocks");
+    let (blocks, gib) = partition_with(&data, &out, &o, Some(&so)).expect("partition with a job array");
+    assert_eq!((blocks.blocks.len(), gib), (2, Some(5)));
+    let script = std::fs::read_to_string(out.join("slurm.sh")).expect("slurm.sh");
+    let final_dir = std::path::absolute(&out).unwrap().display().to_string();
+    assert!(script.contains(&format!("DIR='{final_dir}'")), "the script names the final folder:\n{script}");
+    let bad_out = t.path().join("blocks-bad");
+    let bad = SlurmOptions { time: "soon".into(), ..so };
+    let e = partition_with(&data, &bad_out, &o, Some(&bad)).expect_err("bad time").to_string();
+    assert!(e.contains("--slurm-time"), "{e}");
+    let left: Vec<_> = std::fs::read_dir(t.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert!(!bad_out.exists(), "no blocks folder after a failed script: {left:?}");
+    assert_eq!(left.len(), 2, "no staging folder left either: {left:?}");
+}
+
 /// `partition --slurm --slurm-time-from BENCH.json`: each task's limit is steps x ms per step x 1.25 + 15 min,
 /// computed here by hand, from the measurement of the training's model and batch with the nearest band count at or
 /// above the dataset's; a file without one is refused by name with the command that makes it.

@@ -58,14 +58,15 @@ fn check_step(update: bool, seed: u64) {
     check_step_with(update, seed, |_| {});
 }
 
-fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) {
-    check_step_full(update, seed, false, tweak);
+/// Returns the step's RGB loss (GPU).
+fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) -> f64 {
+    check_step_full(update, seed, false, tweak)
 }
 
 /// `rig`: the camera table also holds a band camera per frame (the frame's pose moved 5 cm along its x axis, as
 /// `rig_cameras` makes them), every other ray comes from one and observes one band (NaN targets for the others),
 /// and its pose correction and appearance are its frame's (`Batch::cameras`).
-fn check_step_full(update: bool, seed: u64, rig: bool, tweak: impl Fn(&mut ModelConfig)) {
+fn check_step_full(update: bool, seed: u64, rig: bool, tweak: impl Fn(&mut ModelConfig)) -> f64 {
     let g = gpu();
     let mut cfg = small_config();
     tweak(&mut cfg);
@@ -210,6 +211,7 @@ fn check_step_full(update: bool, seed: u64, rig: bool, tweak: impl Fn(&mut Model
         zero_slots.len() < 2 * pipe.model.proposals.len(),
         "some proposal level must receive gradients: {zero_slots:?}"
     );
+    stats.loss_rgb
 }
 
 #[test]
@@ -232,6 +234,25 @@ fn whole_step_matches_reference_with_gradient_scaling() {
 #[test]
 fn whole_step_matches_reference_with_random_background() {
     check_step_with(false, 12, |c| c.rendering.background = msnerf::nerf::config::Background::Random);
+}
+
+/// `rendering.random_background_steps`: the steps before it train with the `random` background on both sides (the
+/// same loss as `background: random`), the step at it with `background` again (the same loss as without the warm-up).
+#[test]
+fn whole_step_matches_reference_through_a_random_background_warm_up() {
+    use msnerf::nerf::config::Background;
+    // check_step_with(false, ..) trains step 50.
+    let random = check_step_with(false, 12, |c| c.rendering.background = Background::Random);
+    let last = check_step_with(false, 12, |_| {});
+    let warm = check_step_with(false, 12, |c| c.rendering.random_background_steps = 51);
+    let after = check_step_with(false, 12, |c| c.rendering.random_background_steps = 50);
+    assert!((random - last).abs() > 1e-3 * last, "the backgrounds give different losses: {random} {last}");
+    // The same inputs: equal up to the order of the loss's float sums.
+    assert!((warm - random).abs() <= 1e-5 * random, "step 50 of a 51-step warm-up trains with random: {warm} {random}");
+    assert!(
+        (after - last).abs() <= 1e-5 * last,
+        "step 50 after a 50-step warm-up trains with last_sample: {after} {last}"
+    );
 }
 
 #[test]
@@ -291,6 +312,32 @@ fn distortion_ramp_interpolates_and_validates() {
     c.loss.distortion_ramp = Some(DistortionRamp { from_step: 300, to_step: 300, mult: 0.01 });
     let e = c.validate().expect_err("empty ramp").to_string();
     assert!(e.contains("loss.distortion_ramp"), "{e}");
+}
+
+/// `rendering.random_background_steps`: off by default (and not written into a run's config then), `random` before
+/// it in training only, refused by key after `background: random`.
+#[test]
+fn random_background_warm_up_schedules_and_validates() {
+    use msnerf::nerf::config::{Background, ModelConfig};
+    let mut c = ModelConfig::resolve("demo").expect("demo");
+    assert_eq!(c.rendering.random_background_steps, 0);
+    assert!(!serde_yaml::to_string(&c).unwrap().contains("random_background_steps"));
+    assert_eq!(c.rendering.background_at(0, true), Background::LastSample);
+    c.rendering.random_background_steps = 300;
+    for (step, train, want) in [
+        (0, true, Background::Random),
+        (299, true, Background::Random),
+        (300, true, Background::LastSample),
+        (0, false, Background::LastSample),
+    ] {
+        assert_eq!(c.rendering.background_at(step, train), want, "step {step}, train {train}");
+    }
+    c.validate().expect("a valid warm-up");
+    let text = serde_yaml::to_string(&c).unwrap();
+    assert!(text.contains("random_background_steps: 300"), "{text}");
+    c.rendering.background = Background::Random;
+    let e = c.validate().expect_err("warm-up before random").to_string();
+    assert!(e.contains("rendering.random_background_steps"), "{e}");
 }
 
 /// Every built-in profile parses; an unknown name is refused with the built-in list, a file path keeps its name.
