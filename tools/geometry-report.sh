@@ -22,6 +22,7 @@ for variant in images sfm; do
   [ "$variant" = sfm ] && model="$work/demo-sfm.yaml"
   suffix=10min
   [ "$variant" = sfm ] && suffix=10min-sfm
+  rm -rf "$work/run-$variant" # this script's own run from a previous report
   "$bin" train --data "$work/data" --model "$model" --time-budget "$secs" --out "$work/run-$variant" | tee "$work/train-$variant.txt"
   "$bin" eval "$work/run-$variant" --depth --output "$out/eval-$suffix.json"
   "$bin" export pointcloud "$work/run-$variant" --out "$work/careful-$variant.ply" | tee "$out/export-careful-$suffix.txt"

@@ -264,6 +264,29 @@ fn eps() -> f64 {
 pub struct OptimizerConfig {
     pub fields: GroupConfig,
     pub proposals: GroupConfig,
+    /// What the `fields` and `proposals` schedules span (the camera optimiser keeps its own step schedule).
+    #[serde(default, skip_serializing_if = "LrSchedule::is_steps")]
+    pub schedule: LrSchedule,
+}
+
+/// The length of the field and proposal learning-rate schedules (`optimizer.schedule`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LrSchedule {
+    /// nerfstudio's ExponentialDecay: lr0 to lr_final over each group's `max_steps` optimiser steps, then constant.
+    #[default]
+    Steps,
+    /// The same decay stretched over the whole run, whatever its length: the fraction done is the larger of steps
+    /// over the step budget (`trainer.max_steps` or `--max-steps`) and seconds over the time budget
+    /// (`--time-budget`), so a 90 s and a 10-minute run both end at lr_final. The groups' `max_steps` are unused.
+    /// A time-budgeted run's schedule then depends on the machine's speed, as its step count already does.
+    Run,
+}
+
+impl LrSchedule {
+    fn is_steps(&self) -> bool {
+        *self == LrSchedule::Steps
+    }
 }
 
 /// How camera poses are refined during training (nerfstudio's `camera_optimizer.mode`).

@@ -133,6 +133,9 @@ impl ModelShapes {
                 o.proposals.eps,
             ),
         ];
+        for (g, _) in &mut groups {
+            g.over_run = o.schedule == super::config::LrSchedule::Run;
+        }
         if co.enabled() {
             groups.push((ParamGroup::new(CAMERA_GROUP, co.lr, co.lr_final, co.max_steps), co.eps));
         }

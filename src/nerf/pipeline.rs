@@ -82,6 +82,8 @@ pub struct StepStats {
     /// PSNR of the batch (data range 1) from the unweighted squared error.
     pub psnr: f64,
     pub proposals_updated: bool,
+    /// Learning rate of the `fields` group at this step (its schedule, `optimizer.schedule`).
+    pub lr_fields: f64,
     /// The step was skipped by the NaN/Inf guard; `poisoned` names the first non-finite buffer.
     pub skipped: bool,
     pub poisoned: Option<String>,
@@ -739,7 +741,9 @@ impl Pipeline {
         let update_props =
             self.schedule.decide(&self.model.cfg.sampling, self.step) && !self.model.proposals.is_empty();
         let profiled = self.profile_every > 0 && self.step % self.profile_every == 0;
-        let stats = StepStats { step: self.step, proposals_updated: update_props, profiled, ..Default::default() };
+        let lr_fields = self.model.store.lr(0);
+        let stats =
+            StepStats { step: self.step, proposals_updated: update_props, profiled, lr_fields, ..Default::default() };
         let b = self.train_bufs.take().expect("ensured above");
         // Everything fallible runs in here, so an error never leaves `train_bufs` taken (the next step would
         // otherwise allocate them again without a word).

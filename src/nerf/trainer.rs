@@ -13,7 +13,7 @@
 //! Ctrl-C or SIGTERM (a Slurm preemption or time limit) saves a checkpoint and stops; `--resume` continues from the
 //! latest one; `--time-budget` stops in time.
 
-use super::config::ModelConfig;
+use super::config::{LrSchedule, ModelConfig};
 use super::error::{NerfError, NerfResult};
 use super::model::Model;
 use super::pipeline::{Batch, Pipeline, StepStats};
@@ -361,6 +361,9 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
         for (k, px) in batches.iter().enumerate() {
             push_pixels(&mut batch, px, rig.as_ref(), k == 1, depth.as_ref());
         }
+        if cfg.optimizer.schedule == LrSchedule::Run {
+            pipe.model.store.set_run_progress(Some(run_progress(submitted, max_steps, elapsed, opts.time_budget_s)));
+        }
         let t0 = Instant::now();
         pipe.submit_step(&batch).map_err(NerfError::gpu(format!("step {submitted}")))?;
         submitted += 1;
@@ -429,6 +432,14 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let s = serde_json::to_string_pretty(&summary).expect("json");
     write_atomic_str(&run.join("summary.json"), s.as_bytes())?;
     Ok(summary)
+}
+
+/// How far through its run a step is, for `optimizer.schedule: run`: the larger of `step / max_steps` and
+/// `elapsed_s / time_budget_s` (when there is a budget), clamped to [0, 1].
+pub fn run_progress(step: u64, max_steps: u64, elapsed_s: f64, time_budget_s: Option<f64>) -> f64 {
+    let by_steps = if max_steps == 0 { 1.0 } else { step as f64 / max_steps as f64 };
+    let by_time = time_budget_s.filter(|t| *t > 0.0).map_or(0.0, |t| elapsed_s / t);
+    by_steps.max(by_time).clamp(0.0, 1.0)
 }
 
 /// What the trainer does with each completed step's results: the metrics log, the NaN guard's count, the progress
@@ -517,7 +528,7 @@ impl StepLog {
                 self.log(serde_json::json!({
                     "step": stats.step, "loss": stats.loss, "loss_rgb": stats.loss_rgb, "loss_distortion": stats.loss_distortion,
                     "loss_interlevel": stats.loss_interlevel, "loss_depth": stats.loss_depth, "psnr": stats.psnr, "step_ms": ms, "rays_per_s": rays_per_s,
-                    "proposals_updated": stats.proposals_updated, "loss_pose": stats.loss_pose,
+                    "proposals_updated": stats.proposals_updated, "loss_pose": stats.loss_pose, "lr_fields": stats.lr_fields,
                 }))?;
             }
             if let Some(b) = &self.bar {

@@ -11,7 +11,8 @@
 //! - Threads: one invocation per VEC elements, 64 per group.
 //!
 //! [`step`] dispatches once per chunk range of each stepped group's element range (groups are contiguous, see
-//! [`crate::nn::params`]). Semantics per group g, with `lr = groups[g].lr_at(schedule_step)`:
+//! [`crate::nn::params`]). Semantics per group g, with `lr = store.lr(g)` (the group's schedule at the schedule step, or at the run
+//! progress for a schedule that spans the run):
 //! - not in `has_grad` (no gradient this iteration, torch's `p.grad is None`): not stepped at all — no moment
 //!   update, its step counter does not advance (nerfacto.md §8.9);
 //! - lr 0 (a frozen group): not stepped either (torch would still move the moments; nothing here reads them);
@@ -113,13 +114,12 @@ pub fn step_gated(
         });
     }
     let [wide, narrow] = kernels(rec.context(), gate.is_some())?;
-    let schedule_step = store.schedule_step();
     let mut report = Vec::with_capacity(n_groups);
     let mut new_steps = store.group_steps().to_vec();
     // Every dispatch updates its own element range: one group without barriers among them.
     rec.independent(|rec| {
         for (g, group) in store.groups().iter().enumerate() {
-            let lr = group.lr_at(schedule_step);
+            let lr = store.lr(g);
             let stepped = has_grad[g] && lr != 0.0;
             if stepped {
                 new_steps[g] += 1;

@@ -60,12 +60,16 @@ pub struct ParamGroup {
     pub lr_final: f64,
     pub max_steps: u64,
     pub adam: AdamHyper,
+    /// The schedule spans the whole run (`optimizer.schedule: run`): when the store has a run progress
+    /// ([`ParamStore::set_run_progress`]) the learning rate is evaluated at that fraction instead of
+    /// `schedule_step / max_steps`.
+    pub over_run: bool,
 }
 
 impl ParamGroup {
     /// A group with nerfacto's Adam settings (betas 0.9/0.999, eps 1e-15, no weight decay).
     pub fn new(name: &str, lr0: f64, lr_final: f64, max_steps: u64) -> Self {
-        Self { name: name.to_owned(), lr0, lr_final, max_steps, adam: AdamHyper::default() }
+        Self { name: name.to_owned(), lr0, lr_final, max_steps, adam: AdamHyper::default(), over_run: false }
     }
 
     /// nerfstudio's ExponentialDecay without warm-up (nerfacto.md §1.1) after `schedule_step` scheduler steps:
@@ -75,6 +79,15 @@ impl ParamGroup {
             return 0.0;
         }
         let tau = if self.max_steps == 0 { 1.0 } else { (schedule_step as f64 / self.max_steps as f64).min(1.0) };
+        self.lr_at_progress(tau)
+    }
+
+    /// The same schedule at a fraction `tau` of its length (clamped to [0, 1]; NaN counts as 0).
+    pub fn lr_at_progress(&self, tau: f64) -> f64 {
+        if self.lr0 == 0.0 {
+            return 0.0;
+        }
+        let tau = if tau.is_nan() { 0.0 } else { tau.clamp(0.0, 1.0) };
         match tau {
             // The end points exactly (exp(ln x) is not always x).
             0.0 => self.lr0,
@@ -290,6 +303,7 @@ pub struct ParamStore {
     v: LargeArray<f32>,
     group_steps: Vec<u64>,
     schedule_step: u64,
+    run_progress: Option<f64>,
 }
 
 /// The chunk shift `LargeArray::new` would choose for f32 on this device.
@@ -322,6 +336,7 @@ impl ParamStore {
             v: arr("adam v", MemoryCategory::OptimizerState)?,
             group_steps: vec![0; desc.groups.len()],
             schedule_step: 0,
+            run_progress: None,
             groups: desc.groups.clone(),
             layout,
         };
@@ -420,9 +435,25 @@ impl ParamStore {
         self.schedule_step
     }
 
-    /// Learning rate of group `g` at the current schedule step.
+    /// Learning rate of group `g` now: at the run progress for groups whose schedule spans the run
+    /// ([`ParamGroup::over_run`]) once the trainer has set one, at the current schedule step otherwise.
     pub fn lr(&self, g: usize) -> f64 {
-        self.groups[g].lr_at(self.schedule_step)
+        let group = &self.groups[g];
+        match self.run_progress {
+            Some(tau) if group.over_run => group.lr_at_progress(tau),
+            _ => group.lr_at(self.schedule_step),
+        }
+    }
+
+    /// Sets how far through its run the training is (0 to 1: the larger of steps over the step budget and seconds
+    /// over the time budget), for the groups whose schedule spans the run; `None` goes back to schedule steps.
+    pub fn set_run_progress(&mut self, tau: Option<f64>) {
+        self.run_progress = tau;
+    }
+
+    /// The run progress last set (see [`ParamStore::set_run_progress`]).
+    pub fn run_progress(&self) -> Option<f64> {
+        self.run_progress
     }
 
     /// Takes back the counters of an optimiser step that the device skipped ([`crate::nn::adam::step_gated`]):

@@ -120,6 +120,45 @@ fn exponential_decay_matches_nerfacto() {
 }
 
 #[test]
+fn run_schedule_follows_the_run_progress() {
+    // `optimizer.schedule: run`: a group with `over_run` takes its rate at the run's progress once the trainer sets
+    // one; other groups (the camera's) keep their step schedule. Expected values from the formula, in f64.
+    let mut fields = ParamGroup::new("fields", 1e-2, 1e-3, 3_000);
+    fields.over_run = true;
+    assert!((fields.lr_at_progress(0.5) - 10f64.powf(-2.5)).abs() < 1e-16);
+    assert_eq!(fields.lr_at_progress(1.0), 1e-3);
+    assert_eq!(fields.lr_at_progress(7.0), 1e-3);
+    assert_eq!(fields.lr_at_progress(f64::NAN), 1e-2);
+    assert_eq!(fields.lr_at_progress(-1.0), 1e-2);
+    let camera = ParamGroup::new("camera", 1e-3, 1e-4, 5_000);
+    let g = gpu();
+    let slots = vec![
+        SlotDesc::new("w", SlotKind::Zeros { len: 8 }, "fields"),
+        SlotDesc::new("c", SlotKind::Zeros { len: 6 }, "camera"),
+    ];
+    let mut s = store(&g, vec![fields, camera], slots, None);
+    assert_eq!((s.lr(0), s.lr(1)), (1e-2, 1e-3), "no progress set: the step schedule");
+    s.set_run_progress(Some(0.25));
+    let want = 10f64.powf(-2.25);
+    assert!((s.lr(0) - want).abs() < 1e-16 && s.lr(1) == 1e-3, "{} {}", s.lr(0), s.lr(1));
+    set(&s, "w", true, &[1.0; 8]);
+    set(&s, "c", true, &[1.0; 6]);
+    let rep = step(&g, &mut s, &[true, true], 1.0);
+    assert!((rep[0].lr - want).abs() < 1e-16 && rep[1].lr == 1e-3, "{rep:?}");
+    // The first Adam step moves every parameter by lr (m / sqrt(v) = 1 after bias correction, eps 1e-15).
+    for (p, lr) in [(get(&s, "w", "p"), want), (get(&s, "c", "p"), 1e-3)] {
+        assert!(p.iter().all(|&x| (x as f64 + lr).abs() < 1e-7 * (1.0 + lr)), "{p:?} against -{lr}");
+    }
+    // The trainer's progress: the larger of steps over the step budget and seconds over the time budget.
+    use msnerf::nerf::trainer::run_progress;
+    assert_eq!(run_progress(50, 100, 10.0, Some(40.0)), 0.5);
+    assert_eq!(run_progress(10, 100, 30.0, Some(40.0)), 0.75);
+    assert_eq!(run_progress(10, 100, 30.0, None), 0.1);
+    assert_eq!(run_progress(200, 100, 0.0, None), 1.0);
+    assert_eq!(run_progress(0, 0, 0.0, None), 1.0);
+}
+
+#[test]
 fn kernel_matches_twin_across_groups_and_chunks() {
     let g = gpu();
     let mut fields = ParamGroup::new("fields", 1e-2, 1e-4, 20);

@@ -82,6 +82,39 @@ fn training_raises_held_out_psnr_and_resumes() {
 }
 
 #[test]
+fn a_run_schedule_decays_the_learning_rate_over_the_step_budget() {
+    // `optimizer.schedule: run`: the field's rate goes from lr to lr_final over the run's 40 steps, not over the
+    // profile's 5,000 (the tiny profile: 1e-2 -> 1e-3). Expected: lr(k) = lr^(1 - k/40) lr_final^(k/40), in f64.
+    let g = gpu();
+    let root = temp("schedule");
+    let data = root.join("data");
+    dataset(&data);
+    let run = root.join("run");
+    let mut o = opts(&data, &run, 40);
+    use msnerf::nerf::config::LrSchedule;
+    assert_eq!(o.model.optimizer.schedule, LrSchedule::Steps, "nerfstudio's step schedule by default");
+    assert!(!serde_yaml::to_string(&o.model).expect("yaml").contains("schedule: "), "the default is not written");
+    assert_eq!(ModelConfig::resolve("demo").expect("demo").optimizer.schedule, LrSchedule::Run);
+    o.model.optimizer.schedule = LrSchedule::Run;
+    let (lr0, lr1) = (o.model.optimizer.fields.lr, o.model.optimizer.fields.lr_final);
+    assert!(o.model.optimizer.fields.max_steps >= 1000 && lr1 < lr0 / 5.0, "the profile's schedule is long");
+    train(&g, &o).expect("train");
+    let config = std::fs::read_to_string(run.join("config.yaml")).expect("config");
+    assert!(config.contains("schedule: run"), "the run's config records the schedule:\n{config}");
+    let metrics = std::fs::read_to_string(run.join("metrics.jsonl")).expect("metrics");
+    let mut seen = 0;
+    for l in metrics.lines().map(|l| serde_json::from_str::<serde_json::Value>(l).expect("json line")) {
+        let (Some(k), Some(lr)) = (l["step"].as_u64(), l["lr_fields"].as_f64()) else { continue };
+        let tau = k as f64 / 40.0;
+        let want = (lr0.ln() * (1.0 - tau) + lr1.ln() * tau).exp();
+        assert!((lr - want).abs() <= 1e-12 * want, "step {k}: lr {lr} against {want}");
+        seen += 1;
+    }
+    assert!(seen >= 4, "metrics.jsonl logs the learning rate:\n{metrics}");
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
 fn a_stopped_run_leaves_a_checkpoint_that_resumes() {
     let g = gpu();
     let root = temp("stop");

@@ -314,16 +314,19 @@ fn distortion_ramp_interpolates_and_validates() {
     assert!(e.contains("loss.distortion_ramp"), "{e}");
 }
 
-/// `rendering.random_background_steps`: off by default (and not written into a run's config then), `random` before
-/// it in training only, refused by key after `background: random`.
+/// `rendering.random_background_steps`: off by default (and not written into a run's config then; the `demo`
+/// profile sets 300), `random` before it in training only, refused by key after `background: random`.
 #[test]
 fn random_background_warm_up_schedules_and_validates() {
     use msnerf::nerf::config::{Background, ModelConfig};
+    let mut off = ModelConfig::resolve("tiny").expect("tiny");
+    off.rendering.background = Background::LastSample;
+    assert_eq!(off.rendering.random_background_steps, 0);
+    assert!(!serde_yaml::to_string(&off).unwrap().contains("random_background_steps"));
+    assert_eq!(off.rendering.background_at(0, true), Background::LastSample);
     let mut c = ModelConfig::resolve("demo").expect("demo");
-    assert_eq!(c.rendering.random_background_steps, 0);
-    assert!(!serde_yaml::to_string(&c).unwrap().contains("random_background_steps"));
-    assert_eq!(c.rendering.background_at(0, true), Background::LastSample);
-    c.rendering.random_background_steps = 300;
+    assert_eq!(c.rendering.random_background_steps, 300);
+    assert!(serde_yaml::to_string(&c).unwrap().contains("random_background_steps: 300"));
     for (step, train, want) in [
         (0, true, Background::Random),
         (299, true, Background::Random),
