@@ -11,8 +11,8 @@
 //! - Threads: one invocation per VEC elements, 64 per group.
 //!
 //! [`step`] dispatches once per chunk range of each stepped group's element range (groups are contiguous, see
-//! [`crate::nn::params`]). Semantics per group g, with `lr = store.lr(g)` (the group's schedule at the schedule step, or at the run
-//! progress for a schedule that spans the run):
+//! [`crate::nn::params`]). Semantics per group g, with `lr = store.lr(g)` (the group's schedule at the schedule
+//! step, or at the run progress for a schedule that spans the run):
 //! - not in `has_grad` (no gradient this iteration, torch's `p.grad is None`): not stepped at all — no moment
 //!   update, its step counter does not advance (nerfacto.md §8.9);
 //! - lr 0 (a frozen group): not stepped either (torch would still move the moments; nothing here reads them);

@@ -75,9 +75,6 @@ impl ParamGroup {
     /// nerfstudio's ExponentialDecay without warm-up (nerfacto.md §1.1) after `schedule_step` scheduler steps:
     /// lr = exp((1 - τ) ln lr0 + τ ln lr_final), τ = clip(step / max_steps, 0, 1); `max_steps` 0 means τ = 1.
     pub fn lr_at(&self, schedule_step: u64) -> f64 {
-        if self.lr0 == 0.0 {
-            return 0.0;
-        }
         let tau = if self.max_steps == 0 { 1.0 } else { (schedule_step as f64 / self.max_steps as f64).min(1.0) };
         self.lr_at_progress(tau)
     }
