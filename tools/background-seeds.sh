@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # Regenerates docs/geometry.md's "A transparent field" table (issue 18): the `demo` profile trained on the campus
-# scene, images only, for 4,000 steps with each background variant and each seed, then `eval --depth` on all held-out
-# views. The variants: `last_sample` (nerfstudio's default), `random`, and `last_sample` after a 1,000-step `random`
-# warm-up (`rendering.random_background_steps`). The profile's own 300-step warm-up and its `optimizer.schedule: run`
-# are taken out, so the runs repeat the committed ones (made before either was in the profile). One JSON line per run (PSNR overall and per
-# band, depth overall and each view's median bias) goes to docs/geometry/background-seeds.jsonl once every run has
-# finished, and a markdown table is printed. The committed file also has seed 2 with `MSNERF_HASH_TEXEL=0` (line 9),
-# the four 300-step and the three 100-step warm-up runs (the last lines), which this script does not repeat. About 3.5 minutes per run on 2 cores
-# with lavapipe (a step budget: the figures do not depend on the machine's speed).
+# scene, images only, for 4,000 steps with each background variant and each seed, then `eval --depth` on all
+# held-out views. The variants: `last_sample` (nerfstudio's default), `random`, and `last_sample` after a 1,000-step
+# `random` warm-up (`rendering.random_background_steps`). The profile's own 300-step warm-up and its
+# `optimizer.schedule: run` are taken out, so the runs repeat the committed ones (made before either was in the
+# profile). One JSON line per run (PSNR overall and per band, depth overall and each view's median bias) goes to
+# docs/geometry/background-seeds.jsonl once every run has finished, and a markdown table is printed. The committed
+# file also has seed 2 with `MSNERF_HASH_TEXEL=0` (line 9), the four 300-step and the three 100-step warm-up runs
+# (the last lines), which this script does not repeat. About 3.5 minutes per run on 2 cores with lavapipe (a step
+# budget: the figures do not depend on the machine's speed).
 #   usage: tools/background-seeds.sh [WORKDIR] [SEEDS]      (default: background-seeds-output "42 1 2 3")
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,8 +25,8 @@ for variant in last_sample:0 random:0 last_sample:1000; do
   warm=${variant#*:}
   name="$bg-$warm"
   # The profile with this background and warm-up (its own warm-up and schedule lines taken out).
-  sed "/^  random_background_steps: /d; /^  schedule: run$/d; s/^name: demo$/name: demo-$name/; s/^  background: last_sample$/  background: $bg/" \
-    configs/models/demo.yaml > "$work/demo-$name.yaml"
+  sed "/^  random_background_steps: /d; /^  schedule: run$/d; s/^name: demo$/name: demo-$name/" configs/models/demo.yaml |
+    sed "s/^  background: last_sample$/  background: $bg/" > "$work/demo-$name.yaml"
   [ "$warm" = 0 ] || sed -i "s/^  background: $bg$/  background: $bg\n  random_background_steps: $warm/" "$work/demo-$name.yaml"
   for seed in $seeds; do
     run="$work/run-$name-$seed"

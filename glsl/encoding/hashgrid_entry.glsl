@@ -11,6 +11,7 @@ layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer Has
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer HashF4 { u64vec2 v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 32) readonly buffer HashF8 { u64vec4 v[]; };
 
+#ifndef HASH_TEXEL
 // Device address and in-chunk offset (floats) of element g of the array `base` (a chunk address when
 // HASH_CHUNKED = 0, the chunk table's address otherwise).
 void hash_locate(uint64_t base, uint shift, uint g, out uint64_t addr, out uint o) {
@@ -22,12 +23,13 @@ void hash_locate(uint64_t base, uint shift, uint g, out uint64_t addr, out uint 
         o = g;
     }
 }
+#endif
 
 #ifdef HASH_TEXEL
 // The texel variant (build.rs defines HASH_TEXEL): the level's chunk bound as a uniform texel buffer at binding 12
 // (R32, R32G32 or R32G32B32A32 SFLOAT for F = 1, 2, 4 and 8), read with texelFetch. On lavapipe a texel fetch is
 // a gather without the per-lane branch of a read through a device address. `base` and `shift` are unused: the
-// level lies in the bound chunk (HASH_CHUNKED = 0) and g counts floats from the chunk's start.
+// level lies in the bound chunk and g counts floats from the chunk's start (the variant declares no HASH_CHUNKED).
 layout(binding = 12) uniform samplerBuffer hash_table;
 #define HASH_ACCUMULATE_ENTRY(base, shift, g, wt_, acc) { \
     if (F == 1u) { \

@@ -22,7 +22,9 @@
 layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint F = 2;
 layout(constant_id = 1) const uint HASHED = 1;
+#ifndef HASH_TEXEL // the texel variants read the level's bound chunk: no chunk lookup, no HASH_CHUNKED
 layout(constant_id = 2) const uint HASH_CHUNKED = 0;
+#endif
 layout(constant_id = 3) const uint PAD = 0;
 layout(constant_id = 4) const uint VEC_OUT = 1;
 #include "encoding/hashgrid_entry.glsl"

@@ -14,6 +14,10 @@ use rand::{Rng, SeedableRng};
 use serde::Serialize;
 use std::time::Instant;
 
+/// Points per invocation of the run-combining backward that the "rays run8" column times (the JSON's
+/// `backward_rays_run8_mpts_per_s`; the default run length on GPUs).
+const BENCH_RUN: u32 = 8;
+
 #[derive(Clone, Debug, Serialize)]
 pub struct HashResult {
     pub name: String,
@@ -156,7 +160,7 @@ pub fn bench_hash(
         Ok(Some(median(r)))
     };
     let (fwd_texel, input_texel) = if texel_levels > 0 { (ratio(0)?, ratio(1)?) } else { (None, None) };
-    let grid8 = HashGrid::with_backward_run(ctx, cfg, 8)?;
+    let grid8 = HashGrid::with_backward_run(ctx, cfg, BENCH_RUN)?;
     let bwd_run8 = time_ms(repeats, || run_recorded(ctx, &|rec| grid8.backward_params(rec, g, &rays, points, dys)))?;
     let atomics = (points * cfg.n_levels as usize * 8 * cfg.features_per_level as usize) as f64;
     Ok(HashResult {

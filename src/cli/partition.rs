@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::scale::partition::{parse_grid, partition_with, PartitionOptions};
+use crate::scale::partition::{parse_grid, partition_dataset, PartitionOptions};
 use crate::scale::runner::{train_blocks, TrainBlocksOptions};
 
 #[derive(clap::Args, Debug)]
@@ -70,10 +70,11 @@ pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
         a.slurm || (a.slurm_time.is_none() && a.slurm_time_from.is_none()),
         "--slurm-time and --slurm-time-from need --slurm"
     );
+    let ds = crate::data::load_dataset(&a.dataset, &crate::data::LoadOptions::default())?;
     // The time limit before anything is written.
     let time = match (&a.slurm_time, &a.slurm_time_from) {
         (_, Some(bench)) if a.slurm => {
-            let bands = crate::data::load_dataset(&a.dataset, &crate::data::LoadOptions::default())?.n_bands();
+            let bands = ds.n_bands();
             let e = crate::scale::slurm_time::estimate(bench, &a.train_args, bands)?;
             println!(
                 "Slurm time limit {}: {} steps of {} at {} rays x {:.1} ms ({} bands measured on {}) x {} + {} min",
@@ -118,7 +119,7 @@ pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
         ground_z: a.ground_z,
         overwrite: a.overwrite,
     };
-    let (b, gib) = partition_with(&a.dataset, &a.out, &o, slurm.as_ref())?;
+    let (b, gib) = partition_dataset(&ds, &a.out, &o, slurm.as_ref())?;
     println!(
         "wrote {}: {} blocks ({}x{}), overlap {}",
         a.out.display(),

@@ -13,6 +13,8 @@ use crate::nn::params::{
 /// The parameter slot of the camera pose corrections (6 floats per camera) and its optimiser group.
 pub const POSE_SLOT: &str = "camera.pose";
 pub const CAMERA_GROUP: &str = "camera";
+/// The optimiser group of the NeRF field's grid and MLPs (`metrics.jsonl` logs its learning rate as `lr_fields`).
+pub const FIELDS_GROUP: &str = "fields";
 /// The NeRF field's density part ([`density_slots`] gives its grid and MLP slots).
 pub const FIELD: &str = "field";
 /// The colour MLP's slot.
@@ -127,7 +129,7 @@ impl ModelShapes {
         let o = &self.cfg.optimizer;
         let co = &self.cfg.camera_optimizer;
         let mut groups = vec![
-            (ParamGroup::new("fields", o.fields.lr, o.fields.lr_final, o.fields.max_steps), o.fields.eps),
+            (ParamGroup::new(FIELDS_GROUP, o.fields.lr, o.fields.lr_final, o.fields.max_steps), o.fields.eps),
             (
                 ParamGroup::new("proposals", o.proposals.lr, o.proposals.lr_final, o.proposals.max_steps),
                 o.proposals.eps,
@@ -153,16 +155,16 @@ impl ModelShapes {
         let f = &self.cfg.field;
         let (grid, mlp) = density_slots(FIELD);
         let mut slots = vec![
-            SlotDesc::new(&grid, SlotKind::HashTable { len: f.grid.n_params() }, "fields"),
-            SlotDesc::new(&mlp, SlotKind::Mlp { matrices: mlp_shapes(&self.field_mlp) }, "fields"),
-            SlotDesc::new(COLOUR_MLP_SLOT, SlotKind::Mlp { matrices: mlp_shapes(&self.colour_mlp) }, "fields"),
+            SlotDesc::new(&grid, SlotKind::HashTable { len: f.grid.n_params() }, FIELDS_GROUP),
+            SlotDesc::new(&mlp, SlotKind::Mlp { matrices: mlp_shapes(&self.field_mlp) }, FIELDS_GROUP),
+            SlotDesc::new(COLOUR_MLP_SLOT, SlotKind::Mlp { matrices: mlp_shapes(&self.colour_mlp) }, FIELDS_GROUP),
         ];
         if f.appearance_embed_dim > 0 {
             slots.push(SlotDesc::new(
                 APPEARANCE_SLOT,
                 // One row per camera plus a spare row that holds the mean embedding for evaluation.
                 SlotKind::Embedding { rows: self.n_cameras + 1, dim: f.appearance_embed_dim },
-                "fields",
+                FIELDS_GROUP,
             ));
         }
         if self.cfg.camera_optimizer.enabled() {

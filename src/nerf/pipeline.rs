@@ -741,7 +741,9 @@ impl Pipeline {
         let update_props =
             self.schedule.decide(&self.model.cfg.sampling, self.step) && !self.model.proposals.is_empty();
         let profiled = self.profile_every > 0 && self.step % self.profile_every == 0;
-        let lr_fields = self.model.store.lr(0);
+        let store = &self.model.store;
+        let lr_fields =
+            store.groups().iter().position(|g| g.name == super::model::FIELDS_GROUP).map_or(0.0, |g| store.lr(g));
         let stats =
             StepStats { step: self.step, proposals_updated: update_props, profiled, lr_fields, ..Default::default() };
         let b = self.train_bufs.take().expect("ensured above");

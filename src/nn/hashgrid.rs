@@ -367,6 +367,7 @@ impl HashGrid {
                     ("PAD", pad as u32),
                     ("VEC_OUT", vec_width(&[slot.stride, col])),
                 ];
+                // The texel variant declares no HASH_CHUNKED (it reads the level's bound chunk).
                 if texel.is_none() {
                     spec.push(("HASH_CHUNKED", u32::from(chunked)));
                 }

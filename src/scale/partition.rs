@@ -139,7 +139,19 @@ pub fn partition_with(
     if !(0.0..1.0).contains(&o.overlap) {
         return Err(ScaleError::option("--overlap", format!("{} is outside [0, 1)", o.overlap)));
     }
-    let ds = load_dataset(input, &LoadOptions::default())?;
+    partition_dataset(&load_dataset(input, &LoadOptions::default())?, out, o, slurm)
+}
+
+/// [`partition_with`] on a dataset already loaded (the CLI loads it once, also for the Slurm time estimate).
+pub fn partition_dataset(
+    ds: &Dataset,
+    out: &Path,
+    o: &PartitionOptions,
+    slurm: Option<&super::slurm::SlurmOptions>,
+) -> Result<(Blocks, Option<u64>), ScaleError> {
+    if !(0.0..1.0).contains(&o.overlap) {
+        return Err(ScaleError::option("--overlap", format!("{} is outside [0, 1)", o.overlap)));
+    }
     let [nx, ny] = o.blocks;
     let usable: Vec<usize> = (0..ds.frames.len()).filter(|&f| ds.frames[f].split != Split::Unused).collect();
     if nx * ny > usable.len() {
@@ -164,7 +176,7 @@ pub fn partition_with(
     }
     let box_height = 0.5 * g.height;
     let (z_lo, z_hi) = (g.ground_z - 0.05 * g.height, g.ground_z + box_height);
-    let rays: Vec<(DVec3, Vec<DVec3>)> = usable.iter().map(|&f| frame_rays(&ds, f, &g.rotation)).collect();
+    let rays: Vec<(DVec3, Vec<DVec3>)> = usable.iter().map(|&f| frame_rays(ds, f, &g.rotation)).collect();
     let (sx, sy) = ((x1 - x0) / nx as f64, (y1 - y0) / ny as f64);
     let mut blocks = Vec::new();
     let mut members: Vec<Vec<usize>> = Vec::new();
@@ -218,18 +230,18 @@ pub fn partition_with(
         Some(p) => {
             let path = src_dir.join(p);
             // Checked as training would check it (frames known, finite points), so a bad file fails here by name.
-            crate::data::sparse_points::read_sparse_points(&ds, &path)?;
+            crate::data::sparse_points::read_sparse_points(ds, &path)?;
             let doc: Value = crate::data::transforms::read_json(&path, "sparse_points_path")?;
             Some((path, doc))
         }
         None => None,
     };
     for (b, frames) in blocks.iter().zip(&members) {
-        let mut doc = block_transforms(&source, &ds, frames, &src_dir);
+        let mut doc = block_transforms(&source, ds, frames, &src_dir);
         let dir = stage.path.join(&b.name);
         std::fs::create_dir_all(&dir).map_err(ScaleError::io(&dir))?;
         if let Some((path, pts)) = &points {
-            let part = block_sparse_points(pts, &ds, frames, &src_dir)
+            let part = block_sparse_points(pts, ds, frames, &src_dir)
                 .map_err(|reason| ScaleError::Dataset { path: path.clone(), reason })?;
             let p = dir.join("sparse_points.json");
             std::fs::write(&p, serde_json::to_vec(&part).expect("json")).map_err(ScaleError::io(&p))?;
