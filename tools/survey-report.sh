@@ -2,8 +2,8 @@
 # Regenerates docs/geometry.md's survey-product numbers and pictures (issue 21) from the two ten-minute campus runs
 # of tools/geometry-report.sh (images only, and with the SfM points): for each, `msnerf export dsm --ortho` on the
 # grid of the simulator's truth (`--align-to truth/dsm.tif`, so every cell is compared with its own truth cell),
-# `msnerf compare-raster` against truth/dsm.tif and truth/ortho.tif per class (open ground, roofs: interior cells),
-# the previews, and the truth's own previews (`msnerf preview`). Results land in docs/geometry/survey/. About two
+# `msnerf compare-raster` against truth/dsm.tif and truth/ortho.tif per class (open ground, roofs: interior cells)
+# and the DSM per material (truth/materials.tif: dark, bright and uniform surfaces apart), the previews, and the truth's own previews (`msnerf preview`). Results land in docs/geometry/survey/. About two
 # minutes on 2 cores with lavapipe. Usage: tools/survey-report.sh [WORKDIR]  (default geometry-report-output)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -11,8 +11,8 @@ work=${1:-geometry-report-output}
 bin=./target/release/msnerf
 out=docs/geometry/survey
 truth="$work/data/truth"
-for f in dsm.tif ortho.tif classes.tif; do
-  [ -f "$truth/$f" ] || { echo "survey-report: $truth/$f missing: run 'make geometry-report' first" >&2; exit 1; }
+for f in dsm.tif ortho.tif classes.tif materials.tif; do
+  [ -f "$truth/$f" ] || { echo "survey-report: $truth/$f missing: run 'make geometry-report' again" >&2; exit 1; }
 done
 mkdir -p "$out" "$work/survey"
 for variant in images sfm; do
@@ -22,6 +22,8 @@ for variant in images sfm; do
     --ortho "$work/survey/ortho-$variant.tif" | tee "$out/export-$variant.txt"
   "$bin" compare-raster --pred "$work/survey/dsm-$variant.tif" --ref "$truth/dsm.tif" --classes "$truth/classes.tif" \
     --within 0.18,0.36,0.72 --json > "$out/compare-dsm-$variant.json"
+  "$bin" compare-raster --pred "$work/survey/dsm-$variant.tif" --ref "$truth/dsm.tif" \
+    --classes "$truth/materials.tif" --within 0.18,0.36,0.72 --json > "$out/compare-dsm-materials-$variant.json"
   "$bin" compare-raster --pred "$work/survey/ortho-$variant.tif" --ref "$truth/ortho.tif" --classes "$truth/classes.tif" \
     --peak 1 --within 0.02,0.05 --json > "$out/compare-ortho-$variant.json"
   gdalinfo "$work/survey/dsm-$variant.tif" > "$out/gdalinfo-dsm-$variant.txt"

@@ -6,9 +6,12 @@
 //!   a true orthophoto, no leaning buildings;
 //! - `classes.tif`: what the vertical ray hit: 1 ground, 2 roof (a flat top: an object hit with a normal within 8
 //!   degrees of vertical), 3 other object (walls seen edge-on, crowns, domes), NaN nothing; the band is named
-//!   `classes 1=ground 2=roof 3=object`, which `msnerf compare-raster --classes` reads.
+//!   `classes 1=ground 2=roof 3=object`, which `msnerf compare-raster --classes` reads;
+//! - `materials.tif`: the material the vertical ray hit, as 1 + its index in the scene's material list, the band
+//!   named `classes 1=lawn 2=broadleaf ...` the same way, so `compare-raster --classes truth/materials.tif` reports a
+//!   DSM's or an orthomosaic's error per material (textured and uniform surfaces apart; docs/geometry.md).
 //!
-//! Both are north-up GeoTIFFs on one grid, in the scene's `crs` when it has one.
+//! All are north-up GeoTIFFs on one grid, in the scene's `crs` when it has one.
 //!
 //! The grid covers what the cameras saw (the bounding box of the ground-truth surface points, snapped outward to
 //! whole cells) at the cameras' median ground footprint (height above the ground / focal length), so a DSM exported
@@ -68,15 +71,33 @@ pub fn median_footprint(prep: &Prepared) -> f64 {
 /// The class band's name: codes of [`trace_grid`]'s classes.
 pub const CLASS_BAND: &str = "classes 1=ground 2=roof 3=object";
 
-/// Heights (local z; NaN: no surface), band-planar reflectance and the class (see the module doc) of every cell,
-/// tracing straight down.
-pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+/// The material band's name: `classes 1=<first material> 2=<second> ...` (codes of [`TracedGrid::material`]).
+pub fn material_band(prep: &Prepared) -> String {
+    let names: Vec<String> = prep.materials.iter().enumerate().map(|(i, m)| format!("{}={}", i + 1, m.name)).collect();
+    format!("classes {}", names.join(" "))
+}
+
+/// What [`trace_grid`] finds in every cell (row-major; NaN: no surface).
+pub struct TracedGrid {
+    /// Local z of the first surface straight down.
+    pub dsm: Vec<f32>,
+    /// Band-planar reflectance times texture.
+    pub refl: Vec<f32>,
+    /// 1 ground, 2 roof, 3 other object (see the module doc).
+    pub class: Vec<f32>,
+    /// 1 + the material index.
+    pub material: Vec<f32>,
+}
+
+/// Heights, band-planar reflectance, class and material (see the module doc) of every cell, tracing straight down.
+pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> TracedGrid {
     let nb = prep.bands.len();
     let n = g.width * g.height;
     let top = prep.world.extent * 0.5;
     let mut dsm = vec![f32::NAN; n];
     let mut refl = vec![f32::NAN; n * nb];
     let mut class = vec![f32::NAN; n];
+    let mut material = vec![f32::NAN; n];
     for row in 0..g.height {
         for col in 0..g.width {
             let [x, y] = g.centre(row, col);
@@ -96,6 +117,7 @@ pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>, Vec<f3
                 _ if hit.normal[2] > 0.99 => 2.0,
                 _ => 3.0,
             };
+            material[c] = (hit.material + 1) as f32;
             let m = &prep.materials[hit.material];
             let tex = m.texture.map_or(1.0, |t| t.factor(prep.seed, hit.material, q));
             for (b, r) in m.refl.iter().enumerate() {
@@ -103,13 +125,14 @@ pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> (Vec<f32>, Vec<f32>, Vec<f3
             }
         }
     }
-    (dsm, refl, class)
+    TracedGrid { dsm, refl, class, material }
 }
 
-/// Writes `truth/dsm.tif` and `truth/ortho.tif` under `root` for the surface points the cameras saw.
+/// Writes `truth/dsm.tif`, `ortho.tif`, `classes.tif` and `materials.tif` under `root` for the surface points the
+/// cameras saw.
 pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<Option<TruthGrid>, SimError> {
     let Some(g) = grid_over(points, median_footprint(prep)) else { return Ok(None) };
-    let (mut dsm, refl, class) = trace_grid(prep, &g);
+    let TracedGrid { mut dsm, refl, class, material } = trace_grid(prep, &g);
     let o = prep.world_offset;
     dsm.iter_mut().for_each(|z| *z += o[2] as f32);
     let dir = root.join("truth");
@@ -131,5 +154,8 @@ pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<
     let img =
         SpectralImage::from_planar(g.width, g.height, vec![crate::output::image::band(CLASS_BAND, None, None)], class)?;
     write_geotiff(&dir.join("classes.tif"), &img, &opts("what the vertical ray hit"))?;
+    let band = vec![crate::output::image::band(&material_band(prep), None, None)];
+    let img = SpectralImage::from_planar(g.width, g.height, band, material)?;
+    write_geotiff(&dir.join("materials.tif"), &img, &opts("the material the vertical ray hit"))?;
     Ok(Some(g))
 }

@@ -1,5 +1,5 @@
-//! The simulator's survey ground truth (issue 21, deliverable 4): `truth/dsm.tif` and `truth/ortho.tif` on one
-//! north-up grid. On `ci-small` the open ground is at the scene's `world_offset` height (20 m) and the box's roof at
+//! The simulator's survey ground truth (issue 21, deliverable 4): `truth/dsm.tif`, `truth/ortho.tif` and
+//! `truth/materials.tif` on one north-up grid. On `ci-small` the open ground is at the scene's `world_offset` height (20 m) and the box's roof at
 //! 20 + 7 m, as the scene file says; the ortho holds the materials' band reflectance (`simulation.json`); GDAL
 //! reads both with geotransform, nodata and the scene's CRS.
 
@@ -58,4 +58,21 @@ fn dsm_and_true_ortho_truth_match_the_scene() {
     }
     // Cells whose vertical ray leaves the ground disc would be NaN; none here, the grid is what the cameras saw.
     assert!(dsm[0].iter().all(|v| v.is_finite() && *v >= 20.0));
+
+    // materials.tif: on the same grid, each cell's material code, named in the band's description as GDAL reads it
+    // (`classes 1=grass 2=leaves ...`, the form `compare-raster --classes` takes).
+    let (w3, h3, mat) = read(&data.join("truth/materials.tif"));
+    assert_eq!((w3, h3), (w, h), "one grid");
+    let info_m = geo_support::gdalinfo(&data.join("truth/materials.tif"));
+    assert!(info_m.contains(origin), "{info_m}");
+    let desc = info_m.lines().find_map(|l| l.trim().strip_prefix("Description = classes ")).expect("band description");
+    let code = |name: &str| -> f32 {
+        let kv =
+            desc.split_whitespace().find(|kv| kv.ends_with(&format!("={name}"))).unwrap_or_else(|| panic!("{desc}"));
+        kv.split('=').next().unwrap().parse().unwrap()
+    };
+    for (x, y, name) in [(-15.0, 2.0, "grass"), (6.0, 4.0, "roof"), (-9.0, 8.0, "water"), (0.0, -8.0, "asphalt")] {
+        assert_eq!(at(&mat[0], ox + x, oy + y), code(name), "local ({x}, {y}) is {name} ({desc})");
+    }
+    assert!(mat[0].iter().all(|v| v.is_finite() && *v >= 1.0 && v.fract() == 0.0));
 }
