@@ -136,10 +136,16 @@ pub fn partition_with(
     o: &PartitionOptions,
     slurm: Option<&super::slurm::SlurmOptions>,
 ) -> Result<(Blocks, Option<u64>), ScaleError> {
+    check_overlap(o)?;
+    partition_dataset(&load_dataset(input, &LoadOptions::default())?, out, o, slurm)
+}
+
+/// `--overlap` within [0, 1), checked before anything is read or written.
+fn check_overlap(o: &PartitionOptions) -> Result<(), ScaleError> {
     if !(0.0..1.0).contains(&o.overlap) {
         return Err(ScaleError::option("--overlap", format!("{} is outside [0, 1)", o.overlap)));
     }
-    partition_dataset(&load_dataset(input, &LoadOptions::default())?, out, o, slurm)
+    Ok(())
 }
 
 /// [`partition_with`] on a dataset already loaded (the CLI loads it once, also for the Slurm time estimate).
@@ -149,9 +155,7 @@ pub fn partition_dataset(
     o: &PartitionOptions,
     slurm: Option<&super::slurm::SlurmOptions>,
 ) -> Result<(Blocks, Option<u64>), ScaleError> {
-    if !(0.0..1.0).contains(&o.overlap) {
-        return Err(ScaleError::option("--overlap", format!("{} is outside [0, 1)", o.overlap)));
-    }
+    check_overlap(o)?;
     let [nx, ny] = o.blocks;
     let usable: Vec<usize> = (0..ds.frames.len()).filter(|&f| ds.frames[f].split != Split::Unused).collect();
     if nx * ny > usable.len() {
