@@ -71,9 +71,12 @@ pub fn median_footprint(prep: &Prepared) -> f64 {
 /// The class band's name: codes of [`trace_grid`]'s classes.
 pub const CLASS_BAND: &str = "classes 1=ground 2=roof 3=object";
 
-/// The material band's name: `classes 1=<first material> 2=<second> ...` (codes of [`TracedGrid::material`]).
+/// The material band's name: `classes 1=<first material> 2=<second> ...` (codes of [`TracedGrid::material`]);
+/// whitespace and `=` in a material's name become `_`, so the name still parses as one code=name pair.
 pub fn material_band(prep: &Prepared) -> String {
-    let names: Vec<String> = prep.materials.iter().enumerate().map(|(i, m)| format!("{}={}", i + 1, m.name)).collect();
+    let safe = |n: &str| n.replace(|c: char| c.is_whitespace() || c == '=', "_");
+    let names: Vec<String> =
+        prep.materials.iter().enumerate().map(|(i, m)| format!("{}={}", i + 1, safe(&m.name))).collect();
     format!("classes {}", names.join(" "))
 }
 

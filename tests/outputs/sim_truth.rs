@@ -20,6 +20,10 @@ fn dsm_and_true_ortho_truth_match_the_scene() {
     let data = tmp.path().join("d");
     let mut scene = msnerf::sim::SceneDesc::load("ci-small").unwrap();
     scene.crs = Some("EPSG:32633".into());
+    // A material name with a space and an `=`: materials.tif's band name must still parse as code=name pairs.
+    let water = scene.materials.remove("water").unwrap();
+    scene.materials.insert("pond water=still".into(), water);
+    scene.water[0].material = "pond water=still".into();
     msnerf::sim::simulate(&scene, &msnerf::sim::SimOptions::default(), &data).unwrap();
     let (w, h, dsm) = read(&data.join("truth/dsm.tif"));
     let (w2, h2, ortho) = read(&data.join("truth/ortho.tif"));
@@ -71,7 +75,9 @@ fn dsm_and_true_ortho_truth_match_the_scene() {
             desc.split_whitespace().find(|kv| kv.ends_with(&format!("={name}"))).unwrap_or_else(|| panic!("{desc}"));
         kv.split('=').next().unwrap().parse().unwrap()
     };
-    for (x, y, name) in [(-15.0, 2.0, "grass"), (6.0, 4.0, "roof"), (-9.0, 8.0, "water"), (0.0, -8.0, "asphalt")] {
+    for (x, y, name) in
+        [(-15.0, 2.0, "grass"), (6.0, 4.0, "roof"), (-9.0, 8.0, "pond_water_still"), (0.0, -8.0, "asphalt")]
+    {
         assert_eq!(at(&mat[0], ox + x, oy + y), code(name), "local ({x}, {y}) is {name} ({desc})");
     }
     assert!(mat[0].iter().all(|v| v.is_finite() && *v >= 1.0 && v.fract() == 0.0));
