@@ -7,9 +7,10 @@
 //! - `classes.tif`: what the vertical ray hit: 1 ground, 2 roof (a flat top: an object hit with a normal within 8
 //!   degrees of vertical), 3 other object (walls seen edge-on, crowns, domes), NaN nothing; the band is named
 //!   `classes 1=ground 2=roof 3=object`, which `msnerf compare-raster --classes` reads;
-//! - `materials.tif`: the material the vertical ray hit, as 1 + its index in the scene's material list, the band
-//!   named `classes 1=lawn 2=broadleaf ...` the same way, so `compare-raster --classes truth/materials.tif` reports a
-//!   DSM's or an orthomosaic's error per material (textured and uniform surfaces apart; docs/geometry.md).
+//! - `materials.tif`: the material the vertical ray hit, as 1 + its index in the scene's material list (sorted by
+//!   name), the band named `classes 1=asphalt 2=bark ...` the same way, so `compare-raster --classes
+//!   truth/materials.tif` reports a DSM's or an orthomosaic's error per material (textured and uniform surfaces
+//!   apart; docs/geometry.md).
 //!
 //! All are north-up GeoTIFFs on one grid, in the scene's `crs` when it has one.
 //!
