@@ -3,7 +3,8 @@
 # of tools/geometry-report.sh (images only, and with the SfM points): for each, `msnerf export dsm --ortho` on the
 # grid of the simulator's truth (`--align-to truth/dsm.tif`, so every cell is compared with its own truth cell),
 # `msnerf compare-raster` against truth/dsm.tif and truth/ortho.tif per class (open ground, roofs: interior cells)
-# and the DSM per material (truth/materials.tif: dark, bright and uniform surfaces apart), the previews, and the truth's own previews (`msnerf preview`). Results land in docs/geometry/survey/. About two
+# and the DSM per material (truth/materials.tif: dark, bright and uniform surfaces apart), the previews, and the
+# truth's own previews (`msnerf preview`). Results land in docs/geometry/survey/. About two
 # minutes on 2 cores with lavapipe. Usage: tools/survey-report.sh [WORKDIR]  (default geometry-report-output)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,7 +13,8 @@ bin=./target/release/msnerf
 out=docs/geometry/survey
 truth="$work/data/truth"
 for f in dsm.tif ortho.tif classes.tif materials.tif; do
-  [ -f "$truth/$f" ] || { echo "survey-report: $truth/$f missing: run 'make geometry-report' again" >&2; exit 1; }
+  # (a report made before materials.tif existed lacks it: run geometry-report again)
+  [ -f "$truth/$f" ] || { echo "survey-report: $truth/$f missing: run 'make geometry-report'" >&2; exit 1; }
 done
 mkdir -p "$out" "$work/survey"
 for variant in images sfm; do

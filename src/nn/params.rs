@@ -448,11 +448,6 @@ impl ParamStore {
         self.run_progress = tau;
     }
 
-    /// The run progress last set (see [`ParamStore::set_run_progress`]).
-    pub fn run_progress(&self) -> Option<f64> {
-        self.run_progress
-    }
-
     /// Takes back the counters of an optimiser step that the device skipped ([`crate::nn::adam::step_gated`]):
     /// the stepped groups' step counters and the schedule step go back by one.
     pub fn undo_step(&mut self, report: &[crate::nn::adam::GroupStep]) {
