@@ -6,7 +6,8 @@
 // Bindings: 0 positions (float[3N]), 1 dL/dy (float rows of dy_stride).
 // Push:     grads (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
 //           (first float of the level, in the chunk or in the array), n, dy_stride, dy_col (the level's first
-//           column), scale, res, entries.
+//           column), scale, res, entries, weight (the level's coarse-to-fine weight, as in the forward: dL/dy is
+//           multiplied by it, so a held-back level gets no gradient and issues no atomics).
 // Spec:     0 F, 1 HASHED, 2 HASH_CHUNKED, 3 VEC_DY (read width of dL/dy, floats).
 // Threads:  one invocation per point, 64 per group, folded into 2D past 65535 groups.
 #version 460
@@ -27,7 +28,7 @@ layout(std430, binding = 0) readonly buffer Positions { float pos[]; };
 ROWS_DECLARE(1, dy, readonly)
 layout(push_constant) uniform Push {
     uint64_t table; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; // table: the gradients
-    float scale; uint res; uint entries; uint pad;
+    float scale; uint res; uint entries; float weight;
 } pc;
 
 void main() {
@@ -35,6 +36,7 @@ void main() {
     if (row >= pc.n) return;
     float g[F];
     ROWS_LOAD(dy, VEC_DY, row * pc.dy_stride + pc.dy_col, g, 0u, F)
+    [[unroll]] for (uint f = 0u; f < F; ++f) g[f] *= pc.weight;
     bool any_nonzero = false;
     [[unroll]] for (uint f = 0u; f < F; ++f) any_nonzero = any_nonzero || g[f] != 0.0;
     if (!any_nonzero) return; // masked-out samples cost no atomics

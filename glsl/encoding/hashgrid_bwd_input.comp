@@ -8,7 +8,8 @@
 //           `_texel` variant (HASH_TEXEL) also texel 12, the level's chunk (hashgrid_entry.glsl).
 // Push:     params (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
 //           (first float of the level, in the chunk or in the array), n, dy_stride, dy_col (the level's first
-//           column), scale, res, entries.
+//           column), scale, res, entries, weight (the level's coarse-to-fine weight, as in the forward: dL/dy is
+//           multiplied by it).
 // Spec:     0 F, 1 HASHED, 2 HASH_CHUNKED, 3 VEC_DY (read width of dL/dy, floats), 4 FIRST (1: write, 0: add).
 // Threads:  one invocation per point, 64 per group, folded into 2D past 65535 groups.
 #version 460
@@ -31,7 +32,7 @@ ROWS_DECLARE(1, dy, readonly)
 layout(std430, binding = 2) buffer DLdp { float dp[]; };
 layout(push_constant) uniform Push {
     uint64_t table; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; // table: the parameters
-    float scale; uint res; uint entries; uint pad;
+    float scale; uint res; uint entries; float weight;
 } pc;
 
 void main() {
@@ -39,6 +40,7 @@ void main() {
     if (i >= pc.n) return;
     float g[F];
     ROWS_LOAD(dy, VEC_DY, i * pc.dy_stride + pc.dy_col, g, 0u, F)
+    [[unroll]] for (uint f = 0u; f < F; ++f) g[f] *= pc.weight;
     bool any_nonzero = false;
     [[unroll]] for (uint f = 0u; f < F; ++f) any_nonzero = any_nonzero || g[f] != 0.0;
     vec3 grad = vec3(0.0);

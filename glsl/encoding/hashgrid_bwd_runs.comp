@@ -5,7 +5,9 @@
 // that fall in the same cell as the point before, issuing the 8 x F atomics once per run of equal cells instead of
 // once per point. Coarse levels, where many samples of a ray share a cell, need far fewer atomics.
 // Bindings: 0 positions (float[3N]), 1 levels (HashLevel[L]), 2 dL/dy (float rows of dy_stride).
-// Push:     grads (chunk-table address), shift, param_offset, n, dy_stride, dy_col.
+// Push:     grads (chunk-table address), shift, param_offset, n, dy_stride, dy_col, active_levels (coarse-to-fine:
+//           level l's dL/dy is multiplied by clamp(active_levels - l, 0, 1), the per-level kernels' weight; L or more
+//           for all levels).
 // Spec:     0 F, 1 RUN.
 // Threads:  one invocation per (RUN points, level): x (folded into 2D) over point runs, z over levels; 128 per group.
 #version 460
@@ -21,7 +23,7 @@ layout(std430, binding = 0) readonly buffer Positions { float pos[]; };
 layout(std430, binding = 1) readonly buffer Levels { HashLevel levels[]; };
 layout(std430, binding = 2) readonly buffer DLdy { float dy[]; };
 layout(push_constant) uniform Push {
-    uint64_t grads; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; uint pad;
+    uint64_t grads; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; float active_levels;
 } pc;
 
 float acc[8 * F]; // the open run's sums, per corner and feature
@@ -41,6 +43,8 @@ void main() {
     uint l = gl_WorkGroupID.z;
     if (i0 >= pc.n) return;
     HashLevel lv = levels[l];
+    float weight = clamp(pc.active_levels - float(l), 0.0, 1.0);
+    if (weight == 0.0) return; // a held-back level gets no gradient
     uvec3 cur = uvec3(0u);
     bool open_run = false;
     for (uint r = 0u; r < RUN; ++r) {
@@ -49,7 +53,7 @@ void main() {
         float g[F];
         bool any_nonzero = false;
         for (uint f = 0u; f < F; ++f) {
-            g[f] = dy[i * pc.dy_stride + pc.dy_col + l * F + f];
+            g[f] = weight * dy[i * pc.dy_stride + pc.dy_col + l * F + f];
             any_nonzero = any_nonzero || g[f] != 0.0;
         }
         if (!any_nonzero) continue; // masked-out samples cost no atomics

@@ -8,7 +8,8 @@
 //           (build.rs defines HASH_TEXEL) also texel 12, the level's chunk (hashgrid_entry.glsl).
 // Push:     params (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
 //           (first float of the level, in the chunk or in the array), n, out_stride, out_col (the level's first
-//           column), pad_value, scale, res, entries.
+//           column), pad_value, scale, res, entries, weight (the level's coarse-to-fine weight: 1 unless
+//           `field.coarse_to_fine` holds the level back; its F values are multiplied by it).
 // Spec:     0 F, 1 HASHED (CoherentPrime hash, else dense index), 2 HASH_CHUNKED, 3 PAD (padding columns written
 //           after the level's F), 4 VEC_OUT (store width, floats).
 // Threads:  one invocation per point, 64 per group, folded into 2D past 65535 groups; points past n are computed
@@ -32,7 +33,7 @@ layout(std430, binding = 0) readonly buffer Positions { float pos[]; };
 ROWS_DECLARE(1, outv, writeonly)
 layout(push_constant) uniform Push {
     uint64_t params; uint shift; uint param_offset; uint n; uint out_stride; uint out_col; float pad_value;
-    float scale; uint res; uint entries; uint pad;
+    float scale; uint res; uint entries; float weight;
 } pc;
 
 void main() {
@@ -50,6 +51,7 @@ void main() {
         uint g = pc.param_offset + hash_index_known(lv, corner_vertex(c, cell), HASHED != 0u) * F;
         HASH_ACCUMULATE_ENTRY(pc.params, pc.shift, g, w, y)
     }
+    [[unroll]] for (uint f = 0u; f < F; ++f) y[f] *= pc.weight;
     [[unroll]] for (uint k = F; k < F + PAD; ++k) y[k] = pc.pad_value;
     if (row < pc.n) ROWS_STORE(outv, VEC_OUT, row * pc.out_stride + pc.out_col, y, 0u, F + PAD)
 }

@@ -8,7 +8,8 @@
 //           3 dL/dh (float[3Rn], hashgrid_bwd_input's output), 4 colour dL/dinput rows (stride dx_stride, SH in
 //           columns 0..16; unused unless sh != 0), 5 per-ray gradient (float[6R]: g_o, g_d; written, or added to when
 //           accumulate != 0).
-// Push:     n_rays, n (samples per ray), near, far, contraction, accumulate, sh, dx_stride.
+// Push:     n_rays, n (samples per ray), near, far, contraction, accumulate, sh (SH columns that carry the
+//           direction: 0 none, else the SH degree squared; the others are zero in the forward), dx_stride.
 // Threads:  one invocation per ray (it loops over the ray's samples), 32 per group (one warp: a 4096-ray pass spreads
 //           over 128 SMs, not 64), folded into 2D past 65535 groups.
 #version 460
@@ -54,7 +55,7 @@ void main() {
         for (uint k = 0u; k < 16u; ++k) g[k] = 0.0;
         for (uint i = 0u; i < pc.n; ++i) {
             uint row = (r * pc.n + i) * pc.dx_stride;
-            for (uint k = 0u; k < 16u; ++k) g[k] += cdx[row + k];
+            for (uint k = 0u; k < min(pc.sh, 16u); ++k) g[k] += cdx[row + k];
         }
         g_d += sh_direction_grad(d, g);
     }

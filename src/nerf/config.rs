@@ -53,8 +53,56 @@ pub struct FieldConfig {
     /// Per-image appearance embedding width; 0 turns the module off (no memory, no dispatch).
     #[serde(default)]
     pub appearance_embed_dim: usize,
+    /// Spherical-harmonics degree of the view direction fed to the colour MLP, in tiny-cuda-nn's convention
+    /// (degree d: d^2 values; nerfacto's 4 gives 16). Lower degrees zero the higher bands' columns, so the colour
+    /// varies less with the view; 1 makes it view-independent (Lambertian).
+    #[serde(default = "default_sh_degree", skip_serializing_if = "is_default_sh_degree")]
+    pub direction_sh_degree: usize,
+    /// Coarse-to-fine hash-grid levels (off when absent): the field's grid starts with `levels` levels and adds the
+    /// others linearly until `until_step` ([`FieldConfig::active_levels_at`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coarse_to_fine: Option<CoarseToFine>,
     /// sigma = average_init_density * exp(raw).
     pub average_init_density: f32,
+}
+
+/// `field.coarse_to_fine`: the NeRF field's hash grid starts with its `levels` coarsest levels; the finer ones
+/// fade in linearly until `until_step` (level l's features and gradients are weighted clamp(active - l, 0, 1), with
+/// active = levels + (L - levels) * min(step / until_step, 1)), as BARF (Lin et al. 2021) and Neuralangelo (Li et
+/// al. 2023) do, so that the geometry settles at coarse scales before fine levels can fit texture with bumps.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CoarseToFine {
+    pub levels: u32,
+    pub until_step: u64,
+}
+
+fn default_sh_degree() -> usize {
+    4
+}
+
+fn is_default_sh_degree(d: &usize) -> bool {
+    *d == default_sh_degree()
+}
+
+impl FieldConfig {
+    /// SH values the colour MLP sees (the rest of its 16 direction columns are zero).
+    pub fn sh_count(&self) -> usize {
+        self.direction_sh_degree * self.direction_sh_degree
+    }
+
+    /// The field grid's active levels at `step` (`HashGrid::set_active_levels`): all of them without
+    /// `coarse_to_fine`.
+    pub fn active_levels_at(&self, step: u64) -> f32 {
+        let all = self.grid.n_levels as f64;
+        match &self.coarse_to_fine {
+            None => all as f32,
+            Some(c) => {
+                let t = (step as f64 / c.until_step.max(1) as f64).min(1.0);
+                (c.levels as f64 + (all - c.levels as f64) * t) as f32
+            }
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -471,6 +519,20 @@ impl ModelConfig {
         }
         if f.geo_feat_dim == 0 || f.geo_feat_dim + 1 > 128 {
             return Err(ConfigError::key(format!("field.geo_feat_dim must be 1..=127, got {}", f.geo_feat_dim)));
+        }
+        if let Some(c) = &f.coarse_to_fine {
+            if c.levels == 0 || c.levels > f.grid.n_levels || c.until_step == 0 {
+                return Err(ConfigError::key(format!(
+                    "field.coarse_to_fine: levels must be 1..={} (field.grid.n_levels) and until_step > 0, got {} and {}",
+                    f.grid.n_levels, c.levels, c.until_step
+                )));
+            }
+        }
+        if !(1..=4).contains(&f.direction_sh_degree) {
+            return Err(ConfigError::key(format!(
+                "field.direction_sh_degree must be 1..=4 (d^2 of the 16 SH values), got {}",
+                f.direction_sh_degree
+            )));
         }
         let s = &self.sampling;
         if !(s.near >= 0.0 && s.far > s.near) {

@@ -83,6 +83,7 @@ crate::push_constants! {
         density_stride: u32,
         app_mode: u32,
         mean_row: u32,
+        sh_count: u32,
     }
 }
 
@@ -351,7 +352,8 @@ impl RenderKernels {
         rec.dispatch(&self.pdf, &bindings, &push, rays.n_rays as u64)
     }
 
-    /// Colour MLP input rows; `appearance` = (embeddings, camera index per ray, dim, Some(row) for a fixed row).
+    /// Colour MLP input rows; `appearance` = (embeddings, camera index per ray, dim, Some(row) for a fixed row);
+    /// `sh_count` of the 16 SH columns carry the direction's values, the rest are zero.
     #[allow(clippy::too_many_arguments)]
     pub fn colour_input(
         &self,
@@ -360,6 +362,7 @@ impl RenderKernels {
         n: usize,
         density: (&GpuBuffer<f32>, usize),
         geo_dim: usize,
+        sh_count: usize,
         appearance: Option<(Binding, &GpuBuffer<u32>, usize, Option<u32>)>,
         rows: (&GpuBuffer<f32>, usize),
     ) -> GpuResult<()> {
@@ -377,6 +380,7 @@ impl RenderKernels {
             density_stride: density.1 as u32,
             app_mode: b(fixed.is_some()),
             mean_row: fixed.unwrap_or(0),
+            sh_count: sh_count.min(crate::nn::sh::SH_DIM) as u32,
         };
         let bindings = [rays.dirs.binding(), density.0.binding(), cams, emb, rows.0.binding()];
         rec.dispatch(&self.colour_input, &bindings, &push, n_samples as u64)

@@ -144,6 +144,7 @@ pub struct Pipeline {
     train_bufs: Option<ChunkBuffers<GpuAlloc>>,
     eval_bufs: Option<ChunkBuffers<GpuAlloc>>,
     pub schedule: ProposalSchedule,
+    /// The training step the next step records (and evaluation renders at: `field.coarse_to_fine`'s levels).
     pub step: u64,
     /// Cameras the pose regulariser averages over (the training split; defaults to every camera).
     pub n_train_cameras: usize,
@@ -174,6 +175,13 @@ fn infer_scratch<'a>(train: &'a Option<Backward<GpuAlloc>>, b: &'a ChunkBuffers<
 impl Pipeline {
     /// `cameras`: the camera table in the normalised frame: one entry per dataset frame, then (`rig_cameras`) every
     /// frame's band cameras ([`super::rig_rays::RigRays::table`]).
+    /// Moves to `step` (a loaded run's last trained step): the field grid's coarse-to-fine levels follow, also for
+    /// work recorded outside a render (normals).
+    pub fn set_step(&mut self, step: u64) {
+        self.step = step;
+        self.model.field.grid.set_active_levels(self.model.cfg.field.active_levels_at(step));
+    }
+
     pub fn new(ctx: &Context, model: Model, cameras: &[GpuCamera]) -> GpuResult<Self> {
         let kernels = RenderKernels::new(ctx)?;
         let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;
@@ -294,6 +302,7 @@ impl Pipeline {
         let jit =
             |level: u32| Jitter { seed, step: self.step as u32, level, enabled: train && m.cfg.sampling.single_jitter };
         let anneal = if train { anneal_at(&m.cfg.sampling, self.step) } else { 1.0 };
+        m.field.grid.set_active_levels(m.cfg.field.active_levels_at(self.step));
         let scale = m.cfg.field.average_init_density;
         k.ray_gen(rec, &self.cameras, &b.pixels, rb, &b.norms)?;
         if let (true, Some(pk), Some(slot), Some(pb)) = (train, self.pose_kernels.as_ref(), self.pose_slot(), &b.pose) {
@@ -360,7 +369,8 @@ impl Pipeline {
         } else {
             None
         };
-        k.colour_input(rec, rb, lv.n, (&lv.raw, fm.n_output), geo_dim, app, (&b.colour.input, cm.in_pad()))?;
+        let sh = m.cfg.field.sh_count();
+        k.colour_input(rec, rb, lv.n, (&lv.raw, fm.n_output), geo_dim, sh, app, (&b.colour.input, cm.in_pad()))?;
         let cp = ParamSlice { array: params, offset: m.slots.colour_mlp.offset };
         let cin = RowSlice { buf: &b.colour.input, stride: cm.in_pad(), col: 0 };
         let cout = RowSlice { buf: &b.colour.out, stride: m.bands, col: 0 };
@@ -519,7 +529,8 @@ impl Pipeline {
         let gp = ParamSlice { array: m.store.params(), offset: field.grid_offset };
         let dx = RowSlice { buf: &need(&lv.train).dx, stride: field.mlp.config.in_pad(), col: 0 };
         field.grid.backward_input(rec, gp, &lv.positions, s, dx, &pb.dpos)?;
-        let level = LevelGrad { n: lv.n, edges: &lv.edges, dpos: &pb.dpos, colour_dx, accumulate };
+        let sh_count = m.cfg.field.sh_count();
+        let level = LevelGrad { n: lv.n, edges: &lv.edges, dpos: &pb.dpos, colour_dx, sh_count, accumulate };
         pk.ray_grad(rec, rb, self.geometry(false), &level, &b.dummy, &pb.ray_grads)
     }
 

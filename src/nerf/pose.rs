@@ -85,6 +85,8 @@ pub struct LevelGrad<'a> {
     pub dpos: &'a GpuBuffer<f32>,
     /// The colour MLP's input gradient rows and their stride (NeRF level: adds the view-direction term).
     pub colour_dx: Option<(&'a GpuBuffer<f32>, usize)>,
+    /// The SH columns of `colour_dx` that depend on the direction (`field.direction_sh_degree` squared).
+    pub sh_count: usize,
     /// Add to the per-ray gradient instead of overwriting it.
     pub accumulate: bool,
 }
@@ -144,7 +146,7 @@ impl PoseKernels {
             far: geo.far,
             contraction: u32::from(geo.contraction),
             accumulate: u32::from(level.accumulate),
-            sh: u32::from(level.colour_dx.is_some()),
+            sh: if level.colour_dx.is_some() { level.sh_count.min(crate::nn::sh::SH_DIM) as u32 } else { 0 },
             dx_stride: stride as u32,
         };
         let bindings = [

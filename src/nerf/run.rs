@@ -41,6 +41,13 @@ pub struct RenderedView {
     pub seconds: f64,
 }
 
+/// The step a run's checkpoint was written after (`checkpoints/latest.json`'s `step`); errors name the file.
+fn trained_step(path: &Path) -> NerfResult<u64> {
+    let text = std::fs::read_to_string(path).map_err(|e| NerfError::file(path, e))?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| NerfError::file(path, e))?;
+    v["step"].as_u64().ok_or_else(|| NerfError::key(path, "step", "missing or not a step count"))
+}
+
 impl LoadedRun {
     /// Loads `dir`; errors name the file that is missing or malformed.
     pub fn load(ctx: &Context, dir: &Path) -> NerfResult<Self> {
@@ -70,6 +77,10 @@ impl LoadedRun {
         let dataset_cameras = table.len();
         let mut pipe = Pipeline::new(ctx, model, &table).map_err(NerfError::gpu("building the pipeline"))?;
         pipe.appearance_rows = Some(ds.split_indices(crate::data::Split::Train));
+        if cfg.field.coarse_to_fine.is_some() {
+            // The grid's levels as the last trained step weighted them (the trainer state beside the checkpoint).
+            pipe.set_step(trained_step(&dir.join("checkpoints/latest.json"))?);
+        }
         let transform = ds.pose_transform();
         Ok(Self { dir: dir.to_path_buf(), cfg, ds, transform, pipe, checkpoint, novel: Vec::new(), dataset_cameras })
     }

@@ -16,6 +16,9 @@
 //!   the chunk holding it ([`LargeArray::texel_binding`]) instead of through its device address: on lavapipe a
 //!   texel fetch is a branch-free gather. Levels that straddle chunks keep the device-address read.
 //!
+//! Coarse-to-fine ([`HashGrid::set_active_levels`], `field.coarse_to_fine`): every kernel multiplies level l's
+//! features, or their gradients, by clamp(active - l, 0, 1), a push constant (1 by default).
+//!
 //! Parameters and gradients live in chunked [`LargeArray`]s (Table 1's grid is 256 MiB) at `param_offset`.
 
 use super::SettingError;
@@ -147,7 +150,8 @@ crate::push_constants! {
         scale: f32,
         res: u32,
         entries: u32,
-        pad: u32,
+        /// The level's coarse-to-fine weight ([`HashGrid::level_weight`]).
+        weight: f32,
     }
 }
 
@@ -163,7 +167,8 @@ crate::push_constants! {
         scale: f32,
         res: u32,
         entries: u32,
-        pad: u32,
+        /// The level's coarse-to-fine weight ([`HashGrid::level_weight`]).
+        weight: f32,
         pad2: u32,
     }
 }
@@ -176,7 +181,8 @@ crate::push_constants! {
         n: u32,
         dy_stride: u32,
         dy_col: u32,
-        pad: u32,
+        /// [`HashGrid::active_levels`]: level l's weight is clamp(active_levels - l, 0, 1).
+        active_levels: f32,
     }
 }
 
@@ -190,6 +196,9 @@ pub struct HashGrid {
     /// The forward and the input gradient read each level's table as a texel buffer where the level lies in one
     /// chunk (the `_texel` kernel variants); see [`default_texel_reads`].
     texel_reads: bool,
+    /// Coarse-to-fine (`field.coarse_to_fine`): level l's features are multiplied by clamp(active - l, 0, 1) in
+    /// the forward and its gradients alike; `n_levels` (every weight 1) unless set.
+    active: std::cell::Cell<f32>,
 }
 
 /// Points per `hashgrid_bwd` invocation: `MSNERF_HASH_BWD_RUN` when set, else 1 on CPU devices and
@@ -295,7 +304,25 @@ impl HashGrid {
             },
             bwd_run: run,
             texel_reads: default_texel_reads(ctx)?,
+            active: std::cell::Cell::new(config.n_levels as f32),
         })
+    }
+
+    /// Coarse-to-fine: the levels the forward and the backward record from now on use, as a real number (level l
+    /// gets weight clamp(active - l, 0, 1); `n_levels` or more: all of them, the default). Held-back levels encode
+    /// zeros and get no gradient (BARF, Lin et al. 2021; Neuralangelo, Li et al. 2023).
+    pub fn set_active_levels(&self, active: f32) {
+        self.active.set(active.clamp(0.0, self.config.n_levels as f32));
+    }
+
+    /// See [`HashGrid::set_active_levels`].
+    pub fn active_levels(&self) -> f32 {
+        self.active.get()
+    }
+
+    /// Level `l`'s coarse-to-fine weight: clamp(active - l, 0, 1).
+    pub fn level_weight(&self, l: usize) -> f32 {
+        (self.active.get() - l as f32).clamp(0.0, 1.0)
     }
 
     /// The chunk holding a level's table as a texel buffer, when this grid reads texels, the level lies in one
@@ -384,7 +411,7 @@ impl HashGrid {
                     scale: lv.scale,
                     res: lv.res,
                     entries: lv.entries,
-                    pad: 0,
+                    weight: self.level_weight(l),
                 };
                 let mut bindings = vec![positions.binding(), out.binding()];
                 bindings.extend(texel);
@@ -418,7 +445,7 @@ impl HashGrid {
                 n: n as u32,
                 dy_stride: dy_stride as u32,
                 dy_col: dy_col as u32,
-                pad: 0,
+                active_levels: self.active.get(),
             };
             let grid = self.grid(rec, runs, n.div_ceil(self.bwd_run as usize))?;
             return rec.dispatch_groups("hashgrid_bwd", runs, &bindings, &grads.deps(), &push, grid);
@@ -503,7 +530,7 @@ impl HashGrid {
                     scale: lv.scale,
                     res: lv.res,
                     entries: lv.entries,
-                    pad: 0,
+                    weight: self.level_weight(l),
                     pad2: 0,
                 };
                 rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;

@@ -213,10 +213,18 @@ impl RasterCompareReport {
         for e in &self.bands {
             line(&mut s, "", e);
         }
-        for c in &self.classes {
+        // A class the band names but no interior cell carries (e.g. the simulator's horizon) gets no lines of its
+        // own, only a mention; the JSON keeps it with 0 cells.
+        let (present, absent): (Vec<&ClassErrors>, Vec<&ClassErrors>) =
+            self.classes.iter().partition(|c| c.bands.iter().any(|e| e.cells > 0));
+        for c in present {
             for e in &c.bands {
                 line(&mut s, &format!("[{} interior] ", c.name), e);
             }
+        }
+        if !absent.is_empty() {
+            let names: Vec<&str> = absent.iter().map(|c| c.name.as_str()).collect();
+            s += &format!("classes without interior cells: {}\n", names.join(", "));
         }
         s
     }

@@ -43,8 +43,23 @@ fn param_index(lv: &HashLevel, v: [u32; 3], f: usize) -> usize {
     (lv.offset + hash_index(lv, v)) as usize * f
 }
 
+/// Level `l`'s coarse-to-fine weight for `active` levels (`HashGrid::level_weight`): clamp(active - l, 0, 1).
+pub fn level_weight<T: Float>(active: T, l: usize) -> T {
+    (active - T::from(l).expect("level fits")).max(T::zero()).min(T::one())
+}
+
+/// Per-level weights for `active` levels (all ones for `active` >= L).
+pub fn level_weights<T: Float>(n_levels: usize, active: T) -> Vec<T> {
+    (0..n_levels).map(|l| level_weight(active, l)).collect()
+}
+
 /// Encoding of one point: L x F values, level-major.
 pub fn forward<T: Float>(levels: &[HashLevel], f: usize, params: &[T], p: [T; 3]) -> Vec<T> {
+    forward_weighted(levels, f, params, p, &vec![T::one(); levels.len()])
+}
+
+/// [`forward`] with each level's values multiplied by its coarse-to-fine weight (`weights[l]`).
+pub fn forward_weighted<T: Float>(levels: &[HashLevel], f: usize, params: &[T], p: [T; 3], weights: &[T]) -> Vec<T> {
     let mut out = vec![T::zero(); levels.len() * f];
     for (l, lv) in levels.iter().enumerate() {
         let (c0, frac) = cell(lv, p);
@@ -55,19 +70,34 @@ pub fn forward<T: Float>(levels: &[HashLevel], f: usize, params: &[T], p: [T; 3]
                 out[l * f + k] = out[l * f + k] + w * params[base + k];
             }
         }
+        for v in &mut out[l * f..(l + 1) * f] {
+            *v = *v * weights[l];
+        }
     }
     out
 }
 
 /// Adds d(encoding)/d(params)^T dy into `grads` for one point.
 pub fn backward_params<T: Float>(levels: &[HashLevel], f: usize, p: [T; 3], dy: &[T], grads: &mut [T]) {
+    backward_params_weighted(levels, f, p, dy, grads, &vec![T::one(); levels.len()])
+}
+
+/// [`backward_params`] of [`forward_weighted`]: level l's dy is multiplied by `weights[l]`.
+pub fn backward_params_weighted<T: Float>(
+    levels: &[HashLevel],
+    f: usize,
+    p: [T; 3],
+    dy: &[T],
+    grads: &mut [T],
+    weights: &[T],
+) {
     for (l, lv) in levels.iter().enumerate() {
         let (c0, frac) = cell(lv, p);
         for c in 0..8 {
             let (v, w) = corner(c, c0, frac);
             let base = param_index(lv, v, f);
             for k in 0..f {
-                grads[base + k] = grads[base + k] + w * dy[l * f + k];
+                grads[base + k] = grads[base + k] + w * weights[l] * dy[l * f + k];
             }
         }
     }
@@ -75,6 +105,18 @@ pub fn backward_params<T: Float>(levels: &[HashLevel], f: usize, p: [T; 3], dy: 
 
 /// dL/dp for one point.
 pub fn backward_input<T: Float>(levels: &[HashLevel], f: usize, params: &[T], p: [T; 3], dy: &[T]) -> [T; 3] {
+    backward_input_weighted(levels, f, params, p, dy, &vec![T::one(); levels.len()])
+}
+
+/// dL/dp of [`forward_weighted`] for one point.
+pub fn backward_input_weighted<T: Float>(
+    levels: &[HashLevel],
+    f: usize,
+    params: &[T],
+    p: [T; 3],
+    dy: &[T],
+    weights: &[T],
+) -> [T; 3] {
     let mut grad = [T::zero(); 3];
     for (l, lv) in levels.iter().enumerate() {
         let (c0, frac) = cell(lv, p);
@@ -82,7 +124,7 @@ pub fn backward_input<T: Float>(levels: &[HashLevel], f: usize, params: &[T], p:
         for c in 0..8u32 {
             let (v, _) = corner(c, c0, frac);
             let base = param_index(lv, v, f);
-            let gtheta = (0..f).fold(T::zero(), |acc, k| acc + dy[l * f + k] * params[base + k]);
+            let gtheta = (0..f).fold(T::zero(), |acc, k| acc + weights[l] * dy[l * f + k] * params[base + k]);
             for (d, g) in grad.iter_mut().enumerate() {
                 let mut w = if (c >> d) & 1 == 1 { T::one() } else { -T::one() };
                 for e in (0..3).filter(|&e| e != d) {

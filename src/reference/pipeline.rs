@@ -106,13 +106,18 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         let f = &model.field;
         let fg = &cfg.field.grid;
         let grid_levels = fg.levels();
+        // field.coarse_to_fine: the held-back levels' weights.
+        let c2f = hashgrid::level_weights(grid_levels.len(), cfg.field.active_levels_at(step) as f64);
         let grid = &params[slice(f.grid_offset, fg.n_params())];
         let fm = &f.mlp.config;
         let w_density = &params[slice(f.mlp_offset, fm.n_params())];
         let cm = &model.colour.config;
         let w_colour = &params[slice(model.slots.colour_mlp.offset, cm.n_params())];
         let (geo_dim, app_dim) = (cfg.field.geo_feat_dim, cfg.field.appearance_embed_dim);
-        let shv = sh::encode(dir);
+        // field.direction_sh_degree: the SH values past its square are zero columns.
+        let sh_count = cfg.field.sh_count();
+        let mut shv = sh::encode(dir);
+        shv[sh_count.min(sh::SH_DIM)..].fill(0.0);
         let app: Vec<f64> = if app_dim > 0 {
             let o = model.slots.appearance.as_ref().expect("appearance slot").offset + ray.camera * app_dim;
             params[o..o + app_dim].to_vec()
@@ -125,7 +130,7 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
         let mut cin = Vec::new();
         let mut colours = Vec::new();
         for pos in &positions {
-            let mut enc = hashgrid::forward(&grid_levels, fg.features_per_level as usize, grid, *pos);
+            let mut enc = hashgrid::forward_weighted(&grid_levels, fg.features_per_level as usize, grid, *pos, &c2f);
             enc.resize(fm.in_pad(), 0.0);
             let dens = mlp::forward(fm, w_density, &enc).1;
             raw.push(dens[0]);
@@ -182,18 +187,19 @@ pub fn train_step(model: &Model, params: &[f64], rays: &[RefRay], step: u64, upd
             let dx_enc = mlp::backward(fm, w_density, &encs[k], &dy_d, &mut out.grads[fo..fo + fm.n_params()]);
             if pose_off.is_some() {
                 let fpl = fg.features_per_level as usize;
-                let gh = hashgrid::backward_input(&grid_levels, fpl, grid, positions[k], &dx_enc);
+                let gh = hashgrid::backward_input_weighted(&grid_levels, fpl, grid, positions[k], &dx_enc, &c2f);
                 dpos[3 * k..3 * k + 3].copy_from_slice(&gh);
-                for (a, v) in dsh.iter_mut().zip(&dx[..sh::SH_DIM]) {
+                for (a, v) in dsh.iter_mut().zip(&dx[..sh_count.min(sh::SH_DIM)]) {
                     *a += v;
                 }
             }
-            hashgrid::backward_params(
+            hashgrid::backward_params_weighted(
                 &grid_levels,
                 fg.features_per_level as usize,
                 positions[k],
                 &dx_enc,
                 &mut out.grads[go..go + fg.n_params()],
+                &c2f,
             );
         }
         let near_far = (s.near as f64, s.far as f64, s.scene_contraction);

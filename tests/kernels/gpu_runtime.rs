@@ -144,7 +144,7 @@ fn reflection_reads_push_members_and_specialisation_constants() {
     );
     let m = |name: &str, offset, size, s| PushMember { name: name.into(), offset, size, scalar: Some(s) };
     // glsl/encoding/hashgrid_fwd.comp: uint64_t params; uint shift; uint param_offset; uint n; uint out_stride;
-    // uint out_col; float pad_value; float scale; uint res; uint entries; uint pad;
+    // uint out_col; float pad_value; float scale; uint res; uint entries; float weight;
     let expected = [
         m("params", 0, 8, u64_),
         m("shift", 8, 4, u32_),
@@ -156,7 +156,7 @@ fn reflection_reads_push_members_and_specialisation_constants() {
         m("scale", 32, 4, f32_),
         m("res", 36, 4, u32_),
         m("entries", 40, 4, u32_),
-        m("pad", 44, 4, u32_),
+        m("weight", 44, 4, f32_),
     ];
     assert_eq!(info.push_members, expected);
     assert_eq!(info.push_constant_bytes, 48);

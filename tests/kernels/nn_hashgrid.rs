@@ -103,20 +103,40 @@ fn setup(g: &Context, cfg: &HashGridConfig, offset: usize, seed: u64) -> Setup {
 
 #[test]
 fn forward_matches_twin_with_padding() {
-    check_forward_with_padding(false);
+    check_forward_with_padding(false, None);
 }
 
 #[test]
 fn forward_matches_twin_with_padding_from_texel_buffers() {
-    check_forward_with_padding(true);
+    check_forward_with_padding(true, None);
 }
 
-/// The forward against the twin, its tables read through device addresses or as texel buffers.
-fn check_forward_with_padding(texel: bool) {
+/// Coarse-to-fine (`field.coarse_to_fine`): with 2.5 of the 6 levels active, levels 0-1 keep weight 1, level 2
+/// gets 0.5 and levels 3-5 encode zeros, in the forward and in both gradients, against the twin's weighted
+/// functions (which the finite-difference tests below check), with every read path.
+#[test]
+fn coarse_to_fine_levels_match_twin() {
+    for texel in [false, true] {
+        check_forward_with_padding(texel, Some(2.5));
+        check_backward_input(texel, Some(2.5));
+    }
+    let cfg = small();
+    for run in [1, 8] {
+        check_backward_params(run, points(&cfg, 3001, 8, 0.0), &[3, 4], 1e-4, Some(2.5));
+    }
+    // Every level held back but the coarsest; and all of them active again.
+    check_forward_with_padding(false, Some(1.0));
+    check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4, Some(6.0));
+}
+
+/// The forward against the twin, its tables read through device addresses or as texel buffers; `active`: the
+/// grid's coarse-to-fine levels (None: the default, all of them).
+fn check_forward_with_padding(texel: bool, active: Option<f32>) {
     let g = gpu();
     let cfg = small();
     let mut s = setup(&g, &cfg, 24, 5);
     s.grid.set_texel_reads(texel);
+    let weights = set_active(&s.grid, &cfg, active);
     let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
     assert_eq!(levels_read, if texel { cfg.n_levels as usize } else { 0 }, "the texel kernels run");
     let n = 1013; // not a multiple of the 128-wide workgroup
@@ -140,11 +160,27 @@ fn check_forward_with_padding(texel: bool) {
     let levels = cfg.levels();
     let mut want = vec![-9.0f32; n * stride];
     for (i, p) in pts.iter().enumerate() {
-        let enc = twin::forward(&levels, 2, &s.host, *p);
+        let enc = twin::forward_weighted(&levels, 2, &s.host, *p, &weights);
         want[i * stride + col..i * stride + col + 12].copy_from_slice(&enc);
         want[i * stride + col + 12..i * stride + col + 16].fill(1.0);
     }
-    assert_all_close_f32(&got, &want, "hash grid forward");
+    assert_all_close_f32(&got, &want, &format!("hash grid forward (active levels {active:?})"));
+    if let Some(a) = active {
+        let held_back = (a.ceil() as usize * 2)..12;
+        assert!(
+            (0..n).all(|i| got[i * stride + col..i * stride + col + 12][held_back.clone()].iter().all(|&v| v == 0.0)),
+            "held-back levels encode zeros"
+        );
+    }
+}
+
+/// Sets the grid's coarse-to-fine levels (None: leaves the default) and returns the twin's level weights.
+fn set_active(grid: &HashGrid, cfg: &HashGridConfig, active: Option<f32>) -> Vec<f32> {
+    if let Some(a) = active {
+        grid.set_active_levels(a);
+    }
+    assert_eq!(grid.active_levels(), active.unwrap_or(cfg.n_levels as f32));
+    twin::level_weights(cfg.n_levels as usize, grid.active_levels())
 }
 
 #[test]
@@ -199,7 +235,7 @@ fn one_four_and_eight_features_read_texels_as_buffers_do() {
 #[test]
 fn backward_params_matches_twin_at_99th_percentile() {
     let cfg = small();
-    check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4);
+    check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4, None);
 }
 
 /// Run combining is the default on GPUs and off on CPU devices, where it measured slower (docs/benchmarks.md);
@@ -232,17 +268,18 @@ fn backward_params_with_run_combining_matches_twin() {
     let masked = [5, 6, 7, 8, 9, 100, 2999];
     // Ray-ordered points pile hundreds of contributions onto the coarse levels' entries: fp32 sums of that length
     // (in either kernel) sit at a 99th-percentile error of about 1.2e-4 here, hence 3e-4.
-    let one = check_backward_params(1, pts.clone(), &masked, 3e-4);
-    let eight = check_backward_params(8, pts, &masked, 3e-4);
+    let one = check_backward_params(1, pts.clone(), &masked, 3e-4, None);
+    let eight = check_backward_params(8, pts, &masked, 3e-4, None);
     assert!(eight <= 2.0 * one + 1e-5, "run combining adds rounding: p99 {eight:e} against {one:e}");
 }
 
 /// The parameter gradient of `pts` (with dL/dy zeroed for the points in `masked`) against the twin; returns the
-/// 99th-percentile relative error after asserting it is below `tol`.
-fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f64) -> f64 {
+/// 99th-percentile relative error after asserting it is below `tol`; `active` as in `check_forward_with_padding`.
+fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f64, active: Option<f32>) -> f64 {
     let g = gpu();
     let cfg = small();
     let grid = HashGrid::with_backward_run(&g, &cfg, run).expect("grid");
+    let weights: Vec<f64> = set_active(&grid, &cfg, active).iter().map(|&w| w as f64).collect();
     let n = pts.len();
     let mut dy_host = random_params(n * 12, 9, 1.0);
     for &m in masked {
@@ -270,10 +307,15 @@ fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f6
     for (i, p) in pts.iter().enumerate() {
         let p64 = [p[0] as f64, p[1] as f64, p[2] as f64];
         let d64: Vec<f64> = dy_host[i * 12..(i + 1) * 12].iter().map(|&v| v as f64).collect();
-        twin::backward_params(&levels, 2, p64, &d64, &mut want);
+        twin::backward_params_weighted(&levels, 2, p64, &d64, &mut want, &weights);
     }
     let touched: Vec<usize> = (0..want.len()).filter(|&i| want[i] != 0.0).collect();
     assert!(touched.len() > 1000, "the test must touch many entries");
+    if let Some(a) = active.filter(|&a| a < cfg.n_levels as f32) {
+        // The held-back levels' entries (from the first level past `a` on) get nothing.
+        let first = levels[a.ceil() as usize].offset as usize * 2;
+        assert!(want[first..].iter().all(|&v| v == 0.0) && got[first..].iter().all(|&v| v == 0.0), "held back");
+    }
     let mut rel: Vec<f64> = touched.iter().map(|&i| (got[i] as f64 - want[i]).abs() / (want[i].abs() + 1e-3)).collect();
     rel.sort_by(f64::total_cmp);
     let p99 = rel[(rel.len() * 99) / 100];
@@ -286,20 +328,22 @@ fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f6
 
 #[test]
 fn backward_input_matches_twin_and_finite_differences() {
-    check_backward_input(false);
+    check_backward_input(false, None);
 }
 
 #[test]
 fn backward_input_matches_twin_and_finite_differences_from_texel_buffers() {
-    check_backward_input(true);
+    check_backward_input(true, None);
 }
 
-/// The input gradient against the twin and central differences, its tables read either way.
-fn check_backward_input(texel: bool) {
+/// The input gradient against the twin and central differences (of the weighted forward with `active` levels, as
+/// in `check_forward_with_padding`), its tables read either way.
+fn check_backward_input(texel: bool, active: Option<f32>) {
     let g = gpu();
     let cfg = small();
     let mut s = setup(&g, &cfg, 8, 11);
     s.grid.set_texel_reads(texel);
+    let weights: Vec<f64> = set_active(&s.grid, &cfg, active).iter().map(|&w| w as f64).collect();
     let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
     assert_eq!(levels_read, if texel { cfg.n_levels as usize } else { 0 }, "the texel kernels run");
     let n = 300;
@@ -328,10 +372,11 @@ fn check_backward_input(texel: bool) {
     for (i, p) in pts.iter().enumerate() {
         let p64 = [p[0] as f64, p[1] as f64, p[2] as f64];
         let d64: Vec<f64> = dy_host[i * 12..(i + 1) * 12].iter().map(|&v| v as f64).collect();
-        let analytic = twin::backward_input(&levels, 2, &host64, p64, &d64);
+        let analytic = twin::backward_input_weighted(&levels, 2, &host64, p64, &d64, &weights);
         // Central differences of L = <dy, forward(p)> in f64.
-        let loss =
-            |q: [f64; 3]| twin::forward(&levels, 2, &host64, q).iter().zip(&d64).map(|(a, b)| a * b).sum::<f64>();
+        let loss = |q: [f64; 3]| {
+            twin::forward_weighted(&levels, 2, &host64, q, &weights).iter().zip(&d64).map(|(a, b)| a * b).sum::<f64>()
+        };
         for d in 0..3 {
             let h = 1e-7;
             let (mut a, mut b) = (p64, p64);
@@ -356,10 +401,12 @@ fn parameter_gradient_matches_finite_differences() {
     let theta: Vec<f64> = random_params(cfg.n_params(), 14, 1.0).iter().map(|&v| v as f64).collect();
     let pts = points(&cfg, 5, 15, 0.05);
     let dy: Vec<f64> = random_params(12, 16, 1.0).iter().map(|&v| v as f64).collect();
-    for p in &pts {
+    // All levels, and coarse-to-fine weights (2.5 active levels) against the weighted forward.
+    for (p, active) in pts.iter().zip([6.0, 2.5, 6.0, 3.25, 4.0]) {
+        let weights = twin::level_weights(levels.len(), active);
         let p64 = [p[0] as f64, p[1] as f64, p[2] as f64];
         let mut grad = vec![0.0; theta.len()];
-        twin::backward_params(&levels, 2, p64, &dy, &mut grad);
+        twin::backward_params_weighted(&levels, 2, p64, &dy, &mut grad, &weights);
         let nz: Vec<usize> = (0..grad.len()).filter(|&j| grad[j] != 0.0).take(40).collect();
         assert!(!nz.is_empty());
         for &j in &nz {
@@ -367,7 +414,9 @@ fn parameter_gradient_matches_finite_differences() {
             let mut tm = theta.clone();
             tp[j] += 1e-6;
             tm[j] -= 1e-6;
-            let l = |t: &[f64]| twin::forward(&levels, 2, t, p64).iter().zip(&dy).map(|(a, b)| a * b).sum::<f64>();
+            let l = |t: &[f64]| {
+                twin::forward_weighted(&levels, 2, t, p64, &weights).iter().zip(&dy).map(|(a, b)| a * b).sum::<f64>()
+            };
             let fd = (l(&tp) - l(&tm)) / 2e-6;
             assert!(common::close(grad[j], fd, 1e-8, 1e-6), "theta[{j}]: {} vs {fd}", grad[j]);
         }

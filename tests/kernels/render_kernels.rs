@@ -682,6 +682,7 @@ fn colour_input_and_column_copy_match_twin() {
     let camb = GpuBuffer::from_slice(&g, "cams", MemoryCategory::Rays, &cams).expect("cams");
     let rows = zeros(&g, "rows", nr * n * in_pad);
     let rows_fixed = zeros(&g, "rows fixed", nr * n * in_pad);
+    let rows_deg2 = zeros(&g, "rows degree 2", nr * n * in_pad);
     let copied = up(&g, "copied", &vec![-7.0; nr * n * 20]);
     let mut rec = g.recorder("colour input").expect("rec");
     k.colour_input(
@@ -690,6 +691,7 @@ fn colour_input_and_column_copy_match_twin() {
         n,
         (&dens, ds),
         geo_dim,
+        16,
         Some((embb.binding(), &camb, app_dim, None)),
         (&rows, in_pad),
     )
@@ -700,16 +702,30 @@ fn colour_input_and_column_copy_match_twin() {
         n,
         (&dens, ds),
         geo_dim,
+        16,
         Some((embb.binding(), &camb, app_dim, Some(2))),
         (&rows_fixed, in_pad),
     )
     .expect("ci");
+    // SH degree 2 (field.direction_sh_degree): the first 4 SH columns, zeros in the other 12.
+    k.colour_input(
+        &mut rec,
+        rb,
+        n,
+        (&dens, ds),
+        geo_dim,
+        4,
+        Some((embb.binding(), &camb, app_dim, None)),
+        (&rows_deg2, in_pad),
+    )
+    .expect("ci");
     k.copy_cols(&mut rec, nr * n, geo_dim, (&rows, in_pad, 16), (&copied, 20, 3)).expect("copy cols");
     rec.submit_and_wait().expect("submit");
-    let (gr, gf, gc) = (
+    let (gr, gf, gc, g2) = (
         g.download(&rows).expect("rows"),
         g.download(&rows_fixed).expect("fixed"),
         g.download(&copied).expect("copied"),
+        g.download(&rows_deg2).expect("rows degree 2"),
     );
     for s in 0..nr * n {
         let ray = s / n;
@@ -723,6 +739,9 @@ fn colour_input_and_column_copy_match_twin() {
         fixed.resize(in_pad, 1.0);
         common::assert_all_close_f32(&gr[s * in_pad..(s + 1) * in_pad], &want, "colour input row");
         common::assert_all_close_f32(&gf[s * in_pad..(s + 1) * in_pad], &fixed, "colour input row, fixed embedding");
+        let mut deg2 = want.clone();
+        deg2[4..16].fill(0.0);
+        common::assert_all_close_f32(&g2[s * in_pad..(s + 1) * in_pad], &deg2, "colour input row, SH degree 2");
         let row = &gc[s * 20..(s + 1) * 20];
         assert!(row[..3].iter().chain(&row[3 + geo_dim..]).all(|&v| v == -7.0), "columns outside the copy untouched");
         common::assert_same(&row[3..3 + geo_dim], &gr[s * in_pad + 16..s * in_pad + 16 + geo_dim], "copied columns");

@@ -115,7 +115,7 @@ fn raster_comparison_matches_the_definitions() {
     let (rp, pp, cp) = (tmp.path().join("ref.tif"), tmp.path().join("pred.tif"), tmp.path().join("classes.tif"));
     write(&rp, rw, rh, rorigin, 0.5, "height", reference.clone());
     write(&pp, pw, ph, porigin, 1.0, "height", pred.clone());
-    write(&cp, rw, rh, rorigin, 0.5, "classes 1=left 2=right", classes.clone());
+    write(&cp, rw, rh, rorigin, 0.5, "classes 1=left 2=right 3=absent", classes.clone());
     let (rr, pr, cr) = (read_geotiff(&rp).unwrap(), read_geotiff(&pp).unwrap(), read_geotiff(&cp).unwrap());
     let opts = RasterCompareOptions { within: vec![0.04, 0.06], peak: Some(4.0) };
     let rep = compare_rasters(&pr, &rr, Some(&cr), &opts).expect("compare");
@@ -159,9 +159,17 @@ fn raster_comparison_matches_the_definitions() {
     assert!((b.median_abs - med_abs).abs() < 1e-6, "{} vs {med_abs}", b.median_abs);
     assert!((b.within[1].1 - within).abs() < 1e-12);
     assert!((b.psnr_db.unwrap() - 10.0 * (16.0 / (rmse * rmse)).log10()).abs() < 1e-4);
-    assert_eq!(rep.classes.len(), 2);
+    assert_eq!(rep.classes.len(), 3);
     assert_eq!((rep.classes[0].code, rep.classes[0].name.as_str()), (1, "left"));
     assert_eq!(rep.classes[0].bands[0].cells, left.len());
+    // A named class with no cells stays in the JSON with 0 cells; the table only names it.
+    assert_eq!((rep.classes[2].name.as_str(), rep.classes[2].bands[0].cells), ("absent", 0));
+    let table = rep.table();
+    assert!(table.contains("[left interior] ") && table.contains("[right interior] "), "{table}");
+    assert!(
+        !table.contains("[absent interior]") && table.contains("classes without interior cells: absent"),
+        "{table}"
+    );
     // A different CRS or band count is refused by name.
     let other = tmp.path().join("other.tif");
     let img =

@@ -14,6 +14,7 @@ mod sweep_grid;
 mod sweep_outputs;
 mod sweep_pareto;
 mod sweep_resume;
+mod train_coarse_to_fine;
 mod train_e2e;
 mod train_in_flight;
 mod train_pose_refinement;

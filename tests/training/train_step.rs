@@ -263,6 +263,88 @@ fn whole_step_matches_reference_with_pose_refinement() {
     }
 }
 
+/// `field.direction_sh_degree: 2`: 4 of the 16 SH columns, the rest zero in the colour MLP's input and left out of
+/// the view direction's pose gradient (pose refinement on, so both paths are checked).
+#[test]
+fn whole_step_matches_reference_with_sh_degree_2() {
+    use msnerf::nerf::config::CameraOptMode;
+    check_step_with(false, 12, |c| {
+        c.field.direction_sh_degree = 2;
+        c.camera_optimizer.mode = CameraOptMode::SO3xR3;
+    });
+}
+
+/// `field.coarse_to_fine`: at step 50 of a fade until step 80 from all levels but the finest, that level is weighted
+/// 0.625, in the forward, the parameter gradient and, with pose refinement, the input gradient. (Fewer levels make
+/// the field too smooth for the step's interlevel-loss checks.)
+#[test]
+fn whole_step_matches_reference_with_coarse_to_fine_levels() {
+    use msnerf::nerf::config::{CameraOptMode, CoarseToFine};
+    for (update, seed, pose) in [(true, 11, false), (false, 12, true)] {
+        check_step_with(update, seed, |c| {
+            c.field.coarse_to_fine = Some(CoarseToFine { levels: c.field.grid.n_levels - 1, until_step: 80 });
+            let active = c.field.active_levels_at(50);
+            assert!(active > 1.0 && active < c.field.grid.n_levels as f32 && active.fract() > 0.0, "{active}");
+            if pose {
+                c.camera_optimizer.mode = CameraOptMode::SO3xR3;
+            }
+        });
+    }
+}
+
+/// `field.coarse_to_fine`: off by default (every level, not written into a run's config), a linear fade between
+/// its `levels` and all of them over `until_step` steps, refused by key when out of range.
+#[test]
+fn coarse_to_fine_schedules_and_validates() {
+    use msnerf::nerf::config::{CoarseToFine, ModelConfig};
+    let mut c = ModelConfig::resolve("demo").expect("demo");
+    let all = c.field.grid.n_levels as f32;
+    assert_eq!(c.field.coarse_to_fine, None);
+    assert!(!serde_yaml::to_string(&c).unwrap().contains("coarse_to_fine"));
+    assert_eq!((c.field.active_levels_at(0), c.field.active_levels_at(10_000)), (all, all));
+    c.field.coarse_to_fine = Some(CoarseToFine { levels: 4, until_step: 2000 });
+    c.validate().expect("valid");
+    for (step, want) in [(0, 4.0), (1000, 4.0 + (all - 4.0) / 2.0), (2000, all), (5000, all)] {
+        assert!(
+            (c.field.active_levels_at(step) - want).abs() < 1e-5,
+            "step {step}: {}",
+            c.field.active_levels_at(step)
+        );
+    }
+    assert!(serde_yaml::to_string(&c).unwrap().contains("coarse_to_fine"));
+    for bad in [
+        CoarseToFine { levels: 0, until_step: 10 },
+        CoarseToFine { levels: 13, until_step: 10 },
+        CoarseToFine { levels: 2, until_step: 0 },
+    ] {
+        c.field.coarse_to_fine = Some(bad);
+        let e = c.validate().expect_err("out of range").to_string();
+        assert!(e.contains("field.coarse_to_fine"), "{e}");
+    }
+}
+
+/// `field.direction_sh_degree`: nerfacto's 4 by default (and not written into a run's config then), 1..=4 accepted,
+/// anything else refused by key.
+#[test]
+fn direction_sh_degree_defaults_and_validates() {
+    use msnerf::nerf::config::ModelConfig;
+    let mut c = ModelConfig::resolve("nerfacto").expect("nerfacto");
+    assert_eq!((c.field.direction_sh_degree, c.field.sh_count()), (4, 16));
+    assert!(!serde_yaml::to_string(&c).unwrap().contains("direction_sh_degree"));
+    for d in 1..=4 {
+        c.field.direction_sh_degree = d;
+        c.validate().unwrap_or_else(|e| panic!("degree {d}: {e}"));
+        assert_eq!(c.field.sh_count(), d * d);
+    }
+    c.field.direction_sh_degree = 2;
+    assert!(serde_yaml::to_string(&c).unwrap().contains("direction_sh_degree: 2"));
+    for d in [0, 5] {
+        c.field.direction_sh_degree = d;
+        let e = c.validate().expect_err("out of range").to_string();
+        assert!(e.contains("field.direction_sh_degree"), "{e}");
+    }
+}
+
 #[test]
 fn whole_step_matches_reference_with_rig_rays() {
     use msnerf::nerf::config::CameraOptMode;
