@@ -80,6 +80,11 @@ const VARIANTS: &[Variant] = &[
     v("pose_regularizer", "pose/pose_regularizer.comp"),
 ];
 
+/// Kernels that need a glslang newer than Debian 12's (VK_KHR_cooperative_matrix): compiled with the
+/// `shaderc-from-source` feature, else generated as `None` (the MLP then runs its fp32 tiles). Not in `ALL`.
+const COOP_VARIANTS: &[Variant] =
+    &[v("mlp_coop_layer", "network/mlp_coop_layer.comp"), v("mlp_coop_wgrad", "network/mlp_coop_wgrad.comp")];
+
 fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
     let glsl = root.join("glsl");
@@ -95,7 +100,7 @@ fn main() {
     // Every kernel source must be in the table.
     for f in all_files.iter().filter(|f| f.extension().is_some_and(|e| e == "comp")) {
         let rel = f.strip_prefix(&glsl).expect("collected under glsl/").to_string_lossy().replace('\\', "/");
-        if !VARIANTS.iter().any(|v| v.source == rel) {
+        if !VARIANTS.iter().chain(COOP_VARIANTS).any(|v| v.source == rel) {
             panic!("glsl/{rel} is not in build.rs's VARIANTS table: add a row for it");
         }
     }
@@ -119,6 +124,36 @@ fn main() {
                 writeln!(
                     generated,
                     "pub const {}: crate::gpu::ShaderBlob = crate::gpu::ShaderBlob {{ name: {:?}, source: {:?}, spirv: include_bytes!({:?}) }};",
+                    var.name.to_uppercase(),
+                    var.name,
+                    var.source,
+                    spv.display().to_string(),
+                )
+                .expect("write to String");
+            }
+            Err(e) => errors.push(format!("{} ({}):\n{}", var.name, var.source, e)),
+        }
+    }
+    let coop = std::env::var_os("CARGO_FEATURE_SHADERC_FROM_SOURCE").is_some();
+    writeln!(
+        generated,
+        "\n/// Cooperative-matrix kernels: `Some` when built with the `shaderc-from-source` feature ({}).",
+        if coop { "this build" } else { "not this build" }
+    )
+    .expect("write to String");
+    for var in COOP_VARIANTS {
+        if !coop {
+            writeln!(generated, "pub const {}: Option<crate::gpu::ShaderBlob> = None;", var.name.to_uppercase())
+                .expect("write to String");
+            continue;
+        }
+        match compile(&compiler, &glsl, var.source, var.defines) {
+            Ok(words) => {
+                let spv = out.join(format!("{}.spv", var.name));
+                std::fs::write(&spv, words).expect("write .spv into OUT_DIR");
+                writeln!(
+                    generated,
+                    "pub const {}: Option<crate::gpu::ShaderBlob> = Some(crate::gpu::ShaderBlob {{ name: {:?}, source: {:?}, spirv: include_bytes!({:?}) }});",
                     var.name.to_uppercase(),
                     var.name,
                     var.source,

@@ -48,6 +48,9 @@ pub struct MlpResult {
     /// Kernels used (`MlpTiling`): shared-memory tiles (GPUs) or register tiles (CPU devices), and the register
     /// tiles' block sizes: unrolled multiply-adds per layer kernel and the weight-gradient tile.
     pub shared_tiles: bool,
+    /// The cooperative-matrix (tensor-core) kernels on those tiles: weight gradients, and layers.
+    pub coop_matrix: bool,
+    pub coop_layers: bool,
     pub mac_budget: usize,
     pub wgrad_tile_j: usize,
     pub wgrad_tile_k: usize,
@@ -245,6 +248,8 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
         shape: shape(cfg),
         rows,
         shared_tiles: mlp.tiling.shared_tiles,
+        coop_matrix: mlp.tiling.coop_matrix,
+        coop_layers: mlp.tiling.coop_layers,
         mac_budget: mlp.tiling.mac_budget,
         wgrad_tile_j: mlp.tiling.wgrad_tile_j,
         wgrad_tile_k: mlp.tiling.wgrad_tile_k,

@@ -33,6 +33,14 @@ fn rows(c: &DeviceCaps) -> Vec<(&'static str, String)> {
         ("fp16 arithmetic / storage", format!("{} / {}", yes(c.shader_float16), yes(c.storage_buffer_16bit))),
         ("buffer device address", yes(c.buffer_device_address)),
         ("push descriptors", yes(c.push_descriptor)),
+        (
+            "cooperative matrices (MLP)",
+            format!(
+                "{} / kernels in this build: {}",
+                yes(c.cooperative_matrix),
+                if crate::shaders::MLP_COOP_LAYER.is_some() { "yes" } else { "no (--features shaderc-from-source)" }
+            ),
+        ),
         ("timestamps", c.timestamp_period_ns.map(|p| format!("{p} ns/tick")).unwrap_or_else(|| "no".into())),
     ]
 }

@@ -50,6 +50,10 @@ pub struct DeviceCaps {
     pub subgroup_size_control: bool,
     pub timeline_semaphore: bool,
     pub synchronization2: bool,
+    /// VK_KHR_cooperative_matrix with 16 x 16 x 16 fp16 products accumulated in fp32 at subgroup scope, 32-wide
+    /// subgroups, fp16 arithmetic and the Vulkan memory model: what `mlp_coop_layer` / `mlp_coop_wgrad` need (the
+    /// build must also carry them: `shaders::MLP_COOP_LAYER`). `MSNERF_DISABLE_COOPMAT=1` turns it off.
+    pub cooperative_matrix: bool,
     /// Nanoseconds per timestamp tick; `None` when the queue cannot write timestamps.
     pub timestamp_period_ns: Option<f32>,
     pub memory_heaps: Vec<MemoryHeap>,
@@ -68,7 +72,12 @@ fn cstr(bytes: &[std::ffi::c_char]) -> String {
 
 impl DeviceCaps {
     /// Reads the caps of `pdev`. `queue_family` is the compute queue family (for timestamp support).
-    pub fn query(instance: &ash::Instance, pdev: vk::PhysicalDevice, queue_family: Option<u32>) -> Self {
+    pub fn query(
+        entry: &ash::Entry,
+        instance: &ash::Instance,
+        pdev: vk::PhysicalDevice,
+        queue_family: Option<u32>,
+    ) -> Self {
         let extensions: Vec<String> = unsafe { instance.enumerate_device_extension_properties(pdev) }
             .unwrap_or_default()
             .iter()
@@ -97,6 +106,11 @@ impl DeviceCaps {
         if has_atomic_float {
             feats2 = feats2.push_next(&mut atomic);
         }
+        let has_coop = has_ext(ash::khr::cooperative_matrix::NAME);
+        let mut coop = vk::PhysicalDeviceCooperativeMatrixFeaturesKHR::default();
+        if has_coop {
+            feats2 = feats2.push_next(&mut coop);
+        }
         unsafe { instance.get_physical_device_features2(pdev, &mut feats2) };
         let core = feats2.features;
 
@@ -112,6 +126,9 @@ impl DeviceCaps {
         });
         let l = &props.limits;
         let no_f16 = crate::util::env::settings().disable_f16;
+        let coop_shape = has_coop
+            && coop.cooperative_matrix == vk::TRUE
+            && fp16_subgroup_matrices(&ash::khr::cooperative_matrix::Instance::new(entry, instance), pdev);
         let sg_ops = subgroup.supported_operations;
         DeviceCaps {
             name: cstr(&props.device_name),
@@ -152,6 +169,12 @@ impl DeviceCaps {
             subgroup_size_control: v13f.subgroup_size_control == vk::TRUE,
             timeline_semaphore: v12f.timeline_semaphore == vk::TRUE,
             synchronization2: v13f.synchronization2 == vk::TRUE,
+            cooperative_matrix: coop_shape
+                && !no_f16
+                && !crate::util::env::settings().disable_coopmat
+                && v12f.shader_float16 == vk::TRUE
+                && v12f.vulkan_memory_model == vk::TRUE
+                && subgroup.subgroup_size == 32,
             timestamp_period_ns: (timestamps && l.timestamp_compute_and_graphics == vk::TRUE)
                 .then_some(l.timestamp_period),
             memory_heaps,
@@ -168,7 +191,7 @@ impl DeviceCaps {
     pub fn summary_line(&self) -> String {
         let mib = |b: u64| b / (1 << 20);
         format!(
-            "{} ({}, {} {}) | vk {} | heap {} MiB | binding max {} MiB | shared {} KiB | subgroup {} | wg {} | push {} B | f32 atomic add: {} | fp16: {} | bda: {} | push descriptors: {} | timestamps: {}",
+            "{} ({}, {} {}) | vk {} | heap {} MiB | binding max {} MiB | shared {} KiB | subgroup {} | wg {} | push {} B | f32 atomic add: {} | fp16: {} | bda: {} | push descriptors: {} | coopmat: {} | timestamps: {}",
             self.name,
             self.device_type,
             self.driver_name,
@@ -184,9 +207,23 @@ impl DeviceCaps {
             yes(self.shader_float16),
             yes(self.buffer_device_address),
             yes(self.push_descriptor),
+            yes(self.cooperative_matrix),
             self.timestamp_period_ns.map(|p| format!("{p} ns/tick")).unwrap_or_else(|| "no".into()),
         )
     }
+}
+
+/// Whether the device lists 16 x 16 x 16 subgroup matrices with fp16 A and B and fp32 C and result.
+fn fp16_subgroup_matrices(ext: &ash::khr::cooperative_matrix::Instance, pdev: vk::PhysicalDevice) -> bool {
+    let props = unsafe { ext.get_physical_device_cooperative_matrix_properties(pdev) }.unwrap_or_default();
+    props.iter().any(|p| {
+        (p.m_size, p.n_size, p.k_size) == (16, 16, 16)
+            && p.a_type == vk::ComponentTypeKHR::FLOAT16
+            && p.b_type == vk::ComponentTypeKHR::FLOAT16
+            && p.c_type == vk::ComponentTypeKHR::FLOAT32
+            && p.result_type == vk::ComponentTypeKHR::FLOAT32
+            && p.scope == vk::ScopeKHR::SUBGROUP
+    })
 }
 
 fn yes(b: bool) -> &'static str {

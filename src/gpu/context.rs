@@ -118,7 +118,7 @@ pub(crate) struct Candidate {
     pub caps: DeviceCaps,
 }
 
-pub(crate) fn candidates(instance: &ash::Instance) -> GpuResult<Vec<Candidate>> {
+pub(crate) fn candidates(entry: &ash::Entry, instance: &ash::Instance) -> GpuResult<Vec<Candidate>> {
     let pdevs = unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
     let mut out = Vec::new();
     for pdev in pdevs {
@@ -131,7 +131,7 @@ pub(crate) fn candidates(instance: &ash::Instance) -> GpuResult<Vec<Candidate>> 
             })
             .or_else(|| fams.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE)));
         if let Some(qf) = qf {
-            let caps = DeviceCaps::query(instance, pdev, Some(qf as u32));
+            let caps = DeviceCaps::query(entry, instance, pdev, Some(qf as u32));
             out.push(Candidate { pdev, queue_family: qf as u32, caps });
         }
     }
@@ -141,7 +141,7 @@ pub(crate) fn candidates(instance: &ash::Instance) -> GpuResult<Vec<Candidate>> 
 /// Every Vulkan device with a compute queue, with its caps (no logical device is created).
 pub fn list_devices() -> GpuResult<Vec<DeviceCaps>> {
     let inst = InstanceShared::new(false)?;
-    Ok(candidates(&inst.raw)?.into_iter().map(|c| c.caps).collect())
+    Ok(candidates(&inst.entry, &inst.raw)?.into_iter().map(|c| c.caps).collect())
 }
 
 fn select(cands: &[Candidate], requested: Option<&str>) -> GpuResult<usize> {
@@ -189,13 +189,22 @@ impl Context {
                 true
             }
         };
+        // VK_KHR_cooperative_matrix came with Vulkan 1.3.255: an older layer (Debian 12 ships 1.3.239) reports its
+        // structures and SPIR-V as errors, so under such a layer the cooperative-matrix kernels stay off.
+        let layer_knows_coopmat = !validation
+            || super::instance::validation_layer_version(&entry)
+                .is_some_and(|v| v >= vk::make_api_version(0, 1, 3, 255));
         drop(entry);
         let instance = InstanceShared::new(validation)?;
-        let cands = candidates(&instance.raw)?;
+        let cands = candidates(&instance.entry, &instance.raw)?;
         let chosen = select(&cands, desc.device.as_deref())?;
         let Candidate { pdev, queue_family, mut caps } = cands.into_iter().nth(chosen).expect("index from select");
         if desc.force_descriptor_pools {
             caps.push_descriptor = false;
+        }
+        if caps.cooperative_matrix && !layer_knows_coopmat {
+            log::warn!("cooperative matrices off: the validation layer predates VK_KHR_cooperative_matrix (1.3.255)");
+            caps.cooperative_matrix = false;
         }
         if caps.is_cpu {
             log::warn!("using CPU Vulkan device {} (no GPU found or selected): expect it to be slow", caps.name);
@@ -220,6 +229,9 @@ impl Context {
         if atomic_ext {
             exts.push(ash::ext::shader_atomic_float::NAME.as_ptr());
         }
+        if caps.cooperative_matrix {
+            exts.push(ash::khr::cooperative_matrix::NAME.as_ptr());
+        }
         let core = vk::PhysicalDeviceFeatures::default().shader_int64(caps.shader_int64);
         let mut v11 =
             vk::PhysicalDeviceVulkan11Features::default().storage_buffer16_bit_access(caps.storage_buffer_16bit);
@@ -227,6 +239,7 @@ impl Context {
             .timeline_semaphore(true)
             .buffer_device_address(caps.buffer_device_address)
             .shader_float16(caps.shader_float16)
+            .vulkan_memory_model(caps.cooperative_matrix)
             .scalar_block_layout(true);
         let mut v13 = vk::PhysicalDeviceVulkan13Features::default()
             .synchronization2(true)
@@ -245,6 +258,10 @@ impl Context {
             .push_next(&mut v13);
         if atomic_ext {
             info = info.push_next(&mut atomic);
+        }
+        let mut coop = vk::PhysicalDeviceCooperativeMatrixFeaturesKHR::default().cooperative_matrix(true);
+        if caps.cooperative_matrix {
+            info = info.push_next(&mut coop);
         }
         let device = unsafe { instance.raw.create_device(pdev, &info, None) }.vk("vkCreateDevice")?;
         let queue = unsafe { device.get_device_queue(queue_family, 0) };

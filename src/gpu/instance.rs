@@ -53,6 +53,15 @@ pub fn validation_available(entry: &ash::Entry) -> bool {
         .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER))
 }
 
+/// The installed validation layer's Vulkan version (`spec_version`), if it is installed.
+pub fn validation_layer_version(entry: &ash::Entry) -> Option<u32> {
+    unsafe { entry.enumerate_instance_layer_properties() }
+        .unwrap_or_default()
+        .iter()
+        .find(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER))
+        .map(|l| l.spec_version)
+}
+
 /// The Vulkan loader, loaded once per process and never unloaded. Loading it per context meant that the last
 /// context to go (tests create and drop them on several threads at once) unloaded the loader, and with it the
 /// driver and layer libraries, possibly while a driver thread still ran their code: an unexplained segfault in one

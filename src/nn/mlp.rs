@@ -201,6 +201,13 @@ pub struct MlpTiling {
     pub wgrad_tile_k: usize,
     /// Register tiles: batch rows one `mlp_wgrad` loop iteration takes (unrolled).
     pub wgrad_rows: usize,
+    /// Weight gradients on tensor cores (`mlp_coop_wgrad`: VK_KHR_cooperative_matrix, fp16 operands, fp32 sums)
+    /// instead of `mlp_tile_wgrad`: on by default where the device has them (`DeviceCaps::cooperative_matrix`) and
+    /// the build carries them (the `shaderc-from-source` feature). Needs `shared_tiles`.
+    pub coop_matrix: bool,
+    /// The layers' forward and backward products on tensor cores too (`mlp_coop_layer` instead of
+    /// `mlp_tile_layer`). Needs `coop_matrix`.
+    pub coop_layers: bool,
 }
 
 impl MlpTiling {
@@ -214,13 +221,30 @@ impl MlpTiling {
     /// inputs and an 8192 budget that is 192 live floats, which NVIDIA's compiler spills to local memory or refuses
     /// (measured on an H100: `vkCreateComputePipelines` failed), and every thread re-reads all weights. The
     /// register-tile fields below still apply when `shared=0`: 4096, 4 x 4.
-    /// `MSNERF_MLP_TILING=shared=0|1,mac_budget=N,wgrad_tile=N,wgrad_tile_j=N,wgrad_tile_k=N,wgrad_rows=N`
+    /// GPUs with cooperative matrices (and a build that carries their kernels): those, on the same tiles.
+    /// `MSNERF_MLP_TILING=shared=0|1,coop=0|1,coop_layers=0|1,mac_budget=N,wgrad_tile=N,wgrad_tile_j=N,wgrad_tile_k=N,wgrad_rows=N`
     /// overrides any of them (benchmarks; `wgrad_tile` sets both tile sides).
     pub fn for_device(caps: &DeviceCaps) -> GpuResult<Self> {
         let t = if caps.is_cpu {
-            Self { shared_tiles: false, mac_budget: 16384, wgrad_tile_j: 64, wgrad_tile_k: 64, wgrad_rows: 4 }
+            Self {
+                shared_tiles: false,
+                mac_budget: 16384,
+                wgrad_tile_j: 64,
+                wgrad_tile_k: 64,
+                wgrad_rows: 4,
+                coop_matrix: false,
+                coop_layers: false,
+            }
         } else {
-            Self { shared_tiles: true, mac_budget: 4096, wgrad_tile_j: 4, wgrad_tile_k: 4, wgrad_rows: 1 }
+            Self {
+                shared_tiles: true,
+                mac_budget: 4096,
+                wgrad_tile_j: 4,
+                wgrad_tile_k: 4,
+                wgrad_rows: 1,
+                coop_matrix: coop_available(caps),
+                coop_layers: coop_available(caps) && COOP_LAYERS_DEFAULT,
+            }
         };
         match &crate::util::env::settings().mlp_tiling {
             Some(v) => t
@@ -236,11 +260,15 @@ impl MlpTiling {
             let (key, value) = part.split_once('=').ok_or_else(|| SettingError::new(part, "is not key=value"))?;
             let n: usize =
                 value.trim().parse().map_err(|_| SettingError::new(key, format!("{value:?} is not a number")))?;
-            if key.trim() == "shared" {
+            if matches!(key.trim(), "shared" | "coop" | "coop_layers") {
                 if n > 1 {
-                    return Err(SettingError::new("shared", format!("{n} is not 0 or 1")));
+                    return Err(SettingError::new(key.trim(), format!("{n} is not 0 or 1")));
                 }
-                self.shared_tiles = n == 1;
+                match key.trim() {
+                    "shared" => self.shared_tiles = n == 1,
+                    "coop" => self.coop_matrix = n == 1,
+                    _ => self.coop_layers = n == 1,
+                }
                 continue;
             }
             if n == 0 || n > 1 << 16 {
@@ -253,13 +281,22 @@ impl MlpTiling {
                 "wgrad_tile_k" => self.wgrad_tile_k = n,
                 "wgrad_rows" => self.wgrad_rows = n,
                 other => {
-                    let keys = "shared, mac_budget, wgrad_tile, wgrad_tile_j, wgrad_tile_k, wgrad_rows";
+                    let keys =
+                        "shared, coop, coop_layers, mac_budget, wgrad_tile, wgrad_tile_j, wgrad_tile_k, wgrad_rows";
                     return Err(SettingError::new(other, format!("unknown key ({keys})")));
                 }
             }
         }
         Ok(self)
     }
+}
+
+/// Whether the layers' products run on cooperative matrices by default where they can (see docs/benchmarks.md).
+const COOP_LAYERS_DEFAULT: bool = true;
+
+/// Whether this device and this build can run the cooperative-matrix MLP kernels.
+pub fn coop_available(caps: &DeviceCaps) -> bool {
+    !caps.is_cpu && caps.cooperative_matrix && shaders::MLP_COOP_LAYER.is_some() && shaders::MLP_COOP_WGRAD.is_some()
 }
 
 /// Splits `total` outputs into near-equal blocks of at most `max` (a multiple of 4 when there are several).
@@ -396,6 +433,10 @@ enum TileOp<'a> {
 /// Workgroup threads of the shared-memory tile kernels.
 const TILE_THREADS: u64 = 256;
 
+/// Workgroup threads of the cooperative-matrix kernels (four subgroups of 32) and rows of a `mlp_coop_layer` tile.
+const COOP_THREADS: u64 = 128;
+const COOP_ROWS: usize = 64;
+
 /// Columns of a shared-memory tile for a result `cols` wide: 16, 32 or 64 (the tile has 4096 / that rows).
 fn tile_columns(cols: usize) -> usize {
     cols.next_power_of_two().clamp(16, 64)
@@ -425,6 +466,19 @@ impl Mlp {
     /// With explicit block sizes (benchmarks and tests compare them).
     pub fn with_tiling(ctx: &Context, config: &MlpConfig, tiling: MlpTiling) -> GpuResult<Self> {
         config.validate().map_err(|e| GpuError::Config { what: "MLP config".into(), msg: e.to_string() })?;
+        if (tiling.coop_matrix || tiling.coop_layers) && !(tiling.shared_tiles && coop_available(ctx.caps())) {
+            let why = if !tiling.shared_tiles {
+                "needs the shared-memory tiles (shared=1)".to_string()
+            } else if shaders::MLP_COOP_LAYER.is_none() {
+                "this build lacks its kernels (build with --features shaderc-from-source)".to_string()
+            } else {
+                format!("{} offers no fp16 16x16x16 cooperative matrices with 32-wide subgroups", ctx.caps().name)
+            };
+            return Err(GpuError::Config {
+                what: "MLP tiling coop".into(),
+                msg: format!("cooperative matrices: {why}"),
+            });
+        }
         Ok(Self { config: config.clone(), tiling, reduce: Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)? })
     }
 
@@ -698,7 +752,10 @@ impl Mlp {
             ("HALF_M", half_m.into()),
             ("HALF_C", half_c.into()),
         ];
-        let k = Kernel::with_spec(rec.context(), &shaders::MLP_TILE_LAYER, &spec)?;
+        let (k, rows_per_tile, threads) = match (self.tiling.coop_layers, &shaders::MLP_COOP_LAYER) {
+            (true, Some(blob)) => (Kernel::with_spec(rec.context(), blob, &spec)?, COOP_ROWS, COOP_THREADS),
+            _ => (Kernel::with_spec(rec.context(), &shaders::MLP_TILE_LAYER, &spec)?, 4096 / bn, TILE_THREADS),
+        };
         let m = mask.unwrap_or(a);
         let col_tiles = cols.div_ceil(bn);
         let push = TileLayerPush {
@@ -716,9 +773,9 @@ impl Mlp {
             c_col: out.col as u32,
             col_tiles: col_tiles as u32,
         };
-        let groups = n.div_ceil(4096 / bn) * col_tiles;
+        let groups = n.div_ceil(rows_per_tile) * col_tiles;
         let bindings = [a.buf.binding(), m.buf.binding(), out.buf.binding()];
-        rec.dispatch_named(label, &k, &bindings, deps, &push, groups as u64 * TILE_THREADS)
+        rec.dispatch_named(label, &k, &bindings, deps, &push, groups as u64 * threads)
     }
 
     /// One matrix's split-K weight-gradient partials into `scratch`: `n` rows in `splits` splits of `split_rows`,
@@ -733,25 +790,31 @@ impl Mlp {
         scratch: &GpuBuffer<f32>,
     ) -> GpuResult<()> {
         let ctx = rec.context();
-        let (k, tiles_j, tiles_k, threads) = if self.tiling.shared_tiles {
-            let tj = tile_columns(out_w);
-            let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
-            let spec = [("TJ", tj as u32), ("TK", tk as u32), ("HALF_A", half_a.into())];
-            let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &spec)?;
-            (k, out_w.div_ceil(tj), in_w.div_ceil(tk), TILE_THREADS)
-        } else {
-            let (jt, kt) = register_wgrad_tile(&self.tiling, (out_w, in_w), splits);
-            let spec = [
-                ("JT", jt as u32),
-                ("KT", kt as u32),
-                ("VEC_D", vec_width(&[d.stride, d.col, jt])),
-                ("VEC_A", row_vec(half_a, &[a.stride, a.col, kt])),
-                ("VEC_P", vec_width(&[in_w, kt])),
-                ("ROWS", self.tiling.wgrad_rows as u32),
-                ("HALF_A", half_a.into()),
-            ];
-            (Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?, out_w / jt, in_w / kt, 1)
-        };
+        let (k, tiles_j, tiles_k, threads) =
+            if let (true, Some(blob)) = (self.tiling.coop_matrix, &shaders::MLP_COOP_WGRAD) {
+                let tj = tile_columns(out_w);
+                let tk = tile_columns(in_w);
+                let spec = [("TJ", tj as u32), ("TK", tk as u32), ("HALF_A", half_a.into())];
+                (Kernel::with_spec(ctx, blob, &spec)?, out_w.div_ceil(tj), in_w.div_ceil(tk), COOP_THREADS)
+            } else if self.tiling.shared_tiles {
+                let tj = tile_columns(out_w);
+                let tk = (4096 / tj).min(in_w.next_power_of_two().clamp(16, 256));
+                let spec = [("TJ", tj as u32), ("TK", tk as u32), ("HALF_A", half_a.into())];
+                let k = Kernel::with_spec(ctx, &shaders::MLP_TILE_WGRAD, &spec)?;
+                (k, out_w.div_ceil(tj), in_w.div_ceil(tk), TILE_THREADS)
+            } else {
+                let (jt, kt) = register_wgrad_tile(&self.tiling, (out_w, in_w), splits);
+                let spec = [
+                    ("JT", jt as u32),
+                    ("KT", kt as u32),
+                    ("VEC_D", vec_width(&[d.stride, d.col, jt])),
+                    ("VEC_A", row_vec(half_a, &[a.stride, a.col, kt])),
+                    ("VEC_P", vec_width(&[in_w, kt])),
+                    ("ROWS", self.tiling.wgrad_rows as u32),
+                    ("HALF_A", half_a.into()),
+                ];
+                (Kernel::with_spec(ctx, &shaders::MLP_WGRAD, &spec)?, out_w / jt, in_w / kt, 1)
+            };
         let push = WgradPush::new((d, a), (n, split_rows, splits), (out_w, in_w), tiles_k);
         let work = (tiles_j * tiles_k * splits) as u64 * threads;
         let bindings = [d.buf.binding(), a.buf.binding(), scratch.binding()];
@@ -864,10 +927,25 @@ mod tests {
 
     #[test]
     fn tiling_overrides_name_the_bad_key() {
-        let t = MlpTiling { shared_tiles: false, mac_budget: 4096, wgrad_tile_j: 32, wgrad_tile_k: 32, wgrad_rows: 4 };
+        let t = MlpTiling {
+            shared_tiles: false,
+            mac_budget: 4096,
+            wgrad_tile_j: 32,
+            wgrad_tile_k: 32,
+            wgrad_rows: 4,
+            coop_matrix: false,
+            coop_layers: false,
+        };
         let o = t.with_overrides("mac_budget=8192, wgrad_rows=8,shared=1,wgrad_tile_j=64").expect("valid");
-        let want =
-            MlpTiling { shared_tiles: true, mac_budget: 8192, wgrad_tile_j: 64, wgrad_tile_k: 32, wgrad_rows: 8 };
+        let want = MlpTiling {
+            shared_tiles: true,
+            mac_budget: 8192,
+            wgrad_tile_j: 64,
+            wgrad_tile_k: 32,
+            wgrad_rows: 8,
+            coop_matrix: false,
+            coop_layers: false,
+        };
         assert_eq!(o, want);
         let both = t.with_overrides("wgrad_tile=16").expect("valid");
         assert_eq!((both.wgrad_tile_j, both.wgrad_tile_k), (16, 16));
@@ -881,7 +959,15 @@ mod tests {
     #[test]
     fn register_wgrad_tiles_shrink_for_short_batches_and_stay_multiples_of_4() {
         use super::{register_wgrad_tile, WGRAD_MIN_INVOCATIONS};
-        let t = MlpTiling { shared_tiles: false, mac_budget: 16384, wgrad_tile_j: 64, wgrad_tile_k: 64, wgrad_rows: 4 };
+        let t = MlpTiling {
+            shared_tiles: false,
+            mac_budget: 16384,
+            wgrad_tile_j: 64,
+            wgrad_tile_k: 64,
+            wgrad_rows: 4,
+            coop_matrix: false,
+            coop_layers: false,
+        };
         // 65,536 rows: 256 splits, the full tile.
         assert_eq!(register_wgrad_tile(&t, (128, 128), 256), (64, 64));
         assert_eq!(register_wgrad_tile(&t, (8, 80), 256), (8, 16));

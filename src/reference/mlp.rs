@@ -73,6 +73,19 @@ pub fn forward<T: Float>(c: &MlpConfig, w: &[T], x: &[T]) -> (Vec<Vec<T>>, Vec<T
 /// Backward of one row: adds dL/dW into `grads`, returns dL/dx (in_pad values).
 pub fn backward<T: Float>(c: &MlpConfig, w: &[T], x: &[T], dy: &[T], grads: &mut [T]) -> Vec<T> {
     let (hidden, y) = forward(c, w, x);
+    backward_from(c, w, x, (&hidden, &y), dy, grads)
+}
+
+/// [`backward`] from a given forward pass: `hidden` and `y` as [`forward`] returns them, or as a kernel stored them
+/// (its ReLU masks and output activations then decide, which is how the fp16-operand kernels are checked).
+pub fn backward_from<T: Float>(
+    c: &MlpConfig,
+    w: &[T],
+    x: &[T],
+    (hidden, y): (&[Vec<T>], &[T]),
+    dy: &[T],
+    grads: &mut [T],
+) -> Vec<T> {
     let mats = c.matrices();
     let mut offs = Vec::with_capacity(mats.len());
     let mut o = 0;

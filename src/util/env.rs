@@ -8,7 +8,8 @@
 //! | `MSNERF_VALIDATION` | use the Khronos validation layer when installed |
 //! | `MSNERF_REQUIRE_VALIDATION` | require it (`make test`) |
 //! | `MSNERF_DISABLE_PUSH_DESCRIPTOR` | bind descriptors through pools (tests the fallback) |
-//! | `MSNERF_DISABLE_F16` | no fp16 hidden activations |
+//! | `MSNERF_DISABLE_F16` | no fp16 hidden activations (and no cooperative matrices) |
+//! | `MSNERF_DISABLE_COOPMAT` | no cooperative-matrix (tensor-core) MLP kernels: the fp32 tiles instead |
 //! | `MSNERF_POISON_BUFFERS` | fresh GPU buffers hold NaN bits (`make test`) |
 //! | `MSNERF_MLP_TILING` | MLP kernel family and block sizes (benchmarks; `nn::mlp::MlpTiling`) |
 //! | `MSNERF_HASH_BWD_RUN` | points per hash-grid backward invocation (default 8 on GPUs, 1 on CPU devices) |
@@ -24,6 +25,7 @@ pub struct EnvSettings {
     pub require_validation: bool,
     pub disable_push_descriptor: bool,
     pub disable_f16: bool,
+    pub disable_coopmat: bool,
     pub poison_buffers: bool,
     pub mlp_tiling: Option<String>,
     pub hash_bwd_run: Option<String>,
@@ -47,6 +49,7 @@ impl EnvSettings {
             require_validation: flag("MSNERF_REQUIRE_VALIDATION"),
             disable_push_descriptor: flag("MSNERF_DISABLE_PUSH_DESCRIPTOR"),
             disable_f16: flag("MSNERF_DISABLE_F16"),
+            disable_coopmat: flag("MSNERF_DISABLE_COOPMAT"),
             poison_buffers: flag("MSNERF_POISON_BUFFERS"),
             mlp_tiling: text("MSNERF_MLP_TILING"),
             hash_bwd_run: text("MSNERF_HASH_BWD_RUN"),
@@ -66,6 +69,7 @@ impl EnvSettings {
         on("MSNERF_REQUIRE_VALIDATION", self.require_validation);
         on("MSNERF_DISABLE_PUSH_DESCRIPTOR", self.disable_push_descriptor);
         on("MSNERF_DISABLE_F16", self.disable_f16);
+        on("MSNERF_DISABLE_COOPMAT", self.disable_coopmat);
         on("MSNERF_POISON_BUFFERS", self.poison_buffers);
         for (name, value) in [
             ("MSNERF_DEVICE", &self.device),

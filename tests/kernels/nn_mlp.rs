@@ -1,12 +1,13 @@
 //! Fused MLP kernels against the CPU twin (`msnerf::reference::mlp`) and finite differences.
 //! Tolerances: forward, deltas and input gradients fp32 |a-b| <= 1e-5 + 1e-4|b|; weight gradients (sums over the
 //! batch, where cancellation makes |b| small) |a-b| <= 1e-4 (|b| + mean|b| of the matrix). With fp16 hidden
-//! activations (the twin rounds them as the kernels store them) every tolerance is 100x looser.
+//! activations (the twin rounds them as the kernels store them) every tolerance is 100x looser, and likewise for the
+//! cooperative-matrix (tensor-core) kernels, whose operands are fp16 (11 significant bits) with fp32 sums.
 
 use crate::common;
 use common::{gpu, rng};
 use msnerf::gpu::{BufferDesc, Context, GpuBuffer, LargeArray, MemoryCategory};
-use msnerf::nn::mlp::{Activation, Mlp, MlpConfig, MlpTiling, MlpTrainBuffers};
+use msnerf::nn::mlp::{coop_available, Activation, Mlp, MlpConfig, MlpTiling, MlpTrainBuffers};
 use msnerf::nn::{ParamSlice, RowSlice};
 use msnerf::ops;
 use msnerf::reference::mlp as twin;
@@ -31,10 +32,16 @@ fn weights(c: &MlpConfig, seed: u64) -> Vec<f32> {
     w
 }
 
-/// Both kernel families on this device: its default and the other one (register tiles, shared-memory tiles).
+/// Every kernel family on this device: its default, the other one (register tiles, shared-memory tiles) and, where
+/// the default runs on cooperative matrices, the fp32 shared-memory tiles too.
 fn check_config(g: &Context, c: &MlpConfig, n: usize, seed: u64) {
     let default = MlpTiling::for_device(g.caps()).expect("tiling");
-    for tiling in [default, MlpTiling { shared_tiles: !default.shared_tiles, ..default }] {
+    let fp32 = MlpTiling { coop_matrix: false, coop_layers: false, ..default };
+    let mut tilings = vec![default, MlpTiling { shared_tiles: !default.shared_tiles, ..fp32 }];
+    if default.coop_matrix {
+        tilings.push(fp32);
+    }
+    for tiling in tilings {
         check_with(g, c, n, seed, tiling);
     }
 }
@@ -69,7 +76,7 @@ fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling
     let p = ParamSlice { array: &params, offset };
     let gs = ParamSlice { array: &grads, offset };
     let xin = RowSlice { buf: &input, stride: in_stride, col: in_col };
-    let loose = if c.half_activations { 100.0 } else { 1.0 };
+    let loose = if c.half_activations || tiling.coop_matrix || tiling.coop_layers { 100.0 } else { 1.0 };
     let close = |a: f32, b: f32| common::close(a as f64, b as f64, 1e-5 * loose, 1e-4 * loose);
     let y = RowSlice { buf: &out, stride: out_stride, col: out_col };
     let mut rec = g.recorder("mlp").expect("recorder");
@@ -101,7 +108,7 @@ fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling
         for (l, h) in hidden.iter().enumerate() {
             for (j, &want) in h.iter().enumerate() {
                 let got = got_acts[(l * n + i) * c.width + j] as f64;
-                if c.half_activations && l == 0 {
+                if c.half_activations && l == 0 && !tiling.coop_layers {
                     // The first layer's inputs are exact, so the GPU's fp16 value and the twin's (its f64 sum
                     // rounded to nearest) are one fp16 step apart at most, plus the fp32 sum's own error (1e-6
                     // covers it where the sum cancels down to a small value, whose step is small too).
@@ -123,7 +130,19 @@ fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling
         }
         assert_eq!(got_y[i * out_stride], 0.0, "column before the output slot untouched");
         let d: Vec<f64> = dy_host[i * c.n_output..(i + 1) * c.n_output].iter().map(|&v| v as f64).collect();
-        let dxv = twin::backward(c, &w64, &row, &d, &mut want_g);
+        // fp16 operands move a ReLU's input by about 1e-4: one that close to zero may be off on the GPU and on in
+        // the twin, which changes the row's gradients by a whole unit's share. With cooperative matrices the twin's
+        // backward therefore starts from the kernels' stored forward pass (its masks; each value was checked
+        // against the twin's above).
+        let dxv = if tiling.coop_layers {
+            let stored: Vec<Vec<f64>> = (0..c.n_hidden_layers)
+                .map(|l| (0..c.width).map(|j| got_acts[(l * n + i) * c.width + j] as f64).collect())
+                .collect();
+            let ys: Vec<f64> = (0..c.n_output).map(|j| got_y[i * out_stride + out_col + j] as f64).collect();
+            twin::backward_from(c, &w64, &row, (&stored, &ys), &d, &mut want_g)
+        } else {
+            twin::backward(c, &w64, &row, &d, &mut want_g)
+        };
         for k in 0..c.in_pad() {
             let (gd, wd) = (got_dx[i * c.in_pad() + k], dxv[k] as f32);
             assert!(close(gd, wd), "{c:?} {tiling:?} row {i} dx {k}: got {gd} want {wd}");
@@ -198,6 +217,112 @@ fn weight_gradients_over_many_splits() {
     // 70001 rows: 274 splits of 256 rows for the register tiles; the shared-memory tiles cap the splits at 256 and
     // take 288 rows per split (244 splits, the last one short).
     check_both_precisions(&gpu(), &cfg(16, 3, 16, 1, Activation::None), 70_001, 12);
+}
+
+/// The tensor-core kernels (`mlp_coop_layer`, `mlp_coop_wgrad`) where this device and build have them: on by
+/// default, and against the f64 twin on every shape family the profiles use (fp32 and fp16 activations, an output
+/// layer narrower than a 16 x 16 fragment, deltas of 1e-6 that fp16 alone would flush, many splits). Elsewhere
+/// (lavapipe, or a build without the `shaderc-from-source` feature) the test says so, checks that the fp32 tiles
+/// are chosen and that asking for cooperative matrices is refused by name; `MSNERF_REQUIRE_COOPMAT=1` (the GPU
+/// runs of docs/benchmarks.md) makes their absence a failure.
+#[test]
+fn cooperative_matrix_kernels_match_the_twin_or_are_refused() {
+    let g = gpu();
+    let default = MlpTiling::for_device(g.caps()).expect("tiling");
+    let c = cfg(32, 16, 64, 1, Activation::None);
+    check_tiny_deltas(&g, MlpTiling { coop_matrix: false, coop_layers: false, ..default }); // the check, on fp32
+    if !coop_available(g.caps()) {
+        let required = std::env::var("MSNERF_REQUIRE_COOPMAT").is_ok_and(|v| v == "1");
+        assert!(!required, "MSNERF_REQUIRE_COOPMAT=1 but {} / this build has no cooperative matrices", g.caps().name);
+        assert!(!default.coop_matrix, "the fp32 kernels are the default without cooperative matrices");
+        let asked = MlpTiling { shared_tiles: true, coop_matrix: true, coop_layers: true, ..default };
+        let err = Mlp::with_tiling(&g, &c, asked).err().expect("cooperative matrices refused where unavailable");
+        assert!(err.to_string().contains("coop"), "{err}");
+        let reg = MlpTiling { shared_tiles: false, coop_matrix: true, ..default };
+        let err = Mlp::with_tiling(&g, &c, reg).err().expect("cooperative matrices need the shared tiles");
+        assert!(err.to_string().contains("shared"), "{err}");
+        eprintln!(
+            "note: no cooperative matrices on {} in this build (coopmat: {}): checked the fallback and the refusal",
+            g.caps().name,
+            g.caps().cooperative_matrix
+        );
+        return;
+    }
+    assert!(default.coop_matrix, "cooperative matrices are the default where available");
+    let only_wgrad = MlpTiling { coop_matrix: true, coop_layers: false, shared_tiles: true, ..default };
+    check_with(&g, &cfg(63, 6, 64, 2, Activation::Sigmoid), 777, 3, only_wgrad);
+    check_tiny_deltas(&g, only_wgrad);
+    let coop = MlpTiling { coop_layers: true, ..only_wgrad };
+    check_with(&g, &c, 1003, 1, coop);
+    check_with(&g, &MlpConfig { half_activations: true, ..cfg(10, 1, 16, 1, Activation::None) }, 517, 2, coop);
+    check_with(&g, &cfg(63, 6, 64, 2, Activation::Sigmoid), 777, 3, coop);
+    check_with(&g, &cfg(79, 6, 128, 2, Activation::Sigmoid), 2049, 9, coop);
+    check_with(&g, &MlpConfig { half_activations: true, ..cfg(79, 6, 128, 2, Activation::Sigmoid) }, 211, 9, coop);
+    check_with(&g, &cfg(20, 3, 32, 3, Activation::Exponential), 301, 5, coop);
+    check_with(&g, &cfg(32, 128, 128, 2, Activation::Sigmoid), 203, 4, coop);
+    check_with(&g, &cfg(16, 3, 16, 1, Activation::None), 70_001, 12, coop);
+    check_tiny_deltas(&g, coop);
+}
+
+/// Output deltas below 5e-7 (a mean loss over 32768 rays and six bands): fp16 holds them only as subnormals
+/// (steps of 6e-8: a 6 % error in these sums unscaled), so the kernels must scale them. Gradients match to 1 %.
+fn check_tiny_deltas(g: &Context, tiling: MlpTiling) {
+    let c = cfg(32, 6, 64, 2, Activation::Sigmoid);
+    let mlp = Mlp::with_tiling(g, &c, tiling).expect("mlp");
+    let n = 4096;
+    let w = weights(&c, 41);
+    let params = LargeArray::<f32>::new(g, "params", w.len(), MemoryCategory::Parameters).expect("params");
+    params.upload(g, 0, &w).expect("upload");
+    let grads = LargeArray::<f32>::new(g, "grads", w.len(), MemoryCategory::Gradients).expect("grads");
+    let mut r = rng(42);
+    let x: Vec<f32> = (0..n * c.in_pad()).map(|_| r.random_range(-1.0..1.0)).collect();
+    let dy_host: Vec<f32> = (0..n * c.n_output).map(|_| r.random_range(-5e-7..5e-7)).collect();
+    let input = buf(g, "x", &x);
+    let out = zeros(g, "y", n * c.n_output);
+    let dy = buf(g, "dy", &dy_host);
+    let acts = zeros(g, "acts", c.hidden_floats(n));
+    let deltas = zeros(g, "deltas", c.delta_floats(n));
+    let scratch = zeros(g, "scratch", mlp.wgrad_scratch_floats(n));
+    let dx = zeros(g, "dx", n * c.in_pad());
+    let p = ParamSlice { array: &params, offset: 0 };
+    let gs = ParamSlice { array: &grads, offset: 0 };
+    let xin = RowSlice { buf: &input, stride: c.in_pad(), col: 0 };
+    let y = RowSlice { buf: &out, stride: c.n_output, col: 0 };
+    let mut rec = g.recorder("tiny deltas").expect("recorder");
+    for ch in grads.chunks() {
+        ops::fill(&mut rec, ch, 0.0f32, 0, ch.len()).expect("zero grads");
+    }
+    mlp.forward(&mut rec, p, xin, n, y, &acts).expect("forward");
+    let bufs = MlpTrainBuffers { acts: &acts, deltas: &deltas, scratch: &scratch };
+    let dys = RowSlice { buf: &dy, stride: c.n_output, col: 0 };
+    let dxs = RowSlice { buf: &dx, stride: c.in_pad(), col: 0 };
+    mlp.backward(&mut rec, p, gs, (xin, y, dys), n, &bufs, Some(dxs)).expect("backward");
+    rec.submit_and_wait().expect("submit");
+    let got_g = grads.download(g).expect("grads");
+    let got_dx = g.download(&dx).expect("dx");
+    let got_acts = g.download(&acts).expect("acts");
+    let got_y = g.download(&out).expect("y");
+    let w64: Vec<f64> = w.iter().map(|&v| v as f64).collect();
+    let mut want_g = vec![0.0f64; w.len()];
+    let mut worst_dx = 0.0f64;
+    for i in 0..n {
+        let row: Vec<f64> = x[i * c.in_pad()..(i + 1) * c.in_pad()].iter().map(|&v| v as f64).collect();
+        let d: Vec<f64> = dy_host[i * c.n_output..(i + 1) * c.n_output].iter().map(|&v| v as f64).collect();
+        // From the kernels' stored forward pass (its ReLU masks), as check_with does for cooperative matrices.
+        let stored: Vec<Vec<f64>> = (0..c.n_hidden_layers)
+            .map(|l| (0..c.width).map(|j| got_acts[(l * n + i) * c.width + j] as f64).collect())
+            .collect();
+        let ys: Vec<f64> = got_y[i * c.n_output..(i + 1) * c.n_output].iter().map(|&v| v as f64).collect();
+        let dxv = twin::backward_from(&c, &w64, &row, (&stored, &ys), &d, &mut want_g);
+        let scale = dxv.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-30);
+        for (k, want) in dxv.iter().enumerate() {
+            worst_dx = worst_dx.max((got_dx[i * c.in_pad() + k] as f64 - want).abs() / scale);
+        }
+    }
+    assert!(worst_dx < 1e-2, "{tiling:?}: input gradient off by {worst_dx} of its row's largest value");
+    let mean = want_g.iter().map(|v| v.abs()).sum::<f64>() / want_g.len() as f64;
+    let worst = got_g.iter().zip(&want_g).map(|(&a, b)| (a as f64 - b).abs() / (b.abs() + mean)).fold(0.0, f64::max);
+    assert!(worst < 1e-2, "{tiling:?}: weight gradients off by {worst} (relative to |g| + mean |g| = {mean})");
 }
 
 #[test]
