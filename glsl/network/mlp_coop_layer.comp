@@ -66,9 +66,10 @@ shared float sg_max[4];         // per subgroup: largest |A| of the block it sta
 #define MAT_B coopmat<float16_t, gl_ScopeSubgroup, 16, 16, gl_MatrixUseB>
 #define MAT_C coopmat<float, gl_ScopeSubgroup, 16, 16, gl_MatrixUseAccumulator>
 
-// Power-of-two scale bringing a largest magnitude `mx` into [2^13, 2^14); 1 for zero, NaN or Inf blocks.
-float block_scale_for(float mx) {
-    if (!(mx > 0.0) || isinf(mx)) return 1.0;
+// Power-of-two scale bringing a largest magnitude `mx` into [2^13, 2^14); the current scale for zero, NaN or Inf
+// blocks (nothing to gain, and the accumulators keep their units).
+float block_scale_for(float mx, float current) {
+    if (!(mx > 0.0) || isinf(mx)) return current;
     int e;
     frexp(mx, e); // mx = f 2^e, f in [0.5, 1)
     return ldexp(1.0, clamp(14 - e, -100, 100));
@@ -117,7 +118,7 @@ void main() {
             w_s[t * WS + cc] = float16_t(v);
         }
         barrier();
-        float s = block_scale_for(max(max(sg_max[0], sg_max[1]), max(sg_max[2], sg_max[3])));
+        float s = block_scale_for(max(max(sg_max[0], sg_max[1]), max(sg_max[2], sg_max[3])), scale);
         [[unroll]] for (uint q = 0u; q < LA; ++q) {
             uint e = tid + q * WG_SIZE;
             a_s[(e / BK) * AS + e % BK] = float16_t(av[q] * s);

@@ -47,7 +47,7 @@ layout(push_constant) uniform Push {
 shared float16_t d_s[RB * DS]; // d_s[r * DS + j] = delta[r0 + r][j0 + j] * d_scale
 shared float16_t a_s[RB * AS]; // a_s[r * AS + k] = act[r0 + r][k0 + k] * a_scale
 shared float sg_max[2][4];     // per subgroup: largest |delta|, |act| of the staged block
-shared float edge[4 * 256];     // per subgroup: a fragment that overhangs the matrix (the last layer's out_w of 4, 8, 12)
+shared float edge[4 * 256];     // per subgroup: a fragment that overhangs the matrix (the last layer's out_w, n_output rounded to 4)
 
 #define MAT_A coopmat<float16_t, gl_ScopeSubgroup, 16, 16, gl_MatrixUseA>
 #define MAT_B coopmat<float16_t, gl_ScopeSubgroup, 16, 16, gl_MatrixUseB>
@@ -112,7 +112,7 @@ void main() {
             a_s[(e / TK) * AS + e % TK] = float16_t(av[q] * as);
         }
         barrier();
-        float unscale = 1.0 / (ds * as);
+        float unscale = (1.0 / ds) * (1.0 / as); // each factor a power of two: no overflow of ds * as
         [[unroll]] for (uint i = 0u; i < 4u; ++i) {
             uint f = sg + 4u * i;
             if (f < NF) {

@@ -55,6 +55,8 @@ pub struct TrainBench {
     pub validation: bool,
     /// The device the steps ran on (`DeviceCaps::summary_line`: name, driver, limits).
     pub device: String,
+    /// The MLP kernels the field ran (`MlpTiling`, as `summary.json` records it): fp32 tiles or tensor cores.
+    pub mlp_tiling: String,
 }
 
 /// The first step past the proposal warm-up and the weight annealing (the steady state of a run).
@@ -171,6 +173,7 @@ pub fn run(
         proposal_update_steps: updates,
         validation: ctx.validation_enabled(),
         device: ctx.caps().summary_line(),
+        mlp_tiling: format!("{:?}", pipe.model.field.mlp.tiling),
     })
 }
 

@@ -50,8 +50,9 @@ pub struct DeviceCaps {
     pub subgroup_size_control: bool,
     pub timeline_semaphore: bool,
     pub synchronization2: bool,
-    /// VK_KHR_cooperative_matrix with 16 x 16 x 16 fp16 products accumulated in fp32 at subgroup scope, 32-wide
-    /// subgroups, fp16 arithmetic and the Vulkan memory model: what `mlp_coop_layer` / `mlp_coop_wgrad` need (the
+    /// VK_KHR_cooperative_matrix in compute shaders with 16 x 16 x 16 fp16 products accumulated in fp32 at subgroup
+    /// scope, 32-wide subgroups with arithmetic, fp16 arithmetic and the Vulkan memory model: what `mlp_coop_layer`
+    /// / `mlp_coop_wgrad` need (the
     /// build must also carry them: `shaders::MLP_COOP_LAYER`). `MSNERF_DISABLE_COOPMAT=1` turns it off.
     pub cooperative_matrix: bool,
     /// Nanoseconds per timestamp tick; `None` when the queue cannot write timestamps.
@@ -72,11 +73,14 @@ fn cstr(bytes: &[std::ffi::c_char]) -> String {
 
 impl DeviceCaps {
     /// Reads the caps of `pdev`. `queue_family` is the compute queue family (for timestamp support).
+    /// `with_coopmat: false` leaves VK_KHR_cooperative_matrix unqueried (a validation layer older than the extension
+    /// reports its structures as errors).
     pub fn query(
         entry: &ash::Entry,
         instance: &ash::Instance,
         pdev: vk::PhysicalDevice,
         queue_family: Option<u32>,
+        with_coopmat: bool,
     ) -> Self {
         let extensions: Vec<String> = unsafe { instance.enumerate_device_extension_properties(pdev) }
             .unwrap_or_default()
@@ -91,8 +95,12 @@ impl DeviceCaps {
         let mut v11p = vk::PhysicalDeviceVulkan11Properties::default();
         let mut v12p = vk::PhysicalDeviceVulkan12Properties::default();
         let mut v13p = vk::PhysicalDeviceVulkan13Properties::default();
+        let mut coop_props = vk::PhysicalDeviceCooperativeMatrixPropertiesKHR::default();
         let mut props2 =
             vk::PhysicalDeviceProperties2::default().push_next(&mut subgroup).push_next(&mut v12p).push_next(&mut v13p);
+        if with_coopmat && has_ext(ash::khr::cooperative_matrix::NAME) {
+            props2 = props2.push_next(&mut coop_props);
+        }
         unsafe { instance.get_physical_device_properties2(pdev, &mut props2) };
         let props = props2.properties;
         let _ = &mut v11p;
@@ -106,7 +114,7 @@ impl DeviceCaps {
         if has_atomic_float {
             feats2 = feats2.push_next(&mut atomic);
         }
-        let has_coop = has_ext(ash::khr::cooperative_matrix::NAME);
+        let has_coop = with_coopmat && has_ext(ash::khr::cooperative_matrix::NAME);
         let mut coop = vk::PhysicalDeviceCooperativeMatrixFeaturesKHR::default();
         if has_coop {
             feats2 = feats2.push_next(&mut coop);
@@ -128,6 +136,7 @@ impl DeviceCaps {
         let no_f16 = crate::util::env::settings().disable_f16;
         let coop_shape = has_coop
             && coop.cooperative_matrix == vk::TRUE
+            && coop_props.cooperative_matrix_supported_stages.contains(vk::ShaderStageFlags::COMPUTE)
             && fp16_subgroup_matrices(&ash::khr::cooperative_matrix::Instance::new(entry, instance), pdev);
         let sg_ops = subgroup.supported_operations;
         DeviceCaps {
@@ -174,7 +183,8 @@ impl DeviceCaps {
                 && !crate::util::env::settings().disable_coopmat
                 && v12f.shader_float16 == vk::TRUE
                 && v12f.vulkan_memory_model == vk::TRUE
-                && subgroup.subgroup_size == 32,
+                && subgroup.subgroup_size == 32
+                && sg_ops.contains(vk::SubgroupFeatureFlags::ARITHMETIC),
             timestamp_period_ns: (timestamps && l.timestamp_compute_and_graphics == vk::TRUE)
                 .then_some(l.timestamp_period),
             memory_heaps,

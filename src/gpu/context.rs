@@ -118,7 +118,11 @@ pub(crate) struct Candidate {
     pub caps: DeviceCaps,
 }
 
-pub(crate) fn candidates(entry: &ash::Entry, instance: &ash::Instance) -> GpuResult<Vec<Candidate>> {
+pub(crate) fn candidates(
+    entry: &ash::Entry,
+    instance: &ash::Instance,
+    with_coopmat: bool,
+) -> GpuResult<Vec<Candidate>> {
     let pdevs = unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
     let mut out = Vec::new();
     for pdev in pdevs {
@@ -131,7 +135,7 @@ pub(crate) fn candidates(entry: &ash::Entry, instance: &ash::Instance) -> GpuRes
             })
             .or_else(|| fams.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE)));
         if let Some(qf) = qf {
-            let caps = DeviceCaps::query(entry, instance, pdev, Some(qf as u32));
+            let caps = DeviceCaps::query(entry, instance, pdev, Some(qf as u32), with_coopmat);
             out.push(Candidate { pdev, queue_family: qf as u32, caps });
         }
     }
@@ -141,7 +145,7 @@ pub(crate) fn candidates(entry: &ash::Entry, instance: &ash::Instance) -> GpuRes
 /// Every Vulkan device with a compute queue, with its caps (no logical device is created).
 pub fn list_devices() -> GpuResult<Vec<DeviceCaps>> {
     let inst = InstanceShared::new(false)?;
-    Ok(candidates(&inst.entry, &inst.raw)?.into_iter().map(|c| c.caps).collect())
+    Ok(candidates(&inst.entry, &inst.raw, true)?.into_iter().map(|c| c.caps).collect())
 }
 
 fn select(cands: &[Candidate], requested: Option<&str>) -> GpuResult<usize> {
@@ -189,22 +193,23 @@ impl Context {
                 true
             }
         };
-        // VK_KHR_cooperative_matrix came with Vulkan 1.3.255: an older layer (Debian 12 ships 1.3.239) reports its
-        // structures and SPIR-V as errors, so under such a layer the cooperative-matrix kernels stay off.
+        // VK_KHR_cooperative_matrix came with Vulkan 1.3.255: an older layer (Debian 12 ships 1.3.239) may report its
+        // structures and SPIR-V as errors, so under such a layer it is not even queried and its kernels stay off.
         let layer_knows_coopmat = !validation
             || super::instance::validation_layer_version(&entry)
                 .is_some_and(|v| v >= vk::make_api_version(0, 1, 3, 255));
         drop(entry);
         let instance = InstanceShared::new(validation)?;
-        let cands = candidates(&instance.entry, &instance.raw)?;
+        let cands = candidates(&instance.entry, &instance.raw, layer_knows_coopmat)?;
         let chosen = select(&cands, desc.device.as_deref())?;
         let Candidate { pdev, queue_family, mut caps } = cands.into_iter().nth(chosen).expect("index from select");
         if desc.force_descriptor_pools {
             caps.push_descriptor = false;
         }
-        if caps.cooperative_matrix && !layer_knows_coopmat {
-            log::warn!("cooperative matrices off: the validation layer predates VK_KHR_cooperative_matrix (1.3.255)");
-            caps.cooperative_matrix = false;
+        if !layer_knows_coopmat {
+            log::info!(
+                "cooperative matrices not used: the validation layer predates VK_KHR_cooperative_matrix (1.3.255)"
+            );
         }
         if caps.is_cpu {
             log::warn!("using CPU Vulkan device {} (no GPU found or selected): expect it to be slow", caps.name);

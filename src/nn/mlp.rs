@@ -255,7 +255,11 @@ impl MlpTiling {
     }
 
     /// `key=value` pairs separated by commas; keys are the field names (`shared` for `shared_tiles`, 0 or 1).
+    /// `shared=0` without a `coop` key also turns the tensor cores off (they run on the shared tiles), and `coop=0`
+    /// without a `coop_layers` key turns off the layers' too; asking for them explicitly where they cannot run is
+    /// refused when the MLP is built.
     pub fn with_overrides(mut self, spec: &str) -> Result<Self, SettingError> {
+        let (mut coop_given, mut layers_given) = (false, false);
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             let (key, value) = part.split_once('=').ok_or_else(|| SettingError::new(part, "is not key=value"))?;
             let n: usize =
@@ -266,8 +270,8 @@ impl MlpTiling {
                 }
                 match key.trim() {
                     "shared" => self.shared_tiles = n == 1,
-                    "coop" => self.coop_matrix = n == 1,
-                    _ => self.coop_layers = n == 1,
+                    "coop" => (self.coop_matrix, coop_given) = (n == 1, true),
+                    _ => (self.coop_layers, layers_given) = (n == 1, true),
                 }
                 continue;
             }
@@ -286,6 +290,12 @@ impl MlpTiling {
                     return Err(SettingError::new(other, format!("unknown key ({keys})")));
                 }
             }
+        }
+        if !self.shared_tiles && !coop_given && !layers_given {
+            (self.coop_matrix, self.coop_layers) = (false, false);
+        }
+        if !self.coop_matrix && !layers_given {
+            self.coop_layers = false;
         }
         Ok(self)
     }
@@ -472,7 +482,11 @@ impl Mlp {
             } else if shaders::MLP_COOP_LAYER.is_none() {
                 "this build lacks its kernels (build with --features shaderc-from-source)".to_string()
             } else {
-                format!("{} offers no fp16 16x16x16 cooperative matrices with 32-wide subgroups", ctx.caps().name)
+                format!(
+                    "{} offers no fp16 16x16x16 cooperative matrices with 32-wide subgroups (or a validation layer \
+                     older than the extension hides them)",
+                    ctx.caps().name
+                )
             };
             return Err(GpuError::Config {
                 what: "MLP tiling coop".into(),
@@ -724,7 +738,7 @@ impl Mlp {
         Ok(())
     }
 
-    /// One layer's forward or backward product through `mlp_tile_layer`: A rows into C rows (which of A, the mask
+    /// One layer's forward or backward product through `mlp_tile_layer` (or `mlp_coop_layer`): A rows into C rows (which of A, the mask
     /// and C hold fp16) with the weights at `w_addr` (in `deps`), `shape` is (k_dim, cols), the summed and the
     /// written widths.
     fn tile_layer(
@@ -794,6 +808,7 @@ impl Mlp {
             if let (true, Some(blob)) = (self.tiling.coop_matrix, &shaders::MLP_COOP_WGRAD) {
                 let tj = tile_columns(out_w);
                 let tk = tile_columns(in_w);
+                debug_assert!(tj <= 64 && tk <= 64, "mlp_coop_wgrad stages tiles of at most 64 x 64");
                 let spec = [("TJ", tj as u32), ("TK", tk as u32), ("HALF_A", half_a.into())];
                 (Kernel::with_spec(ctx, blob, &spec)?, out_w.div_ceil(tj), in_w.div_ceil(tk), COOP_THREADS)
             } else if self.tiling.shared_tiles {
@@ -954,6 +969,28 @@ mod tests {
         assert!(t.with_overrides("wgrad_tile=x").unwrap_err().to_string().contains("wgrad_tile"));
         assert!(t.with_overrides("wgrad_rows=0").unwrap_err().to_string().contains("wgrad_rows"));
         assert!(t.with_overrides("mac_budget").unwrap_err().to_string().contains("key=value"));
+    }
+
+    #[test]
+    fn tiling_overrides_carry_the_tensor_core_switches_along() {
+        let gpu = MlpTiling {
+            shared_tiles: true,
+            mac_budget: 4096,
+            wgrad_tile_j: 4,
+            wgrad_tile_k: 4,
+            wgrad_rows: 1,
+            coop_matrix: true,
+            coop_layers: true,
+        };
+        let off = |t: MlpTiling| (t.shared_tiles, t.coop_matrix, t.coop_layers);
+        // The register tiles have no tensor-core variant: shared=0 alone turns them off too.
+        assert_eq!(off(gpu.with_overrides("shared=0").expect("valid")), (false, false, false));
+        assert_eq!(off(gpu.with_overrides("coop=0").expect("valid")), (true, false, false));
+        assert_eq!(off(gpu.with_overrides("coop_layers=0").expect("valid")), (true, true, false));
+        // Explicit keys are kept as asked (Mlp::with_tiling then refuses what cannot run).
+        assert_eq!(off(gpu.with_overrides("shared=0,coop=1").expect("valid")), (false, true, true));
+        assert_eq!(off(gpu.with_overrides("coop=0,coop_layers=1").expect("valid")), (true, false, true));
+        assert!(gpu.with_overrides("coop_layers=2").unwrap_err().to_string().contains("coop_layers"));
     }
 
     #[test]

@@ -237,10 +237,11 @@ fn cooperative_matrix_kernels_match_the_twin_or_are_refused() {
         assert!(!default.coop_matrix, "the fp32 kernels are the default without cooperative matrices");
         let asked = MlpTiling { shared_tiles: true, coop_matrix: true, coop_layers: true, ..default };
         let err = Mlp::with_tiling(&g, &c, asked).err().expect("cooperative matrices refused where unavailable");
-        assert!(err.to_string().contains("coop"), "{err}");
+        let why = if msnerf::shaders::MLP_COOP_LAYER.is_none() { "shaderc-from-source" } else { "offers no" };
+        assert!(err.to_string().contains(why), "{err}");
         let reg = MlpTiling { shared_tiles: false, coop_matrix: true, ..default };
         let err = Mlp::with_tiling(&g, &c, reg).err().expect("cooperative matrices need the shared tiles");
-        assert!(err.to_string().contains("shared"), "{err}");
+        assert!(err.to_string().contains("shared=1"), "{err}");
         eprintln!(
             "note: no cooperative matrices on {} in this build (coopmat: {}): checked the fallback and the refusal",
             g.caps().name,
@@ -265,7 +266,8 @@ fn cooperative_matrix_kernels_match_the_twin_or_are_refused() {
 }
 
 /// Output deltas below 5e-7 (a mean loss over 32768 rays and six bands): fp16 holds them only as subnormals
-/// (steps of 6e-8: a 6 % error in these sums unscaled), so the kernels must scale them. Gradients match to 1 %.
+/// (steps of 6e-8: about 20 % error in these sums unscaled, by an f64 check), so the kernels must scale them.
+/// Gradients match to 1 %.
 fn check_tiny_deltas(g: &Context, tiling: MlpTiling) {
     let c = cfg(32, 6, 64, 2, Activation::Sigmoid);
     let mlp = Mlp::with_tiling(g, &c, tiling).expect("mlp");

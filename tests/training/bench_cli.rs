@@ -93,6 +93,8 @@ fn bench_train_takes_the_batch_and_chunk_sizes() {
     assert_eq!(r["steps_in_flight"].as_u64(), Some(2), "the profile's default: {r}");
     assert!(r["ms_per_step_profiled"].as_f64().is_some_and(|t| t > 0.0), "{r}");
     assert!(r["device"].as_str().is_some_and(|d| !d.is_empty()), "the JSON names the device: {r}");
+    let tiling = r["mlp_tiling"].as_str().unwrap_or_default();
+    assert!(tiling.contains("coop_matrix") && tiling.contains("coop_layers"), "the JSON names the MLP kernels: {r}");
     assert!(r["sampling_ms_per_step"].as_f64().is_some_and(|t| t > 0.0), "{r}");
     let wall = r["ms_per_step"].as_f64().unwrap();
     let overhead = r["host_overhead_ms_per_step"].as_f64().unwrap();
