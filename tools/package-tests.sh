@@ -4,6 +4,9 @@
 # The binaries are stripped (about 26 MB compressed). Build here, on Debian 12; the target machine needs an x86-64
 # glibc at least as new and its GPU's Vulkan driver.
 #   usage: tools/package-tests.sh [OUT.tar.xz]      (default: target/msnerf-tests.tar.xz)
+# MSNERF_FEATURES=shaderc-from-source builds with that cargo feature (the tensor-core MLP kernels; the first build
+# compiles glslang and SPIRV-Tools, about 20 minutes on 2 cores). On the GPU, MSNERF_REQUIRE_COOPMAT=1 then makes
+# their test fail where they do not run; run that binary without the validation layer (Debian's predates them).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-target/msnerf-tests.tar.xz}"
@@ -13,9 +16,11 @@ pkg="$stage/msnerf-tests"
 mkdir -p "$pkg/lib" "$pkg/layers"
 
 command -v python3 >/dev/null || { echo "package-tests: needs python3 (apt-get install python3)" >&2; exit 1; }
-cargo build --release
+features=()
+[ -n "${MSNERF_FEATURES:-}" ] && features=(--features "$MSNERF_FEATURES")
+cargo build --release "${features[@]}"
 # One line per test executable: path, target name, target kind (lib and bin unit tests get fixed names).
-cargo test --release --no-run --message-format=json 2>/dev/null | python3 -c '
+cargo test --release "${features[@]}" --no-run --message-format=json 2>/dev/null | python3 -c '
 import json, sys
 for line in sys.stdin:
     m = json.loads(line)

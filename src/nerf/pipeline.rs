@@ -173,15 +173,16 @@ fn infer_scratch<'a>(train: &'a Option<Backward<GpuAlloc>>, b: &'a ChunkBuffers<
 }
 
 impl Pipeline {
-    /// `cameras`: the camera table in the normalised frame: one entry per dataset frame, then (`rig_cameras`) every
-    /// frame's band cameras ([`super::rig_rays::RigRays::table`]).
     /// Moves to `step` (a loaded run's last trained step): the field grid's coarse-to-fine levels follow, also for
-    /// work recorded outside a render (normals).
+    /// work recorded outside a render (normals). Each recorded forward sets them from `step` again, since training
+    /// advances the step without this call.
     pub fn set_step(&mut self, step: u64) {
         self.step = step;
         self.model.field.grid.set_active_levels(self.model.cfg.field.active_levels_at(step));
     }
 
+    /// `cameras`: the camera table in the normalised frame: one entry per dataset frame, then (`rig_cameras`) every
+    /// frame's band cameras ([`super::rig_rays::RigRays::table`]).
     pub fn new(ctx: &Context, model: Model, cameras: &[GpuCamera]) -> GpuResult<Self> {
         let kernels = RenderKernels::new(ctx)?;
         let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;

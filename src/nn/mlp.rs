@@ -211,6 +211,27 @@ pub struct MlpTiling {
 }
 
 impl MlpTiling {
+    /// CPU devices' kernels and block sizes (see [`MlpTiling::for_device`]).
+    pub const CPU_DEFAULTS: Self = Self {
+        shared_tiles: false,
+        mac_budget: 16384,
+        wgrad_tile_j: 64,
+        wgrad_tile_k: 64,
+        wgrad_rows: 4,
+        coop_matrix: false,
+        coop_layers: false,
+    };
+    /// GPUs' kernels and block sizes, tensor cores aside (see [`MlpTiling::for_device`]).
+    pub const GPU_DEFAULTS: Self = Self {
+        shared_tiles: true,
+        mac_budget: 4096,
+        wgrad_tile_j: 4,
+        wgrad_tile_k: 4,
+        wgrad_rows: 1,
+        coop_matrix: false,
+        coop_layers: false,
+    };
+
     /// CPU devices (lavapipe): register tiles, 16384 multiply-adds per pipeline (a 128 x 128 layer in one block:
     /// about 15 s of LLVM compile time the first time, kept by Mesa's disk cache; at 8192 it ran as two blocks each
     /// re-reading the row, and Table 1's colour head trained 15 % slower) and 64 x 64 gradient tiles taking 4 rows
@@ -226,25 +247,10 @@ impl MlpTiling {
     /// overrides any of them (benchmarks; `wgrad_tile` sets both tile sides).
     pub fn for_device(caps: &DeviceCaps) -> GpuResult<Self> {
         let t = if caps.is_cpu {
-            Self {
-                shared_tiles: false,
-                mac_budget: 16384,
-                wgrad_tile_j: 64,
-                wgrad_tile_k: 64,
-                wgrad_rows: 4,
-                coop_matrix: false,
-                coop_layers: false,
-            }
+            Self::CPU_DEFAULTS
         } else {
-            Self {
-                shared_tiles: true,
-                mac_budget: 4096,
-                wgrad_tile_j: 4,
-                wgrad_tile_k: 4,
-                wgrad_rows: 1,
-                coop_matrix: coop_available(caps),
-                coop_layers: coop_available(caps) && COOP_LAYERS_DEFAULT,
-            }
+            let coop = coop_available(caps);
+            Self { coop_matrix: coop, coop_layers: coop && COOP_LAYERS_DEFAULT, ..Self::GPU_DEFAULTS }
         };
         match &crate::util::env::settings().mlp_tiling {
             Some(v) => t
@@ -973,15 +979,7 @@ mod tests {
 
     #[test]
     fn tiling_overrides_carry_the_tensor_core_switches_along() {
-        let gpu = MlpTiling {
-            shared_tiles: true,
-            mac_budget: 4096,
-            wgrad_tile_j: 4,
-            wgrad_tile_k: 4,
-            wgrad_rows: 1,
-            coop_matrix: true,
-            coop_layers: true,
-        };
+        let gpu = MlpTiling { coop_matrix: true, coop_layers: true, ..MlpTiling::GPU_DEFAULTS };
         let off = |t: MlpTiling| (t.shared_tiles, t.coop_matrix, t.coop_layers);
         // The register tiles have no tensor-core variant: shared=0 alone turns them off too.
         assert_eq!(off(gpu.with_overrides("shared=0").expect("valid")), (false, false, false));
@@ -996,15 +994,7 @@ mod tests {
     #[test]
     fn register_wgrad_tiles_shrink_for_short_batches_and_stay_multiples_of_4() {
         use super::{register_wgrad_tile, WGRAD_MIN_INVOCATIONS};
-        let t = MlpTiling {
-            shared_tiles: false,
-            mac_budget: 16384,
-            wgrad_tile_j: 64,
-            wgrad_tile_k: 64,
-            wgrad_rows: 4,
-            coop_matrix: false,
-            coop_layers: false,
-        };
+        let t = MlpTiling::CPU_DEFAULTS;
         // 65,536 rows: 256 splits, the full tile.
         assert_eq!(register_wgrad_tile(&t, (128, 128), 256), (64, 64));
         assert_eq!(register_wgrad_tile(&t, (8, 80), 256), (8, 16));
