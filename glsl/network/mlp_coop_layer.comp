@@ -37,6 +37,7 @@ layout(constant_id = 3) const uint HALF_A = 0;
 layout(constant_id = 4) const uint HALF_M = 0;
 layout(constant_id = 5) const uint HALF_C = 0;
 #include "network/activation.glsl"
+#include "network/coop_common.glsl"
 const uint BM = 64u;
 const uint BK = 32u;
 const uint AS = BK + 8u;  // a_s row stride in halves (80 bytes: rows stay 16-byte aligned, banks staggered)
@@ -61,19 +62,6 @@ shared float16_t a_s[BM * AS];  // a_s[r * AS + t] = A[row0 + r][t0 + t] * scale
 shared float16_t w_s[BK * WS];  // w_s[t * WS + c] = W(t0 + t, col0 + c)
 shared float frag[4 * 256];     // per subgroup: one 16 x 16 fragment of sums on its way through the epilogue
 shared float sg_max[4];         // per subgroup: largest |A| of the block it staged
-
-#define MAT_A coopmat<float16_t, gl_ScopeSubgroup, 16, 16, gl_MatrixUseA>
-#define MAT_B coopmat<float16_t, gl_ScopeSubgroup, 16, 16, gl_MatrixUseB>
-#define MAT_C coopmat<float, gl_ScopeSubgroup, 16, 16, gl_MatrixUseAccumulator>
-
-// Power-of-two scale bringing a largest magnitude `mx` into [2^13, 2^14); the current scale for zero, NaN or Inf
-// blocks (nothing to gain, and the accumulators keep their units).
-float block_scale_for(float mx, float current) {
-    if (!(mx > 0.0) || isinf(mx)) return current;
-    int e;
-    frexp(mx, e); // mx = f 2^e, f in [0.5, 1)
-    return ldexp(1.0, clamp(14 - e, -100, 100));
-}
 
 const uint LA = BM * BK / WG_SIZE; // A values each thread stages per block (16)
 
@@ -118,6 +106,7 @@ void main() {
             w_s[t * WS + cc] = float16_t(v);
         }
         barrier();
+        // A block of zeros keeps the current scale: the accumulators keep their units.
         float s = block_scale_for(max(max(sg_max[0], sg_max[1]), max(sg_max[2], sg_max[3])), scale);
         [[unroll]] for (uint q = 0u; q < LA; ++q) {
             uint e = tid + q * WG_SIZE;

@@ -25,6 +25,7 @@
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #include "common/index.glsl"
+#include "network/coop_common.glsl"
 layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint TJ = 64;
 layout(constant_id = 1) const uint TK = 64;
@@ -47,19 +48,7 @@ layout(push_constant) uniform Push {
 shared float16_t d_s[RB * DS]; // d_s[r * DS + j] = delta[r0 + r][j0 + j] * d_scale
 shared float16_t a_s[RB * AS]; // a_s[r * AS + k] = act[r0 + r][k0 + k] * a_scale
 shared float sg_max[2][4];     // per subgroup: largest |delta|, |act| of the staged block
-shared float edge[4 * 256];     // per subgroup: a fragment that overhangs the matrix (the last layer's out_w, n_output rounded to 4)
-
-#define MAT_A coopmat<float16_t, gl_ScopeSubgroup, 16, 16, gl_MatrixUseA>
-#define MAT_B coopmat<float16_t, gl_ScopeSubgroup, 16, 16, gl_MatrixUseB>
-#define MAT_C coopmat<float, gl_ScopeSubgroup, 16, 16, gl_MatrixUseAccumulator>
-
-// Power-of-two scale bringing a largest magnitude `mx` into [2^13, 2^14); 1 for zero, NaN or Inf blocks.
-float block_scale_for(float mx) {
-    if (!(mx > 0.0) || isinf(mx)) return 1.0;
-    int e;
-    frexp(mx, e);
-    return ldexp(1.0, clamp(14 - e, -100, 100));
-}
+shared float edge[4 * 256];     // per subgroup: a fragment that overhangs the matrix (the last layer's out_w)
 
 const uint LD = RB * TJ / WG_SIZE; // delta values each thread stages (4, 8 or 16)
 const uint LA = RB * TK / WG_SIZE;
@@ -101,8 +90,8 @@ void main() {
             sg_max[1][sg] = amax;
         }
         barrier();
-        float ds = block_scale_for(max(max(sg_max[0][0], sg_max[0][1]), max(sg_max[0][2], sg_max[0][3])));
-        float as = block_scale_for(max(max(sg_max[1][0], sg_max[1][1]), max(sg_max[1][2], sg_max[1][3])));
+        float ds = block_scale_for(max(max(sg_max[0][0], sg_max[0][1]), max(sg_max[0][2], sg_max[0][3])), 1.0);
+        float as = block_scale_for(max(max(sg_max[1][0], sg_max[1][1]), max(sg_max[1][2], sg_max[1][3])), 1.0);
         [[unroll]] for (uint q = 0u; q < LD; ++q) {
             uint e = tid + q * WG_SIZE;
             d_s[(e / TJ) * DS + e % TJ] = float16_t(dv[q] * ds);

@@ -52,8 +52,8 @@ pub struct DeviceCaps {
     pub synchronization2: bool,
     /// VK_KHR_cooperative_matrix in compute shaders with 16 x 16 x 16 fp16 products accumulated in fp32 at subgroup
     /// scope, 32-wide subgroups with arithmetic, fp16 arithmetic and the Vulkan memory model: what `mlp_coop_layer`
-    /// / `mlp_coop_wgrad` need (the
-    /// build must also carry them: `shaders::MLP_COOP_LAYER`). `MSNERF_DISABLE_COOPMAT=1` turns it off.
+    /// and `mlp_coop_wgrad` need (the build must also carry them: `shaders::MLP_COOP_LAYER`).
+    /// `MSNERF_DISABLE_COOPMAT=1` turns it off.
     pub cooperative_matrix: bool,
     /// Nanoseconds per timestamp tick; `None` when the queue cannot write timestamps.
     pub timestamp_period_ns: Option<f32>,
@@ -95,10 +95,11 @@ impl DeviceCaps {
         let mut v11p = vk::PhysicalDeviceVulkan11Properties::default();
         let mut v12p = vk::PhysicalDeviceVulkan12Properties::default();
         let mut v13p = vk::PhysicalDeviceVulkan13Properties::default();
+        let has_coop = with_coopmat && has_ext(ash::khr::cooperative_matrix::NAME);
         let mut coop_props = vk::PhysicalDeviceCooperativeMatrixPropertiesKHR::default();
         let mut props2 =
             vk::PhysicalDeviceProperties2::default().push_next(&mut subgroup).push_next(&mut v12p).push_next(&mut v13p);
-        if with_coopmat && has_ext(ash::khr::cooperative_matrix::NAME) {
+        if has_coop {
             props2 = props2.push_next(&mut coop_props);
         }
         unsafe { instance.get_physical_device_properties2(pdev, &mut props2) };
@@ -114,7 +115,6 @@ impl DeviceCaps {
         if has_atomic_float {
             feats2 = feats2.push_next(&mut atomic);
         }
-        let has_coop = with_coopmat && has_ext(ash::khr::cooperative_matrix::NAME);
         let mut coop = vk::PhysicalDeviceCooperativeMatrixFeaturesKHR::default();
         if has_coop {
             feats2 = feats2.push_next(&mut coop);

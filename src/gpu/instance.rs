@@ -47,10 +47,7 @@ unsafe extern "system" fn on_message(
 
 /// Whether the Khronos validation layer is installed.
 pub fn validation_available(entry: &ash::Entry) -> bool {
-    unsafe { entry.enumerate_instance_layer_properties() }
-        .unwrap_or_default()
-        .iter()
-        .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER))
+    validation_layer_version(entry).is_some()
 }
 
 /// The installed validation layer's Vulkan version (`spec_version`), if it is installed.

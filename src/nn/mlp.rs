@@ -250,7 +250,7 @@ impl MlpTiling {
             Self::CPU_DEFAULTS
         } else {
             let coop = coop_available(caps);
-            Self { coop_matrix: coop, coop_layers: coop && COOP_LAYERS_DEFAULT, ..Self::GPU_DEFAULTS }
+            Self { coop_matrix: coop, coop_layers: coop, ..Self::GPU_DEFAULTS }
         };
         match &crate::util::env::settings().mlp_tiling {
             Some(v) => t
@@ -306,9 +306,6 @@ impl MlpTiling {
         Ok(self)
     }
 }
-
-/// Whether the layers' products run on cooperative matrices by default where they can (see docs/benchmarks.md).
-const COOP_LAYERS_DEFAULT: bool = true;
 
 /// Whether this device and this build can run the cooperative-matrix MLP kernels.
 pub fn coop_available(caps: &DeviceCaps) -> bool {
@@ -744,9 +741,9 @@ impl Mlp {
         Ok(())
     }
 
-    /// One layer's forward or backward product through `mlp_tile_layer` (or `mlp_coop_layer`): A rows into C rows (which of A, the mask
-    /// and C hold fp16) with the weights at `w_addr` (in `deps`), `shape` is (k_dim, cols), the summed and the
-    /// written widths.
+    /// One layer's forward or backward product through `mlp_tile_layer` (or `mlp_coop_layer`): A rows into C rows
+    /// (which of A, the mask and C hold fp16) with the weights at `w_addr` (in `deps`), `shape` is (k_dim, cols),
+    /// the summed and the written widths.
     fn tile_layer(
         &self,
         rec: &mut Recorder,
