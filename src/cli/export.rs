@@ -11,6 +11,7 @@ use super::Cli;
 use crate::geo::Crs;
 use crate::gpu::Context;
 use crate::nerf::export::{export_points_with_stats, Consistency, ExportOptions, ExportStats};
+use crate::nerf::refine::RefineOptions;
 use crate::nerf::run::LoadedRun;
 use crate::output::pointcloud::{self, LasOptions, PlyOptions, PointCloud};
 use std::path::PathBuf;
@@ -85,6 +86,25 @@ pub struct PointcloudArgs {
     /// half-size below the ground and 1.5 times above), which the export otherwise drops as nerfstudio's does
     #[arg(long)]
     pub keep_outside_box: bool,
+    /// Photometric refinement: move each consistent point along its ray to where a patch of the training images
+    /// correlates best across its agreeing views, and drop the points the images do not support (docs/geometry.md:
+    /// built and bare surfaces land on the truth, tree crowns are pulled down)
+    #[arg(long)]
+    pub refine: bool,
+    /// Photometric refinement: search range each side of the field's depth, in pixel footprints
+    #[arg(long, default_value_t = 8)]
+    pub refine_range: usize,
+    /// Photometric refinement: smallest mean normalised cross-correlation that moves a point
+    #[arg(long, default_value_t = 0.5)]
+    pub refine_min_ncc: f64,
+    /// Photometric refinement: keep the points the images do not support (uniform surfaces, occlusions) where the
+    /// field put them, instead of dropping them as MVS fusion does
+    #[arg(long)]
+    pub keep_unsupported: bool,
+    /// Photometric refinement: leave a point where the field put it when its neighbours' heights spread over more
+    /// than this many footprints (crown edges, facades; 1.5 measured on the campus)
+    #[arg(long)]
+    pub refine_max_height_spread: Option<f64>,
     /// RUN is a `msnerf partition` folder: merge the blocks that finished and list the others (without it, a block
     /// that is not trained is an error)
     #[arg(long)]
@@ -112,9 +132,43 @@ impl PointcloudArgs {
             seed: self.seed,
             normals: self.normals,
             max_spread_cells,
-            consistency,
             scene_box: !self.keep_outside_box,
+            refine: self.refine_options(consistency.is_some())?,
+            consistency,
         })
+    }
+}
+
+impl PointcloudArgs {
+    /// The photometric refinement the flags ask for (`--refine`; it needs the consistency check, whose agreeing views
+    /// it correlates against); errors name the flag.
+    pub fn refine_options(&self, consistency: bool) -> anyhow::Result<Option<RefineOptions>> {
+        anyhow::ensure!(
+            (1..=64).contains(&self.refine_range),
+            "--refine-range must be between 1 and 64 footprints, got {}",
+            self.refine_range
+        );
+        anyhow::ensure!(
+            self.refine_min_ncc.is_finite() && (-1.0..=1.0).contains(&self.refine_min_ncc),
+            "--refine-min-ncc must be in [-1, 1], got {}",
+            self.refine_min_ncc
+        );
+        if let Some(h) = self.refine_max_height_spread {
+            anyhow::ensure!(h.is_finite() && h > 0.0, "--refine-max-height-spread must be > 0, got {h}");
+        }
+        anyhow::ensure!(
+            !self.refine || consistency,
+            "--refine needs the multi-view consistency check (--check-views > 0)"
+        );
+        Ok((self.refine && consistency).then(|| RefineOptions {
+            range: self.refine_range,
+            min_ncc: self.refine_min_ncc,
+            drop_unsupported: !self.keep_unsupported,
+            max_height_spread: self.refine_max_height_spread,
+            // A point has at most its agreeing views as partners: `--min-agree 1` lets one partner score it.
+            min_views: self.min_agree.clamp(1, RefineOptions::default().min_views),
+            ..Default::default()
+        }))
     }
 }
 
@@ -248,5 +302,25 @@ pub fn summary(s: &ExportStats, min_accumulation: f32, written: usize) -> String
         s.check_rays,
         s.kept,
         written
-    )
+    ) + &refine_summary(s)
+}
+
+/// The refinement's line of the summary (empty when it was off).
+fn refine_summary(s: &ExportStats) -> String {
+    match &s.refine {
+        None => String::new(),
+        Some(r) => match &r.skipped {
+            Some(why) => format!("; photometric refinement skipped: {why}"),
+            None => format!(
+                "; photometric refinement moved {} of {} points (median |shift| {:.3} in world units), left {} on \
+                 non-planar surroundings to the field, {} without photometric support {}",
+                r.moved,
+                r.points,
+                r.median_shift,
+                r.rough,
+                r.points - r.moved - r.rough,
+                if s.unsupported > 0 { "dropped" } else { "kept" }
+            ),
+        },
+    }
 }

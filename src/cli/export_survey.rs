@@ -9,6 +9,7 @@ use std::path::PathBuf;
 use super::export::careful_filters;
 use super::Cli;
 use crate::gpu::Context;
+use crate::nerf::refine::RefineOptions;
 use crate::nerf::run::LoadedRun;
 use crate::nerf::survey::{seen_bounds, SurveyGrid, SurveyOptions};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
@@ -58,6 +59,13 @@ pub struct SurveyArgs {
     /// DSM: keep surfaces outside the scene box (the aerial normalisation's unit cube), which are otherwise nodata
     #[arg(long)]
     pub keep_outside_box: bool,
+    /// DSM: photometric refinement: each consistent cell's height moves to where a patch of the training images
+    /// correlates best across its agreeing views, as `export pointcloud --refine` does (crowns are pulled down)
+    #[arg(long)]
+    pub refine: bool,
+    /// DSM: keep the field's height where the images give no photometric support (otherwise nodata)
+    #[arg(long)]
+    pub keep_unsupported: bool,
     /// Rays rendered per block (bounds host memory: about 100 bytes per ray)
     #[arg(long, default_value_t = 1 << 20)]
     pub block_rays: usize,
@@ -100,10 +108,15 @@ impl SurveyArgs {
         Ok(SurveyOptions {
             min_accumulation: self.min_accumulation,
             max_spread_cells,
-            consistency,
             scene_box: !self.keep_outside_box,
             top: self.top,
             block_rays: self.block_rays,
+            refine: (self.refine && consistency.is_some()).then(|| RefineOptions {
+                drop_unsupported: !self.keep_unsupported,
+                min_views: self.min_agree.clamp(1, RefineOptions::default().min_views),
+                ..Default::default()
+            }),
+            consistency,
         })
     }
 
@@ -209,8 +222,17 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
     );
     println!(
         "{} cells: {} with a height, {} without a surface, {} outside the scene box, {} with spread weights, {} \
-         inconsistent across views; {} rays in {:.1} s",
-        s.cells, s.valid, s.no_surface, s.outside_box, s.spread, s.inconsistent, s.rays, s.seconds
+         inconsistent across views, {} refined photometrically, {} without photometric support; {} rays in {:.1} s",
+        s.cells,
+        s.valid,
+        s.no_surface,
+        s.outside_box,
+        s.spread,
+        s.inconsistent,
+        s.refined,
+        s.unsupported,
+        s.rays,
+        s.seconds
     );
     for n in &report.notes {
         println!("note: {n}");

@@ -25,6 +25,8 @@
 
 use super::error::{NerfError, NerfResult};
 use super::normals::{density_gradients, normal_from_gradient};
+use super::refine::RefineOptions;
+use super::refine_points::{refine_points, FrameStore, RefinePoint, RefineStats};
 use super::run::LoadedRun;
 use crate::data::{camera, Split};
 use crate::output::pointcloud::PointCloud;
@@ -63,7 +65,14 @@ pub struct ExportOptions {
     /// Drop points outside the unit cube when the run used the aerial normalisation (its cube is the region of
     /// interest; nerfstudio's `ns-export pointcloud` crops to the same box by default). No effect with `poses`.
     pub scene_box: bool,
+    /// Photometric refinement of each consistent point along its ray against the training images
+    /// ([`super::refine`]; needs `consistency`, whose agreeing views are the partners). None: off, the default: on
+    /// the campus it pulls tree crowns 1.4-2 m down (docs/geometry.md), so it is asked for (`--refine`).
+    pub refine: Option<RefineOptions>,
 }
+
+/// Host memory the refinement may hold in decoded training images.
+pub const REFINE_IMAGE_BUDGET: u64 = 4 << 30;
 
 impl Default for ExportOptions {
     fn default() -> Self {
@@ -75,6 +84,7 @@ impl Default for ExportOptions {
             max_spread_cells: Some(8.0),
             consistency: Some(Consistency::default()),
             scene_box: true,
+            refine: None,
         }
     }
 }
@@ -90,6 +100,7 @@ impl ExportOptions {
             max_spread_cells: None,
             consistency: None,
             scene_box: false,
+            refine: None,
         }
     }
 }
@@ -106,6 +117,10 @@ pub struct ExportStats {
     pub kept: usize,
     /// Rays rendered for the consistency check.
     pub check_rays: usize,
+    /// Points dropped without photometric support ([`RefineOptions::drop_unsupported`]).
+    pub unsupported: usize,
+    /// What the photometric refinement did (None: off).
+    pub refine: Option<RefineStats>,
 }
 
 /// Size of one cell of the finest hash-grid level at normalised point `p`: 4 / max_resolution in contracted
@@ -159,7 +174,7 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
     let careful = opts.max_spread_cells.is_some() || opts.consistency.is_some();
     let crop_to_box = opts.scene_box && run.ds.aerial_normalization();
     let floor = if careful { opts.min_accumulation.max(0.5) } else { opts.min_accumulation };
-    let mut cands = Vec::new();
+    let mut cands: Vec<Candidate> = Vec::new();
     for i in 0..opts.rays {
         if out.accumulation[i] < floor || !out.median_depth[i].is_finite() {
             stats.below_accumulation += 1;
@@ -185,19 +200,46 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
         let spread = spread.max(0.0);
         cands.push(Candidate { frame: f, p, dir: ray.direction, accumulation: out.accumulation[i], spread, ray: i });
     }
-    let (agree, checked) = match &opts.consistency {
+    let (agree, checked, agreeing) = match &opts.consistency {
         Some(c) => {
             let points: Vec<([f64; 3], usize)> = cands.iter().map(|c| (c.p, c.frame)).collect();
-            let (a, k, n) = consistency(run, &frames, &points, c)?;
-            stats.check_rays = n;
-            (a, k)
+            let v = consistency_votes(run, &frames, &points, c)?;
+            stats.check_rays = v.rays;
+            (v.agree, v.checked, v.agreeing)
         }
-        None => (vec![0; cands.len()], vec![0; cands.len()]),
+        None => (vec![0; cands.len()], vec![0; cands.len()], vec![Vec::new(); cands.len()]),
     };
+    let min_agree = opts.consistency.as_ref().map_or(0, |c| c.min_agree);
+    let mut photo = vec![(0.0f64, f64::NAN, true); cands.len()];
+    if let Some(r) = &opts.refine {
+        if opts.consistency.is_none() {
+            return Err(NerfError::invalid("photometric refinement", "needs the multi-view consistency check"));
+        }
+        let keep: Vec<usize> = (0..cands.len()).filter(|&k| agree[k] as usize >= min_agree).collect();
+        let mut pts: Vec<RefinePoint> = keep
+            .iter()
+            .map(|&k| RefinePoint {
+                p: cands[k].p,
+                dir: cands[k].dir,
+                frame: cands[k].frame,
+                partners: agreeing[k].clone(),
+            })
+            .collect();
+        let (res, rs) = refine_points(run, &mut pts, r, &mut FrameStore::new(REFINE_IMAGE_BUDGET))?;
+        // A skipped refinement (no band through the frame camera) leaves every point as the field put it.
+        if rs.skipped.is_none() {
+            for ((&k, pt), res) in keep.iter().zip(&pts).zip(&res) {
+                cands[k].p = pt.p;
+                photo[k] = (res.shift, res.ncc, res.moved || res.rough);
+            }
+        }
+        stats.refine = Some(RefineStats { median_shift: rs.median_shift / run.transform.scale, ..rs });
+    }
     let bands = run.ds.bands.clone();
     let b = bands.len();
     let (mut positions, mut normalised, mut view_dirs, mut values) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut acc_attr, mut spread_attr, mut agree_attr, mut checked_attr) = (vec![], vec![], vec![], vec![]);
+    let (mut ncc_attr, mut shift_attr) = (vec![], vec![]);
     let inv_scale = 1.0 / run.transform.scale;
     for (k, c) in cands.iter().enumerate() {
         if let Some(cfg) = &opts.consistency {
@@ -205,6 +247,10 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
                 stats.inconsistent += 1;
                 continue;
             }
+        }
+        if opts.refine.as_ref().is_some_and(|r| r.drop_unsupported) && !photo[k].2 {
+            stats.unsupported += 1;
+            continue;
         }
         positions.push(run.transform.to_world(c.p));
         normalised.push(c.p);
@@ -214,6 +260,8 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
         spread_attr.push((c.spread * inv_scale) as f32);
         agree_attr.push(agree[k] as f32);
         checked_attr.push(checked[k] as f32);
+        ncc_attr.push(photo[k].1 as f32);
+        shift_attr.push((photo[k].0 * inv_scale) as f32);
     }
     stats.kept = positions.len();
     let mut cloud = PointCloud::new(positions, bands, values)?;
@@ -225,6 +273,10 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
     if opts.consistency.is_some() {
         attr(&mut cloud, "agreeing_views", "views whose depth agrees", agree_attr)?;
         attr(&mut cloud, "checked_views", "views that see the point", checked_attr)?;
+    }
+    if opts.refine.is_some() {
+        attr(&mut cloud, "photo_ncc", "best mean NCC of the refinement", ncc_attr)?;
+        attr(&mut cloud, "photo_shift", "refinement shift along the ray", shift_attr)?;
     }
     if opts.normals {
         let grads = density_gradients(&run.pipe.ctx, &run.pipe.model, &normalised)
@@ -266,6 +318,28 @@ pub fn consistency(
     cands: &[([f64; 3], usize)],
     c: &Consistency,
 ) -> NerfResult<(Vec<u32>, Vec<u32>, usize)> {
+    consistency_votes(run, frames, cands, c).map(|v| (v.agree, v.checked, v.rays))
+}
+
+/// The consistency check's outcome per point.
+pub struct Votes {
+    /// Agreeing views per point.
+    pub agree: Vec<u32>,
+    /// Checked views per point.
+    pub checked: Vec<u32>,
+    /// Rays rendered.
+    pub rays: usize,
+    /// The agreeing frames of each point (the photometric refinement's partners).
+    pub agreeing: Vec<Vec<u32>>,
+}
+
+/// [`consistency`] with the agreeing frames of every point.
+pub fn consistency_votes(
+    run: &mut LoadedRun,
+    frames: &[usize],
+    cands: &[([f64; 3], usize)],
+    c: &Consistency,
+) -> NerfResult<Votes> {
     let views: Vec<View> = frames
         .iter()
         .map(|&f| {
@@ -296,15 +370,17 @@ pub fn consistency(
         checked[k] = n as u32;
     }
     let mut agree = vec![0u32; cands.len()];
+    let mut agreeing = vec![Vec::new(); cands.len()];
     if checks.is_empty() {
-        return Ok((agree, checked, 0));
+        return Ok(Votes { agree, checked, rays: 0, agreeing });
     }
     let out = run.pipe.render(&pixels).map_err(NerfError::gpu("rendering consistency rays"))?;
     for (i, &(k, dist, focal)) in checks.iter().enumerate() {
         let d = out.median_depth[i] as f64;
         if (d - dist).abs() <= c.tolerance * dist / focal {
             agree[k as usize] += 1;
+            agreeing[k as usize].push(pixels[3 * i]);
         }
     }
-    Ok((agree, checked, checks.len()))
+    Ok(Votes { agree, checked, rays: checks.len(), agreeing })
 }

@@ -17,6 +17,8 @@ pub mod normals;
 pub mod pipeline;
 pub mod pose;
 pub mod rays;
+pub mod refine;
+pub mod refine_points;
 pub mod registered_eval;
 pub mod rig_rays;
 pub mod run;

@@ -19,7 +19,9 @@
 //! included in the bound); each block goes to a sink (the GeoTIFF writers), so host memory stays bounded whatever the
 //! raster size.
 
-use super::export::{consistency, field_cell_size, Consistency};
+use super::export::{consistency_votes, field_cell_size, Consistency, REFINE_IMAGE_BUDGET};
+use super::refine::RefineOptions;
+use super::refine_points::{refine_points, up_axis, FrameStore, RefinePoint};
 use super::run::LoadedRun;
 use super::views::NovelView;
 use crate::data::{Camera, CameraModel, Distortion, Split};
@@ -122,6 +124,9 @@ pub struct SurveyOptions {
     pub top: Option<f64>,
     /// Rays rendered per block, consistency rays included (bounds host memory).
     pub block_rays: usize,
+    /// Photometric refinement of each consistent cell's height against the training images (needs `consistency`;
+    /// see [`super::refine`]). None: off (the default, as for the point cloud).
+    pub refine: Option<RefineOptions>,
 }
 
 impl Default for SurveyOptions {
@@ -133,6 +138,7 @@ impl Default for SurveyOptions {
             scene_box: true,
             top: None,
             block_rays: 1 << 20,
+            refine: None,
         }
     }
 }
@@ -151,6 +157,10 @@ pub struct SurveyStats {
     pub spread: usize,
     /// Cells dropped by the consistency check (DSM only).
     pub inconsistent: usize,
+    /// Cells whose height the photometric refinement moved (DSM only).
+    pub refined: usize,
+    /// Cells without photometric support, nodata unless the refinement keeps them (DSM only).
+    pub unsupported: usize,
     /// Rays rendered, consistency rays included.
     pub rays: usize,
     /// World z the vertical rays started from.
@@ -308,6 +318,7 @@ pub fn render_survey(
     let block_rows = (opts.block_rays / (grid.width * rays_per_cell)).clamp(1, grid.height);
     let c2w = view.c2w;
     let mut stats = SurveyStats { cells: grid.cells(), top, ..Default::default() };
+    let store = &mut FrameStore::new(REFINE_IMAGE_BUDGET);
     let mut row0 = 0;
     while row0 < grid.height {
         let rows = block_rows.min(grid.height - row0);
@@ -342,21 +353,71 @@ pub fn render_survey(
             }
             kept.push((i, p, run.transform.to_world(p)[2]));
         }
-        let agree = match &opts.consistency {
+        let (agree, agreeing) = match &opts.consistency {
             Some(c) => {
                 let points: Vec<([f64; 3], usize)> = kept.iter().map(|&(_, p, _)| (p, usize::MAX)).collect();
-                let (agree, _, rendered) = consistency(run, &frames, &points, c).map_err(SurveyError::Render)?;
-                stats.rays += rendered;
-                agree.iter().map(|&a| a as usize >= c.min_agree).collect()
+                let v = consistency_votes(run, &frames, &points, c).map_err(SurveyError::Render)?;
+                stats.rays += v.rays;
+                (v.agree.iter().map(|&a| a as usize >= c.min_agree).collect(), v.agreeing)
             }
-            None => vec![true; kept.len()],
+            None => (vec![true; kept.len()], vec![Vec::new(); kept.len()]),
         };
-        for (&(i, _, z), ok) in kept.iter().zip(agree) {
-            if ok {
-                height[i] = z as f32;
-                stats.valid += 1;
-            } else {
-                stats.inconsistent += 1;
+        // Photometric refinement along the vertical: the most nadir agreeing view is the reference.
+        let mut z_of: Vec<Option<f64>> = kept.iter().map(|&(_, _, z)| Some(z)).collect();
+        if let (Some(r), Some(up)) = (&opts.refine, up_axis(run)) {
+            if opts.consistency.is_none() {
+                return Err(SurveyError::invalid("photometric refinement", "needs the multi-view consistency check"));
+            }
+            let down = up.map(|v| -v);
+            let ids: Vec<usize> = (0..kept.len()).filter(|&k| agree[k]).collect();
+            let mut pts: Vec<RefinePoint> = ids
+                .iter()
+                .map(|&k| {
+                    let p = kept[k].1;
+                    let mut views = agreeing[k].clone();
+                    let nadir = |f: u32| {
+                        let m = run.transform.pose_to_normalized(&run.ds.frames[f as usize].c2w);
+                        let d = [0, 1, 2].map(|i| p[i] - m[i][3]);
+                        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                        (d[0] * down[0] + d[1] * down[1] + d[2] * down[2]) / len
+                    };
+                    let best = (0..views.len()).max_by(|&a, &b| nadir(views[a]).total_cmp(&nadir(views[b])));
+                    let frame = best.map_or(usize::MAX, |b| views.swap_remove(b) as usize);
+                    RefinePoint { p, dir: down, frame, partners: views }
+                })
+                .collect();
+            let with_ref: Vec<usize> = (0..pts.len()).filter(|&j| pts[j].frame != usize::MAX).collect();
+            let mut sub: Vec<RefinePoint> = with_ref
+                .iter()
+                .map(|&j| RefinePoint { partners: std::mem::take(&mut pts[j].partners), ..pts[j] })
+                .collect();
+            let (res, rs) = refine_points(run, &mut sub, r, store).map_err(SurveyError::Render)?;
+            if rs.skipped.is_none() {
+                for &k in &ids {
+                    if r.drop_unsupported {
+                        z_of[k] = None;
+                    }
+                }
+                for ((&j, pt), res) in with_ref.iter().zip(&sub).zip(&res) {
+                    let k = ids[j];
+                    if res.moved {
+                        z_of[k] = Some(run.transform.to_world(pt.p)[2]);
+                        stats.refined += 1;
+                    } else if res.rough {
+                        z_of[k] = Some(kept[k].2);
+                    }
+                }
+                stats.unsupported += ids.len() - res.iter().filter(|r| r.moved || r.rough).count();
+            }
+        }
+        for ((&(i, _, _), ok), z) in kept.iter().zip(agree).zip(z_of) {
+            match (ok, z) {
+                (false, _) => stats.inconsistent += 1,
+                (true, Some(z)) => {
+                    height[i] = z as f32;
+                    stats.valid += 1;
+                }
+                (true, None) => {}
             }
         }
         sink(&RowBlock { row0, rows, height, values })?;

@@ -138,6 +138,7 @@ pub fn write_products(
         // The spread and consistency filters decide the DSM's nodata only; an ortho alone does not pay for them.
         opts.max_spread_cells = None;
         opts.consistency = None;
+        opts.refine = None;
     }
     let top = source.top;
     opts.top = Some(top);

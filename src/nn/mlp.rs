@@ -206,7 +206,9 @@ pub struct MlpTiling {
     /// the build carries them (the `shaderc-from-source` feature). Needs `shared_tiles`.
     pub coop_matrix: bool,
     /// The layers' forward and backward products on tensor cores too (`mlp_coop_layer` instead of
-    /// `mlp_tile_layer`). Needs `coop_matrix`.
+    /// `mlp_tile_layer`). Needs `coop_matrix`. Off by default (`coop_layers=1` turns it on): fp16 activations in
+    /// every layer product cost the 30 s demo 0.8 dB of held-out PSNR on an H200 (38.85 against 39.66 dB, three
+    /// runs each, 2026-11-27), where tensor cores for the weight gradients alone cost nothing (39.69 dB).
     pub coop_layers: bool,
 }
 
@@ -242,7 +244,8 @@ impl MlpTiling {
     /// inputs and an 8192 budget that is 192 live floats, which NVIDIA's compiler spills to local memory or refuses
     /// (measured on an H100: `vkCreateComputePipelines` failed), and every thread re-reads all weights. The
     /// register-tile fields below still apply when `shared=0`: 4096, 4 x 4.
-    /// GPUs with cooperative matrices (and a build that carries their kernels): those, on the same tiles.
+    /// GPUs with cooperative matrices (and a build that carries their kernels): those for the weight gradients, on
+    /// the same tiles; the layers' products stay fp32 unless `coop_layers=1` (see [`MlpTiling::coop_layers`]).
     /// `MSNERF_MLP_TILING=shared=0|1,coop=0|1,coop_layers=0|1,mac_budget=N,wgrad_tile=N,wgrad_tile_j=N,wgrad_tile_k=N,wgrad_rows=N`
     /// overrides any of them (benchmarks; `wgrad_tile` sets both tile sides).
     pub fn for_device(caps: &DeviceCaps) -> GpuResult<Self> {
@@ -250,7 +253,7 @@ impl MlpTiling {
             Self::CPU_DEFAULTS
         } else {
             let coop = coop_available(caps);
-            Self { coop_matrix: coop, coop_layers: coop, ..Self::GPU_DEFAULTS }
+            Self { coop_matrix: coop, ..Self::GPU_DEFAULTS }
         };
         match &crate::util::env::settings().mlp_tiling {
             Some(v) => t

@@ -17,6 +17,7 @@ mod output_lpips;
 mod output_metrics;
 mod output_pointcloud;
 mod output_raster;
+mod photometric_refine;
 mod render_views;
 mod sim_dataset;
 mod sim_effects;

@@ -1,0 +1,215 @@
+//! The export's photometric refinement (`msnerf::nerf::refine`), on the CPU:
+//! - `ncc` against Pearson's correlation written from its textbook sum form in plain f64, its blindness to gain and
+//!   offset, and its refusal of a flat patch;
+//! - `bilinear` against the interpolation formula at random positions, and None off the pixel centres' hull;
+//! - on a textured ground plane (z = 0) seen by four pinhole cameras, rendered here by intersecting each pixel's ray
+//!   with the plane: a point started 4 footprints in front of the plane comes back onto it within 0.1 footprint,
+//!   and a texture a hundred times darker and weaker gives the same answer; a uniform plane, a start beyond the
+//!   search range, and too few partner views leave the point where it was.
+
+use msnerf::data::camera::{Camera, CameraModel, Distortion};
+use msnerf::nerf::refine::{bilinear, ncc, refine, PatchView, RefineOptions};
+use rand::{Rng, SeedableRng};
+
+/// Pearson's r from the raw sums (a different arrangement from the library's centred sums).
+fn pearson(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let (sa, sb) = (a.iter().sum::<f64>(), b.iter().sum::<f64>());
+    let sab: f64 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+    let (saa, sbb) = (a.iter().map(|x| x * x).sum::<f64>(), b.iter().map(|y| y * y).sum::<f64>());
+    (n * sab - sa * sb) / ((n * saa - sa * sa) * (n * sbb - sb * sb)).sqrt()
+}
+
+#[test]
+fn ncc_is_pearsons_r_blind_to_gain_and_offset() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    for _ in 0..50 {
+        let a: Vec<f64> = (0..49).map(|_| rng.random::<f64>()).collect();
+        let b: Vec<f64> = a.iter().map(|x| 0.6 * x + 0.4 * rng.random::<f64>()).collect();
+        let r = ncc(&a, &b).expect("varying patches");
+        assert!((r - pearson(&a, &b)).abs() < 1e-12, "{r} against {}", pearson(&a, &b));
+        let dark: Vec<f64> = b.iter().map(|x| 0.003 * x + 0.02).collect();
+        assert!((ncc(&a, &dark).unwrap() - r).abs() < 1e-9, "gain and offset change the NCC");
+    }
+    assert_eq!(ncc(&[0.3; 49], &[0.1; 49]), None, "a flat patch has no correlation");
+}
+
+#[test]
+fn bilinear_matches_the_formula() {
+    let (w, h) = (7u32, 5u32);
+    let plane: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 11) as f32 * 0.1).collect();
+    let at = |c: usize, r: usize| plane[r * w as usize + c] as f64;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    for _ in 0..200 {
+        let (u, v) = (rng.random_range(0.5..w as f64 - 0.5), rng.random_range(0.5..h as f64 - 0.5));
+        let (x, y) = (u - 0.5, v - 0.5);
+        let (c0, r0) = ((x.floor() as usize).min(w as usize - 2), (y.floor() as usize).min(h as usize - 2));
+        let (fx, fy) = (x - c0 as f64, y - r0 as f64);
+        let want = at(c0, r0) * (1.0 - fx) * (1.0 - fy)
+            + at(c0 + 1, r0) * fx * (1.0 - fy)
+            + at(c0, r0 + 1) * (1.0 - fx) * fy
+            + at(c0 + 1, r0 + 1) * fx * fy;
+        let got = bilinear(&plane, w, h, u, v).expect("inside");
+        assert!((got - want).abs() < 1e-12, "({u}, {v}): {got} against {want}");
+    }
+    assert_eq!(bilinear(&plane, w, h, 0.49, 2.0), None);
+    assert_eq!(bilinear(&plane, w, h, 3.0, h as f64 - 0.49), None);
+}
+
+/// A pinhole camera at `eye` looking at `target` (world z up), as rows of a 4x4 camera-to-world (OpenGL axes).
+fn look_at(eye: [f64; 3], target: [f64; 3]) -> [[f64; 4]; 4] {
+    let (e, t) = (glam::DVec3::from(eye), glam::DVec3::from(target));
+    let z = (e - t).normalize();
+    let x = glam::DVec3::Z.cross(z).normalize();
+    let y = z.cross(x);
+    let mut m = [[0.0; 4]; 4];
+    for r in 0..3 {
+        m[r] = [x[r], y[r], z[r], e[r]];
+    }
+    m[3][3] = 1.0;
+    m
+}
+
+const W: u32 = 96;
+const H: u32 = 72;
+
+fn camera() -> Camera {
+    Camera {
+        model: CameraModel::Pinhole,
+        fx: 110.0,
+        fy: 110.0,
+        cx: W as f64 / 2.0,
+        cy: H as f64 / 2.0,
+        width: W,
+        height: H,
+        distortion: Distortion::default(),
+    }
+}
+
+/// Smooth texture with two octaves (periods of about 7 m and 1.6 m).
+fn texture(x: f64, y: f64) -> f64 {
+    (0.9 * x + 0.3).sin() * (0.7 * y).cos() + 0.5 * (0.37 * x + 1.1 * y).sin() + 0.3 * (3.9 * x - 2.1 * y).sin()
+}
+
+/// One band: every pixel's ray meets the plane z = 0 at the texture `base + amp * texture`.
+fn render(cam: &Camera, c2w: &[[f64; 4]; 4], base: f64, amp: f64) -> Vec<f32> {
+    let mut img = Vec::with_capacity((W * H) as usize);
+    for row in 0..H {
+        for col in 0..W {
+            let ray = cam.ray_f64(c2w, row, col);
+            let t = -ray.origin[2] / ray.direction[2];
+            let p = [0, 1, 2].map(|k| ray.origin[k] + t * ray.direction[k]);
+            img.push((base + amp * texture(p[0], p[1])) as f32);
+        }
+    }
+    img
+}
+
+struct Scene {
+    cam: Camera,
+    poses: Vec<[[f64; 4]; 4]>,
+    images: Vec<Vec<f32>>,
+}
+
+fn scene(base: f64, amp: f64) -> Scene {
+    let cam = camera();
+    let eyes = [[0.0, -16.0, 22.0], [13.0, -6.0, 22.0], [-13.0, -7.0, 21.0], [2.0, 12.0, 23.0]];
+    let poses: Vec<_> = eyes.iter().map(|&e| look_at(e, [0.0, 0.0, 0.0])).collect();
+    let images = poses.iter().map(|p| render(&cam, p, base, amp)).collect();
+    Scene { cam, poses, images }
+}
+
+impl Scene {
+    fn views(&self, n: usize) -> Vec<PatchView<'_>> {
+        self.poses[..n]
+            .iter()
+            .zip(&self.images)
+            .map(|(m, img)| PatchView {
+                origin: [m[0][3], m[1][3], m[2][3]],
+                rot: [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2]]),
+                cam: &self.cam,
+                planes: vec![img.as_slice()],
+            })
+            .collect()
+    }
+
+    /// The reference camera's ray through pixel (row, col): origin, direction, distance to the plane, footprint.
+    fn ray(&self, row: u32, col: u32) -> ([f64; 3], [f64; 3], f64, f64) {
+        let r = self.cam.ray_f64(&self.poses[0], row, col);
+        let t = -r.origin[2] / r.direction[2];
+        (r.origin, r.direction, t, t / self.cam.fx)
+    }
+}
+
+/// Starts `offset` footprints along the ray from the plane (negative: in front) and refines.
+fn refine_from(s: &Scene, offset: f64, views: usize, opts: &RefineOptions) -> (msnerf::nerf::refine::Refined, f64) {
+    let (o, d, t, fp) = s.ray(30, 50);
+    let p0 = [0, 1, 2].map(|k| o[k] + (t + offset * fp) * d[k]);
+    (refine(p0, d, [0.0, 0.0, 1.0], fp, &s.views(views), opts), fp)
+}
+
+#[test]
+fn a_point_in_front_of_a_textured_plane_comes_back_onto_it() {
+    let opts = RefineOptions::default();
+    let bright = scene(0.4, 0.15);
+    let (r, fp) = refine_from(&bright, -4.0, 4, &opts);
+    eprintln!("bright: moved {} by {:.4} footprints, NCC {:.4}", r.moved, r.s / fp, r.ncc);
+    assert!(r.moved && r.ncc > 0.9, "{r:?}");
+    assert!((r.s / fp - 4.0).abs() < 0.1, "ended {:.3} footprints off the plane", r.s / fp - 4.0);
+    // Behind the plane too.
+    let (r2, _) = refine_from(&bright, 3.0, 4, &opts);
+    assert!(r2.moved && (r2.s / fp + 3.0).abs() < 0.1, "from behind: {r2:?}");
+
+    // A hundred times darker and weaker: the same surface (NCC is blind to gain and offset; an MSE is not).
+    let dark = scene(0.004, 0.0015);
+    let (rd, _) = refine_from(&dark, -4.0, 4, &opts);
+    assert!(rd.moved && (rd.s - r.s).abs() < 0.02 * fp, "dark texture: {rd:?} against {r:?}");
+}
+
+#[test]
+fn without_support_the_point_stays() {
+    let opts = RefineOptions::default();
+    // A uniform plane: nothing to correlate.
+    let (r, _) = refine_from(&scene(0.3, 0.0), -4.0, 4, &opts);
+    assert!(!r.moved && r.s == 0.0 && r.ncc.is_nan(), "uniform plane: {r:?}");
+    // The surface beyond the range: the best score lies at its end.
+    let bright = scene(0.4, 0.15);
+    let (r, _) = refine_from(&bright, -12.0, 4, &opts);
+    assert!(!r.moved && r.s == 0.0, "surface 12 footprints away with a range of 8: {r:?}");
+    // One partner view where two are needed.
+    let (r, _) = refine_from(&bright, -4.0, 2, &opts);
+    assert!(!r.moved, "one partner: {r:?}");
+    let (r, _) = refine_from(&bright, -4.0, 2, &RefineOptions { min_views: 1, ..opts.clone() });
+    assert!(r.moved, "one partner allowed: {r:?}");
+    // A threshold no correlation reaches.
+    let (r, _) = refine_from(&bright, -4.0, 4, &RefineOptions { min_ncc: 1.0, ..opts });
+    assert!(!r.moved, "min_ncc 1: {r:?}");
+}
+
+#[test]
+fn a_crown_edge_is_left_to_the_field_and_flat_ground_is_not() {
+    use msnerf::nerf::refine_points::rough_flags;
+    // Ground points every 0.2 m with +-0.05 m of bumps, and a round crown of radius 3 m, 2.5 m high, at the origin
+    // (an ellipsoid: its edge falls steeply over the last few decimetres).
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let mut at = Vec::new();
+    for i in -40..=40 {
+        for j in -40..=40 {
+            let (x, y) = (i as f64 * 0.2, j as f64 * 0.2);
+            let r2 = x * x + y * y;
+            let crown = if r2 < 9.0 { 2.5 * (1.0 - r2 / 9.0).sqrt() } else { 0.0 };
+            at.push([x, y, crown + rng.random_range(-0.05..0.05)]);
+        }
+    }
+    let footprints = vec![0.4; at.len()];
+    let rough = rough_flags(&at, &footprints, [0.0, 0.0, 1.0], 1.5);
+    // Flagged: exactly the steep band inside the crown's edge (2.4-3.0 m from its centre on this grid), never the
+    // flat ground around it nor the crown's top.
+    let radius = |p: &[f64; 3]| p[0].hypot(p[1]);
+    let flagged: Vec<f64> = at.iter().zip(&rough).filter(|(_, &f)| f).map(|(p, _)| radius(p)).collect();
+    assert!(flagged.len() >= 100, "{} points flagged", flagged.len());
+    assert!(flagged.iter().all(|&r| (2.0..3.2).contains(&r)), "flagged outside the edge: {flagged:?}");
+    let steep = at.iter().zip(&rough).filter(|(p, _)| (2.6..2.95).contains(&radius(p)));
+    let (n, f) = steep.fold((0, 0), |(n, f), (_, &r)| (n + 1, f + usize::from(r)));
+    assert!(f * 2 > n, "{f} of {n} points on the steepest band flagged");
+}
