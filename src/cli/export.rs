@@ -137,9 +137,7 @@ impl PointcloudArgs {
             consistency,
         })
     }
-}
 
-impl PointcloudArgs {
     /// The photometric refinement the flags ask for (`--refine`; it needs the consistency check, whose agreeing views
     /// it correlates against); errors name the flag.
     pub fn refine_options(&self, consistency: bool) -> anyhow::Result<Option<RefineOptions>> {
@@ -163,12 +161,19 @@ impl PointcloudArgs {
         Ok((self.refine && consistency).then(|| RefineOptions {
             range: self.refine_range,
             min_ncc: self.refine_min_ncc,
-            drop_unsupported: !self.keep_unsupported,
             max_height_spread: self.refine_max_height_spread,
-            // A point has at most its agreeing views as partners: `--min-agree 1` lets one partner score it.
-            min_views: self.min_agree.clamp(1, RefineOptions::default().min_views),
-            ..Default::default()
+            ..refine_defaults(self.min_agree, self.keep_unsupported)
         }))
+    }
+}
+
+/// The refinement's settings that `export pointcloud`, `dsm` and `ortho` share: unsupported points dropped unless
+/// `--keep-unsupported`; a point has at most its agreeing views as partners, so `--min-agree 1` lets one score it.
+pub fn refine_defaults(min_agree: usize, keep_unsupported: bool) -> RefineOptions {
+    RefineOptions {
+        drop_unsupported: !keep_unsupported,
+        min_views: min_agree.clamp(1, RefineOptions::default().min_views),
+        ..Default::default()
     }
 }
 

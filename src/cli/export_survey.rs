@@ -6,10 +6,9 @@
 
 use std::path::PathBuf;
 
-use super::export::careful_filters;
+use super::export::{careful_filters, refine_defaults};
 use super::Cli;
 use crate::gpu::Context;
-use crate::nerf::refine::RefineOptions;
 use crate::nerf::run::LoadedRun;
 use crate::nerf::survey::{seen_bounds, SurveyGrid, SurveyOptions};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
@@ -111,11 +110,8 @@ impl SurveyArgs {
             scene_box: !self.keep_outside_box,
             top: self.top,
             block_rays: self.block_rays,
-            refine: (self.refine && consistency.is_some()).then(|| RefineOptions {
-                drop_unsupported: !self.keep_unsupported,
-                min_views: self.min_agree.clamp(1, RefineOptions::default().min_views),
-                ..Default::default()
-            }),
+            refine: (self.refine && consistency.is_some())
+                .then(|| refine_defaults(self.min_agree, self.keep_unsupported)),
             consistency,
         })
     }

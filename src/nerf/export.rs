@@ -203,7 +203,7 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
     let (agree, checked, agreeing) = match &opts.consistency {
         Some(c) => {
             let points: Vec<([f64; 3], usize)> = cands.iter().map(|c| (c.p, c.frame)).collect();
-            let v = consistency_votes(run, &frames, &points, c)?;
+            let v = consistency(run, &frames, &points, c)?;
             stats.check_rays = v.rays;
             (v.agree, v.checked, v.agreeing)
         }
@@ -309,18 +309,6 @@ impl View {
     }
 }
 
-/// Multi-view consistency votes for normalised-frame points, each with the frame that produced it (left out of its
-/// check; `usize::MAX` for none): per point the agreeing and the checked views among `frames`, and the number of rays
-/// rendered. See [`Consistency`].
-pub fn consistency(
-    run: &mut LoadedRun,
-    frames: &[usize],
-    cands: &[([f64; 3], usize)],
-    c: &Consistency,
-) -> NerfResult<(Vec<u32>, Vec<u32>, usize)> {
-    consistency_votes(run, frames, cands, c).map(|v| (v.agree, v.checked, v.rays))
-}
-
 /// The consistency check's outcome per point.
 pub struct Votes {
     /// Agreeing views per point.
@@ -333,8 +321,10 @@ pub struct Votes {
     pub agreeing: Vec<Vec<u32>>,
 }
 
-/// [`consistency`] with the agreeing frames of every point.
-pub fn consistency_votes(
+/// Multi-view consistency votes for normalised-frame points, each with the frame that produced it (left out of its
+/// check; `usize::MAX` for none): per point the agreeing and the checked views among `frames`, the agreeing frames,
+/// and the number of rays rendered. See [`Consistency`].
+pub fn consistency(
     run: &mut LoadedRun,
     frames: &[usize],
     cands: &[([f64; 3], usize)],

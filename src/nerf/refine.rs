@@ -116,8 +116,8 @@ pub fn plane_axes(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
     (e1.to_array(), e2.to_array())
 }
 
-/// Mean NCC of the patch on the plane through `p` (axes `e1`, `e2`, sample spacing `spacing`) between `views[0]` and
-/// each other view, over `bands`, with the number of partners that scored. Scratch buffers are reused.
+/// Mean NCC of the patch on the plane through `p` (spanned by `axes`, samples `spacing` apart) between `views[0]`
+/// and each other view, over every band, with the number of partners that scored. `scratch` is reused.
 pub fn score(
     p: [f64; 3],
     axes: ([f64; 3], [f64; 3]),

@@ -129,8 +129,8 @@ pub fn refine_points(
         return Err(NerfError::invalid(
             "photometric refinement",
             format!(
-                "one image takes {} MiB as f32 and {} are needed at once, over the {} MiB budget (export with \
-                 --no-refine)",
+                "one image takes {} MiB as f32 and {} are needed at once, over the {} MiB budget (export without \
+                 --refine)",
                 bytes_per_frame >> 20,
                 1 + opts.min_views.max(1),
                 budget_bytes >> 20
@@ -236,14 +236,7 @@ fn rough_points(
     let at: Vec<[f64; 3]> = points.iter().map(|p| p.p).collect();
     let footprints: Vec<f64> = points
         .iter()
-        .map(|pt| match poses.get(&pt.frame) {
-            Some(&(origin, _)) => {
-                let cam = &cams[pt.frame];
-                let dist = (0..3).map(|k| (pt.p[k] - origin[k]).powi(2)).sum::<f64>().sqrt();
-                dist / (0.5 * (cam.fx + cam.fy))
-            }
-            None => f64::INFINITY,
-        })
+        .map(|pt| poses.get(&pt.frame).map_or(f64::INFINITY, |&(origin, _)| footprint(&cams[pt.frame], origin, pt.p)))
         .collect();
     rough_flags(&at, &footprints, up, limit)
 }
@@ -266,6 +259,11 @@ pub fn rough_flags(at: &[[f64; 3]], footprints: &[f64], up: [f64; 3], limit: f64
             spread > limit * footprint
         })
         .collect()
+}
+
+/// One pixel footprint of `cam` (centre `origin`) at `p`: distance over the mean focal length.
+fn footprint(cam: &crate::data::Camera, origin: [f64; 3], p: [f64; 3]) -> f64 {
+    (glam::DVec3::from(p) - glam::DVec3::from(origin)).length() / (0.5 * (cam.fx + cam.fy))
 }
 
 /// The up direction in the normalised frame on aerial layouts (the world's +z when the dataset has a CRS, else the
@@ -295,9 +293,7 @@ fn refine_one(
     let Some(reference) = view(pt.frame) else {
         return PointResult { shift: 0.0, ncc: f64::NAN, moved: false, rough: false };
     };
-    let cam = &cams[pt.frame];
-    let dist = (0..3).map(|k| (pt.p[k] - reference.origin[k]).powi(2)).sum::<f64>().sqrt();
-    let footprint = dist / (0.5 * (cam.fx + cam.fy));
+    let footprint = footprint(&cams[pt.frame], reference.origin, pt.p);
     views.push(reference);
     views.extend(pt.partners.iter().filter_map(|&f| view(f as usize)));
     // Horizontal on aerial layouts: the density field's normals, tried instead, follow its bumps (on the campus the

@@ -19,9 +19,9 @@
 //! included in the bound); each block goes to a sink (the GeoTIFF writers), so host memory stays bounded whatever the
 //! raster size.
 
-use super::export::{consistency_votes, field_cell_size, Consistency, REFINE_IMAGE_BUDGET};
+use super::export::{consistency, field_cell_size, Consistency, REFINE_IMAGE_BUDGET};
 use super::refine::RefineOptions;
-use super::refine_points::{refine_points, up_axis, FrameStore, RefinePoint};
+use super::refine_points::{refine_points, FrameStore, RefinePoint};
 use super::run::LoadedRun;
 use super::views::NovelView;
 use crate::data::{Camera, CameraModel, Distortion, Split};
@@ -319,6 +319,15 @@ pub fn render_survey(
     let c2w = view.c2w;
     let mut stats = SurveyStats { cells: grid.cells(), top, ..Default::default() };
     let store = &mut FrameStore::new(REFINE_IMAGE_BUDGET);
+    // The refinement's search line is the DSM's own vertical (world -z), and its reference view per cell the most
+    // nadir agreeing one, judged from the camera centres.
+    let down = (run.transform.rotation() * -glam::DVec3::Z).normalize().to_array();
+    let centres: Vec<[f64; 3]> = (run.ds.frames.iter())
+        .map(|f| {
+            let m = run.transform.pose_to_normalized(&f.c2w);
+            [m[0][3], m[1][3], m[2][3]]
+        })
+        .collect();
     let mut row0 = 0;
     while row0 < grid.height {
         let rows = block_rows.min(grid.height - row0);
@@ -356,7 +365,7 @@ pub fn render_survey(
         let (agree, agreeing) = match &opts.consistency {
             Some(c) => {
                 let points: Vec<([f64; 3], usize)> = kept.iter().map(|&(_, p, _)| (p, usize::MAX)).collect();
-                let v = consistency_votes(run, &frames, &points, c).map_err(SurveyError::Render)?;
+                let v = consistency(run, &frames, &points, c).map_err(SurveyError::Render)?;
                 stats.rays += v.rays;
                 (v.agree.iter().map(|&a| a as usize >= c.min_agree).collect(), v.agreeing)
             }
@@ -364,50 +373,39 @@ pub fn render_survey(
         };
         // Photometric refinement along the vertical: the most nadir agreeing view is the reference.
         let mut z_of: Vec<Option<f64>> = kept.iter().map(|&(_, _, z)| Some(z)).collect();
-        if let (Some(r), Some(up)) = (&opts.refine, up_axis(run)) {
+        if let Some(r) = &opts.refine {
             if opts.consistency.is_none() {
                 return Err(SurveyError::invalid("photometric refinement", "needs the multi-view consistency check"));
             }
-            let down = up.map(|v| -v);
-            let ids: Vec<usize> = (0..kept.len()).filter(|&k| agree[k]).collect();
-            let mut pts: Vec<RefinePoint> = ids
-                .iter()
-                .map(|&k| {
+            let nadir = |p: [f64; 3], f: u32| {
+                let d = glam::DVec3::from(p) - glam::DVec3::from(centres[f as usize]);
+                d.normalize().dot(glam::DVec3::from(down))
+            };
+            let (ids, mut pts): (Vec<usize>, Vec<RefinePoint>) = (0..kept.len())
+                .filter(|&k| agree[k] && !agreeing[k].is_empty())
+                .map(|k| {
                     let p = kept[k].1;
-                    let mut views = agreeing[k].clone();
-                    let nadir = |f: u32| {
-                        let m = run.transform.pose_to_normalized(&run.ds.frames[f as usize].c2w);
-                        let d = [0, 1, 2].map(|i| p[i] - m[i][3]);
-                        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                        (d[0] * down[0] + d[1] * down[1] + d[2] * down[2]) / len
-                    };
-                    let best = (0..views.len()).max_by(|&a, &b| nadir(views[a]).total_cmp(&nadir(views[b])));
-                    let frame = best.map_or(usize::MAX, |b| views.swap_remove(b) as usize);
-                    RefinePoint { p, dir: down, frame, partners: views }
+                    let mut partners = agreeing[k].clone();
+                    let best = (0..partners.len())
+                        .max_by(|&a, &b| nadir(p, partners[a]).total_cmp(&nadir(p, partners[b])))
+                        .unwrap_or(0);
+                    let frame = partners.swap_remove(best) as usize;
+                    (k, RefinePoint { p, dir: down, frame, partners })
                 })
-                .collect();
-            let with_ref: Vec<usize> = (0..pts.len()).filter(|&j| pts[j].frame != usize::MAX).collect();
-            let mut sub: Vec<RefinePoint> = with_ref
-                .iter()
-                .map(|&j| RefinePoint { partners: std::mem::take(&mut pts[j].partners), ..pts[j] })
-                .collect();
-            let (res, rs) = refine_points(run, &mut sub, r, store).map_err(SurveyError::Render)?;
+                .unzip();
+            let (res, rs) = refine_points(run, &mut pts, r, store).map_err(SurveyError::Render)?;
             if rs.skipped.is_none() {
-                for &k in &ids {
-                    if r.drop_unsupported {
-                        z_of[k] = None;
-                    }
-                }
-                for ((&j, pt), res) in with_ref.iter().zip(&sub).zip(&res) {
-                    let k = ids[j];
+                for ((&k, pt), res) in ids.iter().zip(&pts).zip(&res) {
                     if res.moved {
                         z_of[k] = Some(run.transform.to_world(pt.p)[2]);
                         stats.refined += 1;
-                    } else if res.rough {
-                        z_of[k] = Some(kept[k].2);
+                    } else if !res.rough {
+                        stats.unsupported += 1;
+                        if r.drop_unsupported {
+                            z_of[k] = None;
+                        }
                     }
                 }
-                stats.unsupported += ids.len() - res.iter().filter(|r| r.moved || r.rough).count();
             }
         }
         for ((&(i, _, _), ok), z) in kept.iter().zip(agree).zip(z_of) {
