@@ -2,8 +2,8 @@
 # Regenerates the raw numbers behind docs/geometry.md's ten-minute table (issue 18): simulate the campus scene with
 # 20,000 SfM-like sparse points (0.1 m noise), then train the `demo` profile for 600 s twice, on the images alone
 # and with DS-NeRF depth supervision from the points (the settings of `msnerf demo`); for each, evaluate depth on
-# the held-out views, export the careful, the photometrically refined (`--refine`) and the legacy clouds
-# and compare each with the simulator's ground truth
+# the held-out views, export the default (photometrically refined) cloud, the same without the refinement
+# (`--no-refine`, named `careful` in the files) and the legacy one, and compare each with the simulator's ground truth
 # (to its local surface, compare-cloud's default). Results land in docs/geometry/ (JSON and text); the page quotes
 # them. About 34 minutes on 2 cores with lavapipe. Usage: tools/geometry-report.sh [WORKDIR] [SECONDS]
 set -euo pipefail
@@ -26,9 +26,9 @@ for variant in images sfm; do
   rm -rf "$work/run-$variant" # this script's own run from a previous report
   "$bin" train --data "$work/data" --model "$model" --time-budget "$secs" --out "$work/run-$variant" | tee "$work/train-$variant.txt"
   "$bin" eval "$work/run-$variant" --depth --output "$out/eval-$suffix.json"
-  "$bin" export pointcloud "$work/run-$variant" --out "$work/careful-$variant.ply" | tee "$out/export-careful-$suffix.txt"
-  "$bin" export pointcloud "$work/run-$variant" --out "$work/refined-$variant.ply" --refine \
-    | tee "$out/export-refined-$suffix.txt"
+  "$bin" export pointcloud "$work/run-$variant" --out "$work/careful-$variant.ply" --no-refine \
+    | tee "$out/export-careful-$suffix.txt"
+  "$bin" export pointcloud "$work/run-$variant" --out "$work/refined-$variant.ply" | tee "$out/export-refined-$suffix.txt"
   "$bin" export pointcloud "$work/run-$variant" --out "$work/legacy-$variant.ply" --legacy | tee "$out/export-legacy-$suffix.txt"
   for c in careful refined legacy; do
     "$bin" compare-cloud --pred "$work/$c-$variant.ply" --ref "$work/data/ground_truth.ply" --within 0.1,0.21,0.42,0.63 \

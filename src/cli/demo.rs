@@ -164,11 +164,11 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         gsd: None,
         legacy: false,
         keep_outside_box: false,
-        refine: false,
+        no_refine: false,
         refine_range: 8,
         refine_min_ncc: 0.5,
+        refine_move_ncc: 0.85,
         keep_unsupported: false,
-        refine_max_height_spread: None,
         partial: false,
     };
     let cloud = filter(raw, &pargs)?;

@@ -65,7 +65,8 @@ pub struct PointcloudArgs {
     /// (0 turns the filter off)
     #[arg(long, default_value_t = 8.0)]
     pub max_spread_cells: f64,
-    /// Multi-view consistency: other training views checked per point (0 turns the check off)
+    /// Multi-view consistency: other training views checked per point (0 turns the check off; needs --no-refine,
+    /// since the refinement correlates against the agreeing views)
     #[arg(long, default_value_t = 6)]
     pub check_views: usize,
     /// Multi-view consistency: agreeing views a point needs
@@ -86,25 +87,27 @@ pub struct PointcloudArgs {
     /// half-size below the ground and 1.5 times above), which the export otherwise drops as nerfstudio's does
     #[arg(long)]
     pub keep_outside_box: bool,
-    /// Photometric refinement: move each consistent point along its ray to where a patch of the training images
-    /// correlates best across its agreeing views, and drop the points the images do not support (docs/geometry.md:
-    /// built and bare surfaces land on the truth, tree crowns are pulled down)
+    /// Skip the photometric refinement: keep the field's surface (it sits up to a metre above flat ground on the
+    /// campus; docs/geometry.md). By default each consistent point moves along its ray to where a patch of the
+    /// training images correlates best across its agreeing views, and the points the images do not support are
+    /// dropped, as multi-view-stereo fusion does
     #[arg(long)]
-    pub refine: bool,
+    pub no_refine: bool,
     /// Photometric refinement: search range each side of the field's depth, in pixel footprints
     #[arg(long, default_value_t = 8)]
     pub refine_range: usize,
-    /// Photometric refinement: smallest mean normalised cross-correlation that moves a point
+    /// Photometric refinement: smallest mean normalised cross-correlation that supports a point (below it the point
+    /// is dropped, or kept with --keep-unsupported)
     #[arg(long, default_value_t = 0.5)]
     pub refine_min_ncc: f64,
+    /// Photometric refinement: smallest mean normalised cross-correlation that moves a point; a supported point
+    /// below it keeps the field's position (a plane patch does not fit a tree crown's dome)
+    #[arg(long, default_value_t = 0.85)]
+    pub refine_move_ncc: f64,
     /// Photometric refinement: keep the points the images do not support (uniform surfaces, occlusions) where the
-    /// field put them, instead of dropping them as MVS fusion does
+    /// field put them, instead of dropping them
     #[arg(long)]
     pub keep_unsupported: bool,
-    /// Photometric refinement: leave a point where the field put it when its neighbours' heights spread over more
-    /// than this many footprints (crown edges, facades; 1.5 measured on the campus)
-    #[arg(long)]
-    pub refine_max_height_spread: Option<f64>,
     /// RUN is a `msnerf partition` folder: merge the blocks that finished and list the others (without it, a block
     /// that is not trained is an error)
     #[arg(long)]
@@ -138,37 +141,43 @@ impl PointcloudArgs {
         })
     }
 
-    /// The photometric refinement the flags ask for (`--refine`; it needs the consistency check, whose agreeing views
-    /// it correlates against); errors name the flag.
+    /// The photometric refinement the flags ask for (on unless `--no-refine` or `--legacy`; it needs the
+    /// consistency check, whose agreeing views it correlates against); errors name the flag.
     pub fn refine_options(&self, consistency: bool) -> anyhow::Result<Option<RefineOptions>> {
         anyhow::ensure!(
             (1..=64).contains(&self.refine_range),
             "--refine-range must be between 1 and 64 footprints, got {}",
             self.refine_range
         );
-        anyhow::ensure!(
-            self.refine_min_ncc.is_finite() && (-1.0..=1.0).contains(&self.refine_min_ncc),
-            "--refine-min-ncc must be in [-1, 1], got {}",
-            self.refine_min_ncc
-        );
-        if let Some(h) = self.refine_max_height_spread {
-            anyhow::ensure!(h.is_finite() && h > 0.0, "--refine-max-height-spread must be > 0, got {h}");
+        for (flag, v) in [("--refine-min-ncc", self.refine_min_ncc), ("--refine-move-ncc", self.refine_move_ncc)] {
+            anyhow::ensure!(v.is_finite() && (-1.0..=1.0).contains(&v), "{flag} must be in [-1, 1], got {v}");
         }
         anyhow::ensure!(
-            !self.refine || consistency,
-            "--refine needs the multi-view consistency check (--check-views > 0)"
+            self.refine_move_ncc >= self.refine_min_ncc,
+            "--refine-move-ncc ({}) must be at least --refine-min-ncc ({}): a point moves only where it is supported",
+            self.refine_move_ncc,
+            self.refine_min_ncc
         );
-        Ok((self.refine && consistency).then(|| RefineOptions {
+        if self.no_refine || self.legacy {
+            return Ok(None);
+        }
+        anyhow::ensure!(
+            consistency,
+            "the photometric refinement needs the multi-view consistency check: --check-views 0 needs --no-refine"
+        );
+        Ok(Some(RefineOptions {
             range: self.refine_range,
             min_ncc: self.refine_min_ncc,
-            max_height_spread: self.refine_max_height_spread,
+            move_ncc: self.refine_move_ncc,
             ..refine_defaults(self.min_agree, self.keep_unsupported)
         }))
     }
 }
 
-/// The refinement's settings that `export pointcloud`, `dsm` and `ortho` share: unsupported points dropped unless
-/// `--keep-unsupported`; a point has at most its agreeing views as partners, so `--min-agree 1` lets one score it.
+/// The refinement's settings that `export pointcloud`, `dsm` and `ortho` share: `keep_unsupported` (the cloud's
+/// `--keep-unsupported`, the DSM's default unless `--drop-unsupported`) keeps the points without photometric support
+/// where the field put them; a point has at most its agreeing views as partners, so `--min-agree 1` lets one score
+/// it.
 pub fn refine_defaults(min_agree: usize, keep_unsupported: bool) -> RefineOptions {
     RefineOptions {
         drop_unsupported: !keep_unsupported,
@@ -256,6 +265,9 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
     let cloud = filter(raw, a)?;
     write_cloud(&cloud, &a.out, run.ds.crs.as_ref())?;
     println!("{}", summary(&stats, a.min_accumulation, cloud.len()));
+    if let Some(note) = unsupported_note(&stats) {
+        println!("{note}");
+    }
     match &run.ds.crs {
         Some(c) => println!("-> {} (crs {})", a.out.display(), c.describe()),
         None => println!("-> {} (the dataset's local frame: no crs)", a.out.display()),
@@ -310,6 +322,21 @@ pub fn summary(s: &ExportStats, min_accumulation: f32, written: usize) -> String
     ) + &refine_summary(s)
 }
 
+/// A note when the refinement dropped most of the consistent points: the images carry little texture (uniform
+/// materials), and the user should know the flags that keep them.
+pub fn unsupported_note(s: &ExportStats) -> Option<String> {
+    let points = s.refine.as_ref().map_or(0, |r| r.points);
+    (points > 0 && 2 * s.unsupported > points).then(|| {
+        format!(
+            "note: {} of {points} consistent points ({:.0} %) had no photometric support and were dropped: the \
+             training images carry little texture there (uniform surfaces), or the surface lies beyond \
+             --refine-range; --keep-unsupported keeps them where the field put them, --no-refine skips the refinement",
+            s.unsupported,
+            100.0 * s.unsupported as f64 / points as f64
+        )
+    })
+}
+
 /// The refinement's line of the summary (empty when it was off).
 fn refine_summary(s: &ExportStats) -> String {
     match &s.refine {
@@ -317,13 +344,13 @@ fn refine_summary(s: &ExportStats) -> String {
         Some(r) => match &r.skipped {
             Some(why) => format!("; photometric refinement skipped: {why}"),
             None => format!(
-                "; photometric refinement moved {} of {} points (median |shift| {:.3} in world units), left {} on \
-                 non-planar surroundings to the field, {} without photometric support {}",
+                "; photometric refinement moved {} of {} points (median |shift| {:.3} in world units), kept {} where \
+                 the field put them (weak correlation), {} without photometric support {}",
                 r.moved,
                 r.points,
                 r.median_shift,
-                r.rough,
-                r.points - r.moved - r.rough,
+                r.kept,
+                r.points - r.moved - r.kept,
                 if s.unsupported > 0 { "dropped" } else { "kept" }
             ),
         },

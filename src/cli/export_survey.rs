@@ -46,7 +46,7 @@ pub struct SurveyArgs {
     /// DSM: nodata where the ray's weights spread over more than this many finest-grid cells (0: off)
     #[arg(long, default_value_t = 8.0)]
     pub max_spread_cells: f64,
-    /// DSM: training views that check each cell's surface point (0: no check)
+    /// DSM: training views that check each cell's surface point (0: no check; needs --no-refine)
     #[arg(long, default_value_t = 6)]
     pub check_views: usize,
     /// DSM: agreeing views a cell needs
@@ -58,13 +58,15 @@ pub struct SurveyArgs {
     /// DSM: keep surfaces outside the scene box (the aerial normalisation's unit cube), which are otherwise nodata
     #[arg(long)]
     pub keep_outside_box: bool,
-    /// DSM: photometric refinement: each consistent cell's height moves to where a patch of the training images
-    /// correlates best across its agreeing views, as `export pointcloud --refine` does (crowns are pulled down)
+    /// DSM: skip the photometric refinement and keep the field's heights. By default each consistent cell's height
+    /// moves to where a patch of the training images correlates best across its agreeing views, as `export
+    /// pointcloud` does (cells the images do not support keep the field's height unless --drop-unsupported)
     #[arg(long)]
-    pub refine: bool,
-    /// DSM: keep the field's height where the images give no photometric support (otherwise nodata)
+    pub no_refine: bool,
+    /// DSM: nodata where the images give no photometric support (uniform surfaces such as water, occlusions), as
+    /// MVS fusion drops such pixels; by default those cells keep the field's height
     #[arg(long)]
-    pub keep_unsupported: bool,
+    pub drop_unsupported: bool,
     /// Rays rendered per block (bounds host memory: about 100 bytes per ray)
     #[arg(long, default_value_t = 1 << 20)]
     pub block_rays: usize,
@@ -96,22 +98,26 @@ pub struct OrthoArgs {
 }
 
 impl SurveyArgs {
-    /// The library options these flags ask for; errors name the flag.
-    pub fn options(&self) -> anyhow::Result<SurveyOptions> {
+    /// The library options these flags ask for (`dsm`: whether a DSM is written; the refinement and the filters
+    /// decide only its heights); errors name the flag.
+    pub fn options(&self, dsm: bool) -> anyhow::Result<SurveyOptions> {
         let (max_spread_cells, consistency) =
             careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
         anyhow::ensure!(self.block_rays > 0, "--block-rays must be > 0");
         if let Some(t) = self.top {
             anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
         }
+        anyhow::ensure!(
+            self.no_refine || consistency.is_some() || !dsm,
+            "the photometric refinement needs the multi-view consistency check: --check-views 0 needs --no-refine"
+        );
         Ok(SurveyOptions {
             min_accumulation: self.min_accumulation,
             max_spread_cells,
             scene_box: !self.keep_outside_box,
             top: self.top,
             block_rays: self.block_rays,
-            refine: (self.refine && consistency.is_some())
-                .then(|| refine_defaults(self.min_agree, self.keep_unsupported)),
+            refine: (!self.no_refine).then(|| refine_defaults(self.min_agree, !self.drop_unsupported)),
             consistency,
         })
     }
@@ -188,7 +194,7 @@ impl SurveyArgs {
 
 /// Renders and writes `outputs`; prints what each filter did and the files.
 pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyhow::Result<()> {
-    let opts = a.options()?;
+    let opts = a.options(outputs.dsm.is_some())?;
     // Paths first: a typo in a folder should not wait for a model to load.
     for p in [&outputs.dsm, &outputs.ortho].into_iter().flatten() {
         let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));

@@ -16,8 +16,11 @@
 //! 5. **Scene box** (`scene_box`): with the aerial normalisation, points outside its unit cube (more than half
 //!    the cube's half-size below the ground, or beyond the footprint) are dropped, as nerfstudio's export crops to
 //!    its scene box; with `poses` the cube is centred on the cameras and nothing is cropped.
-//! 6. Per-point confidence as scalar fields: `accumulation`, `depth_spread` (q75 - q25 in world units),
-//!    `agreeing_views`, `checked_views`.
+//! 6. **Photometric refinement** (`refine`, on by default; [`super::refine`]): each consistent point is searched
+//!    along its ray against the training images of its agreeing views; it moves where the correlation is strong,
+//!    keeps the field's position where it is weak, and is dropped where the images do not support it.
+//! 7. Per-point confidence as scalar fields: `accumulation`, `depth_spread` (q75 - q25 in world units),
+//!    `agreeing_views`, `checked_views`, and with the refinement `photo_ncc` and `photo_shift`.
 //!
 //! Positions go back to the dataset's own world frame and units. With `normals`, each point also gets the density
 //! field's normal there ([`super::normals`]), facing the camera that saw it, rotated back into the world frame.
@@ -66,8 +69,8 @@ pub struct ExportOptions {
     /// interest; nerfstudio's `ns-export pointcloud` crops to the same box by default). No effect with `poses`.
     pub scene_box: bool,
     /// Photometric refinement of each consistent point along its ray against the training images
-    /// ([`super::refine`]; needs `consistency`, whose agreeing views are the partners). None: off, the default: on
-    /// the campus it pulls tree crowns 1.4-2 m down (docs/geometry.md), so it is asked for (`--refine`).
+    /// ([`super::refine`]; needs `consistency`, whose agreeing views are the partners). On by default; None keeps
+    /// the field's surface, which sits up to a metre above flat ground on the campus (docs/geometry.md).
     pub refine: Option<RefineOptions>,
 }
 
@@ -84,7 +87,7 @@ impl Default for ExportOptions {
             max_spread_cells: Some(8.0),
             consistency: Some(Consistency::default()),
             scene_box: true,
-            refine: None,
+            refine: Some(RefineOptions::default()),
         }
     }
 }
@@ -230,7 +233,7 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
         if rs.skipped.is_none() {
             for ((&k, pt), res) in keep.iter().zip(&pts).zip(&res) {
                 cands[k].p = pt.p;
-                photo[k] = (res.shift, res.ncc, res.moved || res.rough);
+                photo[k] = (res.shift, res.ncc, res.supported);
             }
         }
         stats.refine = Some(RefineStats { median_shift: rs.median_shift / run.transform.scale, ..rs });

@@ -15,7 +15,6 @@
 use super::error::{NerfError, NerfResult};
 use super::refine::{refine, PatchView, RefineOptions};
 use super::run::LoadedRun;
-use crate::output::pointcloud::kdtree::KdTree;
 use std::collections::HashMap;
 
 /// A point to refine, in the normalised frame.
@@ -34,10 +33,10 @@ pub struct RefinePoint {
 pub struct RefineStats {
     pub points: usize,
     pub moved: usize,
+    /// Points the images support that kept the field's position (a best NCC below [`RefineOptions::move_ncc`]).
+    pub kept: usize,
     /// Median |shift| of the moved points (normalised units from [`refine_points`], world units in the export's stats).
     pub median_shift: f64,
-    /// Points left to the field because their surroundings are not a plane ([`PointResult::rough`]).
-    pub rough: usize,
     /// Why nothing was refined, when nothing could be.
     pub skipped: Option<String>,
 }
@@ -46,15 +45,11 @@ pub struct RefineStats {
 pub struct PointResult {
     pub shift: f64,
     pub ncc: f64,
-    /// Whether the images supported a surface near the point (see [`super::refine`]): false leaves it unmoved.
+    /// Whether the point moved (see [`super::refine`]).
     pub moved: bool,
-    /// Left to the field: the surface around it is not a plane at the patch's scale
-    /// ([`RefineOptions::max_height_spread`]).
-    pub rough: bool,
+    /// Whether the images support a surface at or near the point (`moved` implies it).
+    pub supported: bool,
 }
-
-/// Neighbours whose heights judge whether a point's surroundings are a plane at the patch's scale.
-pub const ROUGH_NEIGHBOURS: usize = 16;
 
 /// Decoded planes of the frames a group needs, bounded by `budget` bytes; kept across calls of [`refine_points`]
 /// (the DSM refines block by block).
@@ -110,7 +105,7 @@ pub fn refine_points(
     let budget_bytes = store.budget;
     let mut stats = RefineStats { points: points.len(), ..Default::default() };
     let mut results: Vec<PointResult> =
-        points.iter().map(|_| PointResult { shift: 0.0, ncc: f64::NAN, moved: false, rough: false }).collect();
+        points.iter().map(|_| PointResult { shift: 0.0, ncc: f64::NAN, moved: false, supported: false }).collect();
     let ds = &run.ds;
     let bands: Vec<usize> = (0..ds.bands.len())
         .filter(|&b| ds.band_camera(b).is_none_or(|bc| ds.frames.iter().all(|f| bc.is_frame_camera(&f.camera))))
@@ -129,8 +124,8 @@ pub fn refine_points(
         return Err(NerfError::invalid(
             "photometric refinement",
             format!(
-                "one image takes {} MiB as f32 and {} are needed at once, over the {} MiB budget (export without \
-                 --refine)",
+                "one image takes {} MiB as f32 and {} are needed at once, over the {} MiB budget (export with \
+                 --no-refine)",
                 bytes_per_frame >> 20,
                 1 + opts.min_views.max(1),
                 budget_bytes >> 20
@@ -148,10 +143,6 @@ pub fn refine_points(
         })
         .collect();
     let cams: Vec<crate::data::Camera> = ds.frames.iter().map(|f| f.camera).collect();
-    let rough = match (up, opts.max_height_spread) {
-        (Some(up), Some(limit)) => rough_points(points, up, &poses, &cams, limit),
-        _ => vec![false; points.len()],
-    };
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.sort_by_key(|&i| points[i].frame);
     store.bytes_per_frame = bytes_per_frame;
@@ -182,20 +173,13 @@ pub fn refine_points(
         let store_ref = &*store;
         let poses_ref = &poses;
         let cams = &cams;
-        let rough_ref = &rough;
         let out: Vec<Vec<(usize, PointResult)>> = std::thread::scope(|s| {
             let handles: Vec<_> = group
                 .chunks(chunk)
                 .map(|ids| {
                     s.spawn(move || {
                         ids.iter()
-                            .map(|&i| {
-                                if rough_ref[i] {
-                                    let r = PointResult { shift: 0.0, ncc: f64::NAN, moved: false, rough: true };
-                                    return (i, r);
-                                }
-                                (i, refine_one(cams, &pts[i], up, poses_ref, store_ref, opts))
-                            })
+                            .map(|&i| (i, refine_one(cams, &pts[i], up, poses_ref, store_ref, opts)))
                             .collect::<Vec<_>>()
                     })
                 })
@@ -215,50 +199,12 @@ pub fn refine_points(
         }
     }
     stats.moved = shifts.len();
-    stats.rough = rough.iter().filter(|&&r| r).count();
+    stats.kept = results.iter().filter(|r| r.supported && !r.moved).count();
     if !shifts.is_empty() {
         shifts.sort_by(f64::total_cmp);
         stats.median_shift = shifts[shifts.len() / 2];
     }
     Ok((results, stats))
-}
-
-/// Flags the points whose surroundings are not a plane at the patch's scale: the height spread (10th to 90th
-/// percentile along `up`) of their [`ROUGH_NEIGHBOURS`] nearest points passes `limit` of their reference view's
-/// footprints.
-fn rough_points(
-    points: &[RefinePoint],
-    up: [f64; 3],
-    poses: &HashMap<usize, ([f64; 3], [[f64; 3]; 3])>,
-    cams: &[crate::data::Camera],
-    limit: f64,
-) -> Vec<bool> {
-    let at: Vec<[f64; 3]> = points.iter().map(|p| p.p).collect();
-    let footprints: Vec<f64> = points
-        .iter()
-        .map(|pt| poses.get(&pt.frame).map_or(f64::INFINITY, |&(origin, _)| footprint(&cams[pt.frame], origin, pt.p)))
-        .collect();
-    rough_flags(&at, &footprints, up, limit)
-}
-
-/// [`rough_points`] on bare positions: `footprints[i]` is point i's footprint, in the positions' units.
-pub fn rough_flags(at: &[[f64; 3]], footprints: &[f64], up: [f64; 3], limit: f64) -> Vec<bool> {
-    let tree = KdTree::new(at);
-    let height = |q: &[f64; 3]| q[0] * up[0] + q[1] * up[1] + q[2] * up[2];
-    let mut hs = Vec::with_capacity(ROUGH_NEIGHBOURS);
-    at.iter()
-        .zip(footprints)
-        .map(|(p, &footprint)| {
-            hs.clear();
-            hs.extend(tree.knn(p, ROUGH_NEIGHBOURS).iter().map(|&(j, _)| height(&at[j])));
-            if hs.len() < ROUGH_NEIGHBOURS {
-                return false;
-            }
-            hs.sort_by(f64::total_cmp);
-            let spread = hs[hs.len() * 9 / 10 - 1] - hs[hs.len() / 10];
-            spread > limit * footprint
-        })
-        .collect()
 }
 
 /// One pixel footprint of `cam` (centre `origin`) at `p`: distance over the mean focal length.
@@ -291,7 +237,7 @@ fn refine_one(
     };
     let mut views = Vec::with_capacity(1 + pt.partners.len());
     let Some(reference) = view(pt.frame) else {
-        return PointResult { shift: 0.0, ncc: f64::NAN, moved: false, rough: false };
+        return PointResult { shift: 0.0, ncc: f64::NAN, moved: false, supported: false };
     };
     let footprint = footprint(&cams[pt.frame], reference.origin, pt.p);
     views.push(reference);
@@ -300,5 +246,5 @@ fn refine_one(
     // cloud's median distance went from 0.034 to 0.14-0.16 m; docs/geometry.md).
     let n = up.unwrap_or([-pt.dir[0], -pt.dir[1], -pt.dir[2]]);
     let r = refine(pt.p, pt.dir, n, footprint, &views, opts);
-    PointResult { shift: if r.moved { r.s } else { 0.0 }, ncc: r.ncc, moved: r.moved, rough: false }
+    PointResult { shift: if r.moved { r.s } else { 0.0 }, ncc: r.ncc, moved: r.moved, supported: r.supported }
 }

@@ -8,7 +8,8 @@
 //!   accumulation 0.5, mapped back to world z. The cell is nodata when the field is not confident there: accumulation
 //!   below `min_accumulation` (at least 0.5), a surface outside the aerial normalisation's unit cube (the region of
 //!   interest, as the point-cloud export crops), weights spread over more than `max_spread_cells` finest-grid cells,
-//!   or (with [`Consistency`]) fewer than `min_agree` training views whose own depth agrees with the point;
+//!   or (with [`Consistency`]) fewer than `min_agree` training views whose own depth agrees with the point; then
+//!   (with `refine`, the default) refined photometrically along the vertical as the export refines its points;
 //! - **band values**: the composited colour of the same ray, so seen from straight above: the colour head is
 //!   evaluated with the nadir view direction and the training cameras' mean appearance embedding (nerfstudio's
 //!   evaluation convention). View dependence is not averaged away: a nadir flight's images see most surfaces from
@@ -125,7 +126,9 @@ pub struct SurveyOptions {
     /// Rays rendered per block, consistency rays included (bounds host memory).
     pub block_rays: usize,
     /// Photometric refinement of each consistent cell's height against the training images (needs `consistency`;
-    /// see [`super::refine`]). None: off (the default, as for the point cloud).
+    /// see [`super::refine`]). On by default, as for the point cloud, but a cell without photometric support keeps
+    /// the field's height (a DSM with holes over every uniform surface is not what a survey wants); None: the
+    /// field's heights everywhere.
     pub refine: Option<RefineOptions>,
 }
 
@@ -138,7 +141,7 @@ impl Default for SurveyOptions {
             scene_box: true,
             top: None,
             block_rays: 1 << 20,
-            refine: None,
+            refine: Some(RefineOptions { drop_unsupported: false, ..Default::default() }),
         }
     }
 }
@@ -399,7 +402,7 @@ pub fn render_survey(
                     if res.moved {
                         z_of[k] = Some(run.transform.to_world(pt.p)[2]);
                         stats.refined += 1;
-                    } else if !res.rough {
+                    } else if !res.supported {
                         stats.unsupported += 1;
                         if r.drop_unsupported {
                             z_of[k] = None;

@@ -292,7 +292,8 @@ const SWEEP_EXPORT_RAYS: usize = 50_000;
 const SWEEP_CLOUD_THRESHOLD_M: f64 = 0.25;
 
 /// Depth statistics from the evaluation and, when the dataset folder holds the simulator's `ground_truth.ply`, the
-/// default careful export compared with it; None when neither is available.
+/// default export (careful, and photometrically refined since 2026-11-27) compared with it; None when neither is
+/// available.
 fn geometry_score(
     run: &mut LoadedRun,
     depth: Option<&crate::output::metrics::depth::DepthReport>,

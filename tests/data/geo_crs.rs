@@ -250,6 +250,7 @@ fn a_simulated_scene_with_a_crs_exports_a_georeferenced_las() {
             "4000",
             "--check-views",
             "0",
+            "--no-refine",
             "--min-accumulation",
             "0",
         ],

@@ -5,7 +5,8 @@
 //! - on a textured ground plane (z = 0) seen by four pinhole cameras, rendered here by intersecting each pixel's ray
 //!   with the plane: a point started 4 footprints in front of the plane comes back onto it within 0.1 footprint,
 //!   and a texture a hundred times darker and weaker gives the same answer; a uniform plane, a start beyond the
-//!   search range, and too few partner views leave the point where it was.
+//!   search range, and too few partner views leave the point where it was, unsupported; a best correlation below the
+//!   move threshold leaves it there too, supported.
 
 use msnerf::data::camera::{Camera, CameraModel, Distortion};
 use msnerf::nerf::refine::{bilinear, ncc, refine, PatchView, RefineOptions};
@@ -175,41 +176,31 @@ fn without_support_the_point_stays() {
     // The surface beyond the range: the best score lies at its end.
     let bright = scene(0.4, 0.15);
     let (r, _) = refine_from(&bright, -12.0, 4, &opts);
-    assert!(!r.moved && r.s == 0.0, "surface 12 footprints away with a range of 8: {r:?}");
+    assert!(!r.moved && !r.supported && r.s == 0.0, "surface 12 footprints away with a range of 8: {r:?}");
     // One partner view where two are needed.
     let (r, _) = refine_from(&bright, -4.0, 2, &opts);
-    assert!(!r.moved, "one partner: {r:?}");
+    assert!(!r.moved && !r.supported, "one partner: {r:?}");
     let (r, _) = refine_from(&bright, -4.0, 2, &RefineOptions { min_views: 1, ..opts.clone() });
     assert!(r.moved, "one partner allowed: {r:?}");
     // A threshold no correlation reaches.
     let (r, _) = refine_from(&bright, -4.0, 4, &RefineOptions { min_ncc: 1.0, ..opts });
-    assert!(!r.moved, "min_ncc 1: {r:?}");
+    assert!(!r.moved && !r.supported, "min_ncc 1: {r:?}");
 }
 
 #[test]
-fn a_crown_edge_is_left_to_the_field_and_flat_ground_is_not() {
-    use msnerf::nerf::refine_points::rough_flags;
-    // Ground points every 0.2 m with +-0.05 m of bumps, and a round crown of radius 3 m, 2.5 m high, at the origin
-    // (an ellipsoid: its edge falls steeply over the last few decimetres).
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-    let mut at = Vec::new();
-    for i in -40..=40 {
-        for j in -40..=40 {
-            let (x, y) = (i as f64 * 0.2, j as f64 * 0.2);
-            let r2 = x * x + y * y;
-            let crown = if r2 < 9.0 { 2.5 * (1.0 - r2 / 9.0).sqrt() } else { 0.0 };
-            at.push([x, y, crown + rng.random_range(-0.05..0.05)]);
-        }
-    }
-    let footprints = vec![0.4; at.len()];
-    let rough = rough_flags(&at, &footprints, [0.0, 0.0, 1.0], 1.5);
-    // Flagged: exactly the steep band inside the crown's edge (2.4-3.0 m from its centre on this grid), never the
-    // flat ground around it nor the crown's top.
-    let radius = |p: &[f64; 3]| p[0].hypot(p[1]);
-    let flagged: Vec<f64> = at.iter().zip(&rough).filter(|(_, &f)| f).map(|(p, _)| radius(p)).collect();
-    assert!(flagged.len() >= 100, "{} points flagged", flagged.len());
-    assert!(flagged.iter().all(|&r| (2.0..3.2).contains(&r)), "flagged outside the edge: {flagged:?}");
-    let steep = at.iter().zip(&rough).filter(|(p, _)| (2.6..2.95).contains(&radius(p)));
-    let (n, f) = steep.fold((0, 0), |(n, f), (_, &r)| (n + 1, f + usize::from(r)));
-    assert!(f * 2 > n, "{f} of {n} points on the steepest band flagged");
+fn a_weak_correlation_supports_the_point_without_moving_it() {
+    // The same refinement with the move threshold just above and just below the correlation it reaches.
+    let bright = scene(0.4, 0.15);
+    let (free, fp) = refine_from(&bright, -4.0, 4, &RefineOptions { move_ncc: -1.0, ..Default::default() });
+    assert!(free.moved && free.supported && (free.s / fp - 4.0).abs() < 0.1, "{free:?}");
+    let above = RefineOptions { move_ncc: free.ncc + 1e-9, ..Default::default() };
+    let (r, _) = refine_from(&bright, -4.0, 4, &above);
+    assert!(r.supported && !r.moved && r.s == 0.0, "a best NCC below move_ncc keeps the point: {r:?}");
+    assert_eq!(r.ncc, free.ncc, "and reports the NCC it reached");
+    let below = RefineOptions { move_ncc: free.ncc - 1e-9, ..Default::default() };
+    let (r, _) = refine_from(&bright, -4.0, 4, &below);
+    assert!(r.moved && r.s == free.s, "at or above move_ncc the point moves: {r:?}");
+    // Unsupported is not supported: a uniform plane.
+    let (r, _) = refine_from(&scene(0.3, 0.0), -4.0, 4, &RefineOptions::default());
+    assert!(!r.supported && !r.moved, "{r:?}");
 }

@@ -250,7 +250,8 @@ fn merged_survey_takes_each_cell_from_its_owner(g: &msnerf::gpu::Context, out: &
     let grid = SurveyGrid::covering(b, (b[2] - b[0]) / 40.0, 1 << 20).expect("grid");
     let source = load_dataset(&blocks.source, &LoadOptions::default()).expect("source");
     let top = flight_top(blocks, &source).expect("the flight's camera height");
-    let opts = SurveyOptions { consistency: None, max_spread_cells: None, top: Some(top), ..Default::default() };
+    let opts =
+        SurveyOptions { consistency: None, max_spread_cells: None, refine: None, top: Some(top), ..Default::default() };
     let products = |tag: &str| SurveyOutputs {
         dsm: Some(tmp.join(format!("{tag}_dsm.tif"))),
         ortho: Some(tmp.join(format!("{tag}_ortho.tif"))),
