@@ -164,10 +164,7 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         gsd: None,
         legacy: false,
         keep_outside_box: false,
-        no_refine: false,
-        refine_range: 8,
-        refine_min_ncc: 0.5,
-        refine_move_ncc: 0.85,
+        refine: Default::default(),
         keep_unsupported: false,
         partial: false,
     };

@@ -7,6 +7,7 @@
 //! is the accumulation-threshold export that came before it. `export dsm` and `export ortho` are in
 //! [`super::export_survey`].
 
+use super::refine_args::RefineArgs;
 use super::Cli;
 use crate::geo::Crs;
 use crate::gpu::Context;
@@ -87,23 +88,8 @@ pub struct PointcloudArgs {
     /// half-size below the ground and 1.5 times above), which the export otherwise drops as nerfstudio's does
     #[arg(long)]
     pub keep_outside_box: bool,
-    /// Skip the photometric refinement: keep the field's surface (it sits up to a metre above flat ground on the
-    /// campus; docs/geometry.md). By default each consistent point moves along its ray to where a patch of the
-    /// training images correlates best across its agreeing views, and the points the images do not support are
-    /// dropped, as multi-view-stereo fusion does
-    #[arg(long)]
-    pub no_refine: bool,
-    /// Photometric refinement: search range each side of the field's depth, in pixel footprints
-    #[arg(long, default_value_t = 8)]
-    pub refine_range: usize,
-    /// Photometric refinement: smallest mean normalised cross-correlation that supports a point (below it the point
-    /// is dropped, or kept with --keep-unsupported)
-    #[arg(long, default_value_t = 0.5)]
-    pub refine_min_ncc: f64,
-    /// Photometric refinement: smallest mean normalised cross-correlation that moves a point; a supported point
-    /// below it keeps the field's position (a plane patch does not fit a tree crown's dome)
-    #[arg(long, default_value_t = 0.85)]
-    pub refine_move_ncc: f64,
+    #[command(flatten)]
+    pub refine: RefineArgs,
     /// Photometric refinement: keep the points the images do not support (uniform surfaces, occlusions) where the
     /// field put them, instead of dropping them
     #[arg(long)]
@@ -141,48 +127,9 @@ impl PointcloudArgs {
         })
     }
 
-    /// The photometric refinement the flags ask for (on unless `--no-refine` or `--legacy`; it needs the
-    /// consistency check, whose agreeing views it correlates against); errors name the flag.
+    /// The photometric refinement the flags ask for (on unless `--no-refine` or `--legacy`); errors name the flag.
     pub fn refine_options(&self, consistency: bool) -> anyhow::Result<Option<RefineOptions>> {
-        anyhow::ensure!(
-            (1..=64).contains(&self.refine_range),
-            "--refine-range must be between 1 and 64 footprints, got {}",
-            self.refine_range
-        );
-        for (flag, v) in [("--refine-min-ncc", self.refine_min_ncc), ("--refine-move-ncc", self.refine_move_ncc)] {
-            anyhow::ensure!(v.is_finite() && (-1.0..=1.0).contains(&v), "{flag} must be in [-1, 1], got {v}");
-        }
-        anyhow::ensure!(
-            self.refine_move_ncc >= self.refine_min_ncc,
-            "--refine-move-ncc ({}) must be at least --refine-min-ncc ({}): a point moves only where it is supported",
-            self.refine_move_ncc,
-            self.refine_min_ncc
-        );
-        if self.no_refine || self.legacy {
-            return Ok(None);
-        }
-        anyhow::ensure!(
-            consistency,
-            "the photometric refinement needs the multi-view consistency check: --check-views 0 needs --no-refine"
-        );
-        Ok(Some(RefineOptions {
-            range: self.refine_range,
-            min_ncc: self.refine_min_ncc,
-            move_ncc: self.refine_move_ncc,
-            ..refine_defaults(self.min_agree, self.keep_unsupported)
-        }))
-    }
-}
-
-/// The refinement's settings that `export pointcloud`, `dsm` and `ortho` share: `keep_unsupported` (the cloud's
-/// `--keep-unsupported`, the DSM's default unless `--drop-unsupported`) keeps the points without photometric support
-/// where the field put them; a point has at most its agreeing views as partners, so `--min-agree 1` lets one score
-/// it.
-pub fn refine_defaults(min_agree: usize, keep_unsupported: bool) -> RefineOptions {
-    RefineOptions {
-        drop_unsupported: !keep_unsupported,
-        min_views: min_agree.clamp(1, RefineOptions::default().min_views),
-        ..Default::default()
+        self.refine.options(!self.legacy, consistency, self.min_agree, self.keep_unsupported)
     }
 }
 

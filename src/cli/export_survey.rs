@@ -6,7 +6,8 @@
 
 use std::path::PathBuf;
 
-use super::export::{careful_filters, refine_defaults};
+use super::export::careful_filters;
+use super::refine_args::RefineArgs;
 use super::Cli;
 use crate::gpu::Context;
 use crate::nerf::run::LoadedRun;
@@ -58,11 +59,8 @@ pub struct SurveyArgs {
     /// DSM: keep surfaces outside the scene box (the aerial normalisation's unit cube), which are otherwise nodata
     #[arg(long)]
     pub keep_outside_box: bool,
-    /// DSM: skip the photometric refinement and keep the field's heights. By default each consistent cell's height
-    /// moves to where a patch of the training images correlates best across its agreeing views, as `export
-    /// pointcloud` does (cells the images do not support keep the field's height unless --drop-unsupported)
-    #[arg(long)]
-    pub no_refine: bool,
+    #[command(flatten)]
+    pub refine: RefineArgs,
     /// DSM: nodata where the images give no photometric support (uniform surfaces such as water, occlusions), as
     /// MVS fusion drops such pixels; by default those cells keep the field's height
     #[arg(long)]
@@ -107,17 +105,14 @@ impl SurveyArgs {
         if let Some(t) = self.top {
             anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
         }
-        anyhow::ensure!(
-            self.no_refine || consistency.is_some() || !dsm,
-            "the photometric refinement needs the multi-view consistency check: --check-views 0 needs --no-refine"
-        );
+        let refine = self.refine.options(dsm, consistency.is_some(), self.min_agree, !self.drop_unsupported)?;
         Ok(SurveyOptions {
             min_accumulation: self.min_accumulation,
             max_spread_cells,
             scene_box: !self.keep_outside_box,
             top: self.top,
             block_rays: self.block_rays,
-            refine: (!self.no_refine).then(|| refine_defaults(self.min_agree, !self.drop_unsupported)),
+            refine,
             consistency,
         })
     }

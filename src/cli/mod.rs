@@ -13,6 +13,7 @@ pub mod import;
 pub mod partition;
 pub mod plan;
 pub mod preview;
+pub mod refine_args;
 pub mod render;
 pub mod sfm;
 pub mod simulate;

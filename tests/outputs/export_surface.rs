@@ -368,17 +368,17 @@ fn survey_products(tmp: &std::path::Path, data: &std::path::Path, run: &str) {
     // The refinement's flags: out of range is refused by name, before anything is written.
     let ply = tmp.join("bad.ply");
     let ply_s = ply.to_str().unwrap();
-    let err = msnerf_fails(&["export", "pointcloud", run, "--out", ply_s, "--refine-range", "0"]);
-    assert!(err.contains("--refine-range"), "{err}");
-    let err = msnerf_fails(&["export", "pointcloud", run, "--out", ply_s, "--refine-min-ncc", "1.5"]);
-    assert!(err.contains("--refine-min-ncc"), "{err}");
-    let err = msnerf_fails(&["export", "pointcloud", run, "--out", ply_s, "--refine-move-ncc", "nan"]);
-    assert!(err.contains("--refine-move-ncc"), "{err}");
-    let err = msnerf_fails(&["export", "pointcloud", run, "--out", ply_s, "--refine-move-ncc", "0.4"]);
-    assert!(err.contains("must be at least --refine-min-ncc"), "{err}");
     for (what, path) in [("pointcloud", ply_s), ("dsm", out_s)] {
-        let err = msnerf_fails(&["export", what, run, "--gsd", "1", "--out", path, "--check-views", "0"]);
-        assert!(err.contains("--check-views 0 needs --no-refine"), "{what}: {err}");
+        for (flag, value, says) in [
+            ("--refine-range", "0", "--refine-range"),
+            ("--refine-min-ncc", "1.5", "--refine-min-ncc"),
+            ("--refine-move-ncc", "nan", "--refine-move-ncc"),
+            ("--refine-move-ncc", "0.4", "must be at least --refine-min-ncc"),
+            ("--check-views", "0", "--check-views 0 needs --no-refine"),
+        ] {
+            let err = msnerf_fails(&["export", what, run, "--gsd", "1", "--out", path, flag, value]);
+            assert!(err.contains(says), "{what} {flag} {value}: {err}");
+        }
     }
     assert!(!ply.exists());
 }
