@@ -12,7 +12,6 @@ use super::Cli;
 use crate::geo::Crs;
 use crate::gpu::Context;
 use crate::nerf::export::{export_points_with_stats, Consistency, ExportOptions, ExportStats};
-use crate::nerf::refine::RefineOptions;
 use crate::nerf::run::LoadedRun;
 use crate::output::pointcloud::{self, LasOptions, PlyOptions, PointCloud};
 use std::path::PathBuf;
@@ -122,14 +121,9 @@ impl PointcloudArgs {
             normals: self.normals,
             max_spread_cells,
             scene_box: !self.keep_outside_box,
-            refine: self.refine_options(consistency.is_some())?,
+            refine: self.refine.options(true, consistency.is_some(), self.min_agree, self.keep_unsupported)?,
             consistency,
         })
-    }
-
-    /// The photometric refinement the flags ask for (on unless `--no-refine` or `--legacy`); errors name the flag.
-    pub fn refine_options(&self, consistency: bool) -> anyhow::Result<Option<RefineOptions>> {
-        self.refine.options(!self.legacy, consistency, self.min_agree, self.keep_unsupported)
     }
 }
 

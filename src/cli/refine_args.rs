@@ -32,8 +32,8 @@ impl Default for RefineArgs {
 }
 
 impl RefineArgs {
-    /// The refinement these flags ask for, None with `--no-refine` or when `runs` is false (nothing to refine: the
-    /// legacy export, an ortho alone). `consistency`: whether the multi-view check is on (its agreeing views are the
+    /// The refinement these flags ask for, None with `--no-refine` or when `runs` is false (nothing to refine: an
+    /// ortho alone). `consistency`: whether the multi-view check is on (its agreeing views are the
     /// refinement's partners, and `min_agree` of them may be all a point has); `keep_unsupported`: keep the points
     /// without photometric support where the field put them. Errors name the flag.
     pub fn options(

@@ -136,12 +136,7 @@ pub fn refine_points(
         p.partners.truncate(frames_held - 1);
     }
     let up = up_axis(run);
-    let poses: HashMap<usize, ([f64; 3], [[f64; 3]; 3])> = (0..ds.frames.len())
-        .map(|f| {
-            let m = run.transform.pose_to_normalized(&ds.frames[f].c2w);
-            (f, ([m[0][3], m[1][3], m[2][3]], [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2]])))
-        })
-        .collect();
+    let poses = normalised_poses(run);
     let cams: Vec<crate::data::Camera> = ds.frames.iter().map(|f| f.camera).collect();
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.sort_by_key(|&i| points[i].frame);
@@ -212,9 +207,25 @@ fn footprint(cam: &crate::data::Camera, origin: [f64; 3], p: [f64; 3]) -> f64 {
     (glam::DVec3::from(p) - glam::DVec3::from(origin)).length() / (0.5 * (cam.fx + cam.fy))
 }
 
+/// Every frame's camera centre and camera-to-world rotation rows (as [`project_point_subpixel`] takes them) in the
+/// normalised frame, by frame index.
+///
+/// [`project_point_subpixel`]: crate::data::camera::project_point_subpixel
+pub fn normalised_poses(run: &LoadedRun) -> Vec<FramePose> {
+    (run.ds.frames.iter())
+        .map(|f| {
+            let m = run.transform.pose_to_normalized(&f.c2w);
+            ([m[0][3], m[1][3], m[2][3]], [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2]]))
+        })
+        .collect()
+}
+
+/// A frame's camera centre and camera-to-world rotation rows.
+pub type FramePose = ([f64; 3], [[f64; 3]; 3]);
+
 /// The up direction in the normalised frame on aerial layouts (the world's +z when the dataset has a CRS, else the
 /// normalised frame's +z, levelled to the cameras' mean up); None for other layouts.
-pub fn up_axis(run: &LoadedRun) -> Option<[f64; 3]> {
+fn up_axis(run: &LoadedRun) -> Option<[f64; 3]> {
     match (run.ds.aerial_layout(), run.ds.crs.is_some()) {
         (true, true) => Some((run.transform.rotation() * glam::DVec3::Z).normalize().to_array()),
         (true, false) => Some([0.0, 0.0, 1.0]),
@@ -226,12 +237,12 @@ fn refine_one(
     cams: &[crate::data::Camera],
     pt: &RefinePoint,
     up: Option<[f64; 3]>,
-    poses: &HashMap<usize, ([f64; 3], [[f64; 3]; 3])>,
+    poses: &[FramePose],
     store: &FrameStore,
     opts: &RefineOptions,
 ) -> PointResult {
     let view = |f: usize| {
-        let (origin, rot) = poses[&f];
+        let (origin, rot) = poses[f];
         let planes = store.planes.get(&f)?.iter().map(|p| p.as_slice()).collect();
         Some(PatchView { origin, rot, cam: &cams[f], planes })
     };

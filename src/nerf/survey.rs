@@ -22,7 +22,7 @@
 
 use super::export::{consistency, field_cell_size, Consistency, REFINE_IMAGE_BUDGET};
 use super::refine::RefineOptions;
-use super::refine_points::{refine_points, FrameStore, RefinePoint};
+use super::refine_points::{normalised_poses, refine_points, FrameStore, RefinePoint};
 use super::run::LoadedRun;
 use super::views::NovelView;
 use crate::data::{Camera, CameraModel, Distortion, Split};
@@ -325,12 +325,7 @@ pub fn render_survey(
     // The refinement's search line is the DSM's own vertical (world -z), and its reference view per cell the most
     // nadir agreeing one, judged from the camera centres.
     let down = (run.transform.rotation() * -glam::DVec3::Z).normalize().to_array();
-    let centres: Vec<[f64; 3]> = (run.ds.frames.iter())
-        .map(|f| {
-            let m = run.transform.pose_to_normalized(&f.c2w);
-            [m[0][3], m[1][3], m[2][3]]
-        })
-        .collect();
+    let centres: Vec<[f64; 3]> = normalised_poses(run).iter().map(|&(centre, _)| centre).collect();
     let mut row0 = 0;
     while row0 < grid.height {
         let rows = block_rows.min(grid.height - row0);

@@ -10,6 +10,7 @@
 
 use msnerf::data::camera::{Camera, CameraModel, Distortion};
 use msnerf::nerf::refine::{bilinear, ncc, refine, PatchView, RefineOptions};
+use msnerf::sim::cameras::look_at;
 use rand::{Rng, SeedableRng};
 
 /// Pearson's r from the raw sums (a different arrangement from the library's centred sums).
@@ -57,20 +58,6 @@ fn bilinear_matches_the_formula() {
     assert_eq!(bilinear(&plane, w, h, 3.0, h as f64 - 0.49), None);
 }
 
-/// A pinhole camera at `eye` looking at `target` (world z up), as rows of a 4x4 camera-to-world (OpenGL axes).
-fn look_at(eye: [f64; 3], target: [f64; 3]) -> [[f64; 4]; 4] {
-    let (e, t) = (glam::DVec3::from(eye), glam::DVec3::from(target));
-    let z = (e - t).normalize();
-    let x = glam::DVec3::Z.cross(z).normalize();
-    let y = z.cross(x);
-    let mut m = [[0.0; 4]; 4];
-    for r in 0..3 {
-        m[r] = [x[r], y[r], z[r], e[r]];
-    }
-    m[3][3] = 1.0;
-    m
-}
-
 const W: u32 = 96;
 const H: u32 = 72;
 
@@ -115,7 +102,7 @@ struct Scene {
 fn scene(base: f64, amp: f64) -> Scene {
     let cam = camera();
     let eyes = [[0.0, -16.0, 22.0], [13.0, -6.0, 22.0], [-13.0, -7.0, 21.0], [2.0, 12.0, 23.0]];
-    let poses: Vec<_> = eyes.iter().map(|&e| look_at(e, [0.0, 0.0, 0.0])).collect();
+    let poses: Vec<_> = eyes.iter().map(|&e| look_at(e, [0.0, 0.0, 0.0], None)).collect();
     let images = poses.iter().map(|p| render(&cam, p, base, amp)).collect();
     Scene { cam, poses, images }
 }
