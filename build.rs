@@ -50,7 +50,6 @@ const VARIANTS: &[Variant] = &[
     vd("hashgrid_fwd_texel", "encoding/hashgrid_fwd.comp", &[("HASH_TEXEL", "1")]),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
     v("hashgrid_bwd_runs", "encoding/hashgrid_bwd_runs.comp"),
-    v("hashgrid_bwd_owned", "encoding/hashgrid_bwd_owned.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
     vd("hashgrid_bwd_input_texel", "encoding/hashgrid_bwd_input.comp", &[("HASH_TEXEL", "1")]),
     // network: MLP layer, tile and weight-gradient kernels (src/nn/mlp.rs); not fused across layers

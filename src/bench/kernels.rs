@@ -7,7 +7,7 @@
 //! timestamps measure CPU time anyway; the per-kernel GPU timestamps are reported alongside.
 
 use crate::gpu::{Context, GpuBuffer, GpuResult, KernelTime, LargeArray, MemoryCategory, Recorder};
-use crate::nn::hashgrid::{backward_owned_supported, HashGrid, HashGridConfig, OutputSlot};
+use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
 use crate::nn::mlp::{Activation, Mlp, MlpConfig, MlpTrainBuffers};
 use crate::nn::{ParamSlice, RowSlice};
 use rand::{Rng, SeedableRng};
@@ -38,10 +38,6 @@ pub struct HashResult {
     pub input_grad_texel_speedup: Option<f64>,
     /// Levels read as texels in those (the others straddle chunks and keep the device-address read).
     pub texel_levels: usize,
-    /// Speed-up of the parameter gradient without atomics (`hashgrid_bwd_owned`: one workgroup per level, the
-    /// level's only writer) against one atomic per contribution, on ray-ordered points, paired as above. `None`
-    /// where the device cannot run it or the grid spans gradient chunks (where training keeps the atomics).
-    pub backward_owned_speedup: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -167,20 +163,6 @@ pub fn bench_hash(
         Ok(Some(median(r)))
     };
     let (fwd_texel, input_texel) = if texel_levels > 0 { (ratio(0)?, ratio(1)?) } else { (None, None) };
-    let mut owned = HashGrid::with_backward_run(ctx, cfg, 1)?;
-    let owned_speedup = if backward_owned_supported(ctx.caps()) {
-        owned.set_backward_owned(ctx, true)?;
-        if owned.backward_owned(g)? {
-            let grids = [&grid, &owned];
-            Some(paired_ratio(repeats, |k| {
-                run_recorded(ctx, &|rec| grids[k].backward_params(rec, g, &rays, points, dys))
-            })?)
-        } else {
-            None
-        }
-    } else {
-        None
-    };
     let grid8 = HashGrid::with_backward_run(ctx, cfg, BENCH_RUN)?;
     let bwd_run8 = time_ms(repeats, || run_recorded(ctx, &|rec| grid8.backward_params(rec, g, &rays, points, dys)))?;
     let atomics = (points * cfg.n_levels as usize * 8 * cfg.features_per_level as usize) as f64;
@@ -196,26 +178,7 @@ pub fn bench_hash(
         forward_texel_speedup: fwd_texel,
         input_grad_texel_speedup: input_texel,
         texel_levels,
-        backward_owned_speedup: owned_speedup,
     })
-}
-
-/// Median over `repeats` of time(run(0)) / time(run(1)), the two timed back to back (the first pair, which compiles
-/// the pipelines, is not counted).
-fn paired_ratio(repeats: usize, run: impl Fn(usize) -> GpuResult<()>) -> GpuResult<f64> {
-    let mut r = Vec::with_capacity(repeats);
-    for k in 0..=repeats.max(1) {
-        let mut t = [0.0; 2];
-        for (which, t) in t.iter_mut().enumerate() {
-            let s = Instant::now();
-            run(which)?;
-            *t = s.elapsed().as_secs_f64();
-        }
-        if k > 0 {
-            r.push(t[0] / t[1]);
-        }
-    }
-    Ok(median(r))
 }
 
 /// `points` hash-grid inputs in [0,1]^3 ordered as training produces them: `per_ray` consecutive samples, evenly
@@ -473,7 +436,7 @@ impl KernelBench {
     pub fn table(&self) -> String {
         let mut s = format!("device: {} ({}), host threads: {}\n\n", self.device, self.driver, self.host_threads);
         s += &format!(
-            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14} {:>14} {:>14} {:>10} {:>10} {:>10}\n",
+            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14} {:>14} {:>14} {:>10} {:>10}\n",
             "hash grid",
             "points",
             "params",
@@ -483,12 +446,11 @@ impl KernelBench {
             "rays bwd Mpt/s",
             "rays run8 Mpt/s",
             "texel fwd",
-            "texel dp",
-            "owned bwd"
+            "texel dp"
         );
         for h in &self.hash {
             s += &format!(
-                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1} {:>14.2} {:>14.2} {:>10} {:>10} {:>10}\n",
+                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1} {:>14.2} {:>14.2} {:>10} {:>10}\n",
                 h.name,
                 h.points,
                 h.params,
@@ -498,8 +460,7 @@ impl KernelBench {
                 h.backward_rays_mpts_per_s,
                 h.backward_rays_run8_mpts_per_s,
                 h.forward_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x")),
-                h.input_grad_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x")),
-                h.backward_owned_speedup.map_or("-".into(), |r| format!("{r:.2}x"))
+                h.input_grad_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x"))
             );
         }
         s += &format!(

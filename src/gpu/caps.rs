@@ -40,8 +40,6 @@ pub struct DeviceCaps {
     pub max_subgroup_size: u32,
     pub subgroup_arithmetic: bool,
     pub subgroup_shuffle: bool,
-    /// Subgroup ballot operations (broadcasts) in compute shaders.
-    pub subgroup_ballot: bool,
     pub float32_atomic_add: bool,
     pub shared_float32_atomic_add: bool,
     pub shader_float16: bool,
@@ -170,7 +168,6 @@ impl DeviceCaps {
             max_subgroup_size: v13p.max_subgroup_size,
             subgroup_arithmetic: sg_ops.contains(vk::SubgroupFeatureFlags::ARITHMETIC),
             subgroup_shuffle: sg_ops.contains(vk::SubgroupFeatureFlags::SHUFFLE),
-            subgroup_ballot: sg_ops.contains(vk::SubgroupFeatureFlags::BALLOT),
             float32_atomic_add: has_atomic_float && atomic.shader_buffer_float32_atomic_add == vk::TRUE,
             shared_float32_atomic_add: has_atomic_float && atomic.shader_shared_float32_atomic_add == vk::TRUE,
             shader_float16: !no_f16 && v12f.shader_float16 == vk::TRUE,

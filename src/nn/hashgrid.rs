@@ -193,9 +193,6 @@ pub struct HashGrid {
     bwd_runs: Option<Kernel<BwdPush>>,
     /// Consecutive points one `hashgrid_bwd` invocation combines (1: one point per invocation).
     bwd_run: u32,
-    /// The parameter gradient runs `hashgrid_bwd_owned` instead of the two above, where the gradient array holds
-    /// the grid in one chunk ([`default_backward_owned`]).
-    bwd_owned: bool,
     /// The forward and the input gradient read each level's table as a texel buffer where the level lies in one
     /// chunk (the `_texel` kernel variants); see [`default_texel_reads`].
     texel_reads: bool,
@@ -217,33 +214,6 @@ pub fn default_backward_run(ctx: &crate::gpu::Context) -> GpuResult<u32> {
             msg: format!("{v:?} is not a positive number of points"),
         }),
     }
-}
-
-/// Whether the parameter gradient runs `hashgrid_bwd_owned`: one workgroup per level, the level's only writer, so
-/// plain adds instead of atomics. `MSNERF_HASH_BWD_OWNED` (`1` or `0`) when set, else on CPU devices (lavapipe),
-/// where a float atomic is a locked compare-and-swap loop per SIMD lane (1.1-1.4x on nerfacto's grids,
-/// docs/benchmarks.md); on a GPU one workgroup per level would leave the chip idle. Grids whose gradient spans
-/// more than one chunk (Table 1's) keep the atomics, which read each level's chunk directly: the owned kernel
-/// measured slower there. The device must run a workgroup of 8 as one subgroup with broadcasts
-/// ([`backward_owned_supported`]): `1` on one that cannot is an error naming the variable, as is a value other
-/// than 0 or 1.
-pub fn default_backward_owned(ctx: &crate::gpu::Context) -> GpuResult<bool> {
-    let supported = backward_owned_supported(ctx.caps());
-    let err = |msg: String| GpuError::Config { what: "MSNERF_HASH_BWD_OWNED".into(), msg };
-    match crate::util::env::settings().hash_bwd_owned.as_deref() {
-        None => Ok(ctx.caps().is_cpu && supported),
-        Some("0") => Ok(false),
-        Some("1") if supported => Ok(true),
-        Some("1") => Err(err(format!("{} cannot run it: {OWNED_NEEDS}", ctx.caps().name))),
-        Some(v) => Err(err(format!("{v:?} is not 0 or 1"))),
-    }
-}
-
-const OWNED_NEEDS: &str = "hashgrid_bwd_owned needs subgroups of 8 invocations or more with ballot";
-
-/// Whether a device can run `hashgrid_bwd_owned` (its 8 corners in one subgroup, with broadcasts).
-pub fn backward_owned_supported(caps: &crate::gpu::DeviceCaps) -> bool {
-    caps.subgroup_size >= 8 && caps.subgroup_ballot
 }
 
 /// Points per backward invocation on GPUs (measured on an H100 against 4 and 16; docs/benchmarks.md).
@@ -305,27 +275,8 @@ pub fn default_texel_reads(ctx: &crate::gpu::Context) -> GpuResult<bool> {
 }
 
 impl HashGrid {
-    /// A grid with the device's default kernels ([`default_backward_owned`] and [`default_backward_run`]).
     pub fn new(ctx: &crate::gpu::Context, config: &HashGridConfig) -> GpuResult<Self> {
-        let mut grid = Self::with_backward_run(ctx, config, default_backward_run(ctx)?)?;
-        grid.set_backward_owned(ctx, default_backward_owned(ctx)?)?;
-        Ok(grid)
-    }
-
-    /// Chooses `hashgrid_bwd_owned` for the parameter gradient (`true`, used where the gradient array holds the grid
-    /// in one chunk) or the atomic kernel of the grid's backward run (`false`); tests and benchmarks compare them.
-    /// An error when the device cannot run it.
-    pub fn set_backward_owned(&mut self, ctx: &crate::gpu::Context, on: bool) -> GpuResult<()> {
-        if on && !backward_owned_supported(ctx.caps()) {
-            return Err(GpuError::Config { what: "hashgrid_bwd_owned".into(), msg: OWNED_NEEDS.into() });
-        }
-        self.bwd_owned = on;
-        Ok(())
-    }
-
-    /// Whether the parameter gradient into `grads` runs `hashgrid_bwd_owned`.
-    pub fn backward_owned(&self, grads: ParamSlice) -> GpuResult<bool> {
-        Ok(self.bwd_owned && !grid_base(grads.array, grads.offset, self.config.n_params())?.2)
+        Self::with_backward_run(ctx, config, default_backward_run(ctx)?)
     }
 
     /// As [`HashGrid::new`], with `run` consecutive points per parameter-gradient invocation (1: hashgrid_bwd.comp;
@@ -352,7 +303,6 @@ impl HashGrid {
                 None
             },
             bwd_run: run,
-            bwd_owned: false,
             texel_reads: default_texel_reads(ctx)?,
             active: std::cell::Cell::new(config.n_levels as f32),
         })
@@ -486,10 +436,6 @@ impl HashGrid {
         if n == 0 {
             return Ok(());
         }
-        if self.backward_owned(ParamSlice { array: grads, offset: param_offset })? {
-            let dy = RowSlice { buf: dy, stride: dy_stride, col: dy_col };
-            return self.record_owned(rec, (grads, param_offset), positions, n, dy);
-        }
         if let Some(runs) = &self.bwd_runs {
             let bindings = [positions.binding(), self.levels.binding(), dy.binding()];
             let push = BwdPush {
@@ -514,41 +460,6 @@ impl HashGrid {
             n,
             dy,
             None,
-        )
-    }
-
-    /// Records `hashgrid_bwd_owned`: one workgroup per level, the grid in one chunk of `grads`.
-    fn record_owned(
-        &self,
-        rec: &mut Recorder,
-        (grads, param_offset): (&LargeArray<f32>, usize),
-        positions: &GpuBuffer<f32>,
-        n: usize,
-        dy: RowSlice,
-    ) -> GpuResult<()> {
-        let (base, offset, _) = grid_base(grads, param_offset, self.config.n_params())?;
-        let kernel = Kernel::<BwdPush>::with_spec(
-            rec.context(),
-            &shaders::HASHGRID_BWD_OWNED,
-            &[("F", self.config.features_per_level)],
-        )?;
-        let push = BwdPush {
-            grads: base,
-            shift: grads.chunk_shift(),
-            param_offset: offset as u32,
-            n: n as u32,
-            dy_stride: dy.stride as u32,
-            dy_col: dy.col as u32,
-            active_levels: self.active.get(),
-        };
-        let bindings = [positions.binding(), self.levels.binding(), dy.buf.binding()];
-        rec.dispatch_groups(
-            "hashgrid_bwd_owned",
-            &kernel,
-            &bindings,
-            &grads.deps(),
-            &push,
-            [self.config.n_levels, 1, 1],
         )
     }
 

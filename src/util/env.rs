@@ -30,7 +30,6 @@ pub struct EnvSettings {
     pub mlp_tiling: Option<String>,
     pub hash_bwd_run: Option<String>,
     pub hash_texel: Option<String>,
-    pub hash_bwd_owned: Option<String>,
 }
 
 fn text(name: &str) -> Option<String> {
@@ -55,7 +54,6 @@ impl EnvSettings {
             mlp_tiling: text("MSNERF_MLP_TILING"),
             hash_bwd_run: text("MSNERF_HASH_BWD_RUN"),
             hash_texel: text("MSNERF_HASH_TEXEL"),
-            hash_bwd_owned: text("MSNERF_HASH_BWD_OWNED"),
         }
     }
 
@@ -78,7 +76,6 @@ impl EnvSettings {
             ("MSNERF_MLP_TILING", &self.mlp_tiling),
             ("MSNERF_HASH_BWD_RUN", &self.hash_bwd_run),
             ("MSNERF_HASH_TEXEL", &self.hash_texel),
-            ("MSNERF_HASH_BWD_OWNED", &self.hash_bwd_owned),
         ] {
             if let Some(x) = value {
                 v.push(format!("{name}={x}"));

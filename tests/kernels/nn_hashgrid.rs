@@ -121,13 +121,12 @@ fn coarse_to_fine_levels_match_twin() {
         check_backward_input(texel, Some(2.5));
     }
     let cfg = small();
-    for kind in [Bwd::Runs(1), Bwd::Runs(8), Bwd::Owned] {
-        check_backward_params(kind, points(&cfg, 3001, 8, 0.0), &[3, 4], 1e-4, Some(2.5));
+    for run in [1, 8] {
+        check_backward_params(run, points(&cfg, 3001, 8, 0.0), &[3, 4], 1e-4, Some(2.5));
     }
     // Every level held back but the coarsest; and all of them active again.
     check_forward_with_padding(false, Some(1.0));
-    check_backward_params(Bwd::Runs(1), points(&cfg, 3001, 8, 0.0), &[], 1e-4, Some(6.0));
-    check_backward_params(Bwd::Owned, points(&cfg, 3001, 8, 0.0), &[], 1e-4, Some(6.0));
+    check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4, Some(6.0));
 }
 
 /// The forward against the twin, its tables read through device addresses or as texel buffers; `active`: the
@@ -236,7 +235,7 @@ fn one_four_and_eight_features_read_texels_as_buffers_do() {
 #[test]
 fn backward_params_matches_twin_at_99th_percentile() {
     let cfg = small();
-    check_backward_params(Bwd::Runs(1), points(&cfg, 3001, 8, 0.0), &[], 1e-4, None);
+    check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4, None);
 }
 
 /// Run combining is the default on GPUs and off on CPU devices, where it measured slower (docs/benchmarks.md);
@@ -256,96 +255,30 @@ fn backward_run_default_follows_the_device_kind() {
 fn backward_params_with_run_combining_matches_twin() {
     // hashgrid_bwd with RUN = 8 on ray-ordered points (runs of equal coarse cells), n not a multiple of 8, and
     // masked-out points (zero dL/dy) inside runs: the same sums as one point per invocation.
-    let pts = ray_ordered(3001);
-    let masked = [5, 6, 7, 8, 9, 100, 2999];
-    // Ray-ordered points pile hundreds of contributions onto the coarse levels' entries: fp32 sums of that length
-    // (in either kernel) sit at a 99th-percentile error of about 1.2e-4 here, hence 3e-4.
-    let one = check_backward_params(Bwd::Runs(1), pts.clone(), &masked, 3e-4, None);
-    let eight = check_backward_params(Bwd::Runs(8), pts, &masked, 3e-4, None);
-    assert!(eight <= 2.0 * one + 1e-5, "run combining adds rounding: p99 {eight:e} against {one:e}");
-}
-
-/// hashgrid_bwd_owned (one workgroup per level, plain adds: the default on CPU devices) against the twin: random
-/// and ray-ordered points, n not a multiple of 8, masked-out points, and hashed levels where two corners of one
-/// point share an entry (counted here with tiny-cuda-nn's hash, so the test knows that case is exercised).
-#[test]
-fn backward_params_owned_matches_twin() {
-    let g = gpu();
-    if !hashgrid::backward_owned_supported(g.caps()) {
-        // A device that cannot run it must refuse it by name rather than fall back silently.
-        let mut grid = HashGrid::with_backward_run(&g, &small(), 1).expect("grid");
-        let err = grid.set_backward_owned(&g, true).expect_err("refused").to_string();
-        assert!(err.contains("hashgrid_bwd_owned"), "{err}");
-        return;
-    }
-    let cfg = small();
-    let pts = points(&cfg, 3001, 8, 0.0);
-    let shared = corners_sharing_an_entry(&cfg, &pts);
-    assert!(shared >= 5, "only {shared} (point, level) pairs with two corners on one entry");
-    let random = check_backward_params(Bwd::Owned, pts, &[0, 7, 8, 3000], 1e-4, None);
-    let atomic = check_backward_params(Bwd::Runs(1), points(&cfg, 3001, 8, 0.0), &[0, 7, 8, 3000], 1e-4, None);
-    assert!(random <= 2.0 * atomic + 1e-5, "p99 {random:e} against the atomics' {atomic:e}");
-    let rays = ray_ordered(3001);
-    check_backward_params(Bwd::Owned, rays, &[5, 6, 7, 8, 9, 100, 2999], 3e-4, None);
-    assert_eq!(
-        hashgrid::default_backward_owned(&g).expect("default"),
-        std::env::var("MSNERF_HASH_BWD_OWNED").map(|v| v == "1").unwrap_or(g.caps().is_cpu),
-        "the default follows the device kind and MSNERF_HASH_BWD_OWNED"
-    );
-}
-
-/// (point, level) pairs of hashed levels where two of the point's 8 corners hash to the same entry (tiny-cuda-nn's
-/// CoherentPrime hash, written out here).
-fn corners_sharing_an_entry(cfg: &HashGridConfig, pts: &[[f32; 3]]) -> usize {
-    let mut n = 0;
-    for lv in cfg.levels().iter().filter(|lv| lv.hashed != 0) {
-        for p in pts {
-            let cell: Vec<u32> = p.iter().map(|&x| (x * lv.scale + 0.5).max(0.0).floor() as u32).collect();
-            let mut idx: Vec<u32> = (0..8u32)
-                .map(|c| {
-                    let v: Vec<u32> = (0..3).map(|d| cell[d] + ((c >> d) & 1)).collect();
-                    (v[0] ^ v[1].wrapping_mul(2_654_435_761) ^ v[2].wrapping_mul(805_459_861)) & (lv.entries - 1)
-                })
-                .collect();
-            idx.sort_unstable();
-            idx.dedup();
-            n += usize::from(idx.len() < 8);
-        }
-    }
-    n
-}
-
-/// `n` points ordered as training produces them: runs of 24 samples along short random segments.
-fn ray_ordered(n: usize) -> Vec<[f32; 3]> {
     let mut pts = Vec::new();
     let mut r = common::rng(21);
-    while pts.len() < n {
+    while pts.len() < 3001 {
         let o: [f32; 3] = std::array::from_fn(|_| r.random_range(0.3f32..0.7));
         let d: [f32; 3] = std::array::from_fn(|_| r.random_range(-0.2f32..0.2));
         for i in 0..24 {
             pts.push(std::array::from_fn(|k| (o[k] + d[k] * i as f32 / 24.0).clamp(0.0, 1.0)));
         }
     }
-    pts.truncate(n);
-    pts
-}
-
-/// Which parameter-gradient kernel a check runs.
-#[derive(Clone, Copy, Debug)]
-enum Bwd {
-    /// `hashgrid_bwd` (1) or `hashgrid_bwd_runs` (more): atomics.
-    Runs(u32),
-    /// `hashgrid_bwd_owned`: one writer per level.
-    Owned,
+    pts.truncate(3001);
+    let masked = [5, 6, 7, 8, 9, 100, 2999];
+    // Ray-ordered points pile hundreds of contributions onto the coarse levels' entries: fp32 sums of that length
+    // (in either kernel) sit at a 99th-percentile error of about 1.2e-4 here, hence 3e-4.
+    let one = check_backward_params(1, pts.clone(), &masked, 3e-4, None);
+    let eight = check_backward_params(8, pts, &masked, 3e-4, None);
+    assert!(eight <= 2.0 * one + 1e-5, "run combining adds rounding: p99 {eight:e} against {one:e}");
 }
 
 /// The parameter gradient of `pts` (with dL/dy zeroed for the points in `masked`) against the twin; returns the
 /// 99th-percentile relative error after asserting it is below `tol`; `active` as in `check_forward_with_padding`.
-fn check_backward_params(kind: Bwd, pts: Vec<[f32; 3]>, masked: &[usize], tol: f64, active: Option<f32>) -> f64 {
+fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f64, active: Option<f32>) -> f64 {
     let g = gpu();
     let cfg = small();
-    let mut grid = HashGrid::with_backward_run(&g, &cfg, if let Bwd::Runs(r) = kind { r } else { 1 }).expect("grid");
-    grid.set_backward_owned(&g, matches!(kind, Bwd::Owned)).expect("owned kernel");
+    let grid = HashGrid::with_backward_run(&g, &cfg, run).expect("grid");
     let weights: Vec<f64> = set_active(&grid, &cfg, active).iter().map(|&w| w as f64).collect();
     let n = pts.len();
     let mut dy_host = random_params(n * 12, 9, 1.0);
@@ -355,8 +288,6 @@ fn check_backward_params(kind: Bwd, pts: Vec<[f32; 3]>, masked: &[usize], tol: f
     let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
     let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
     let grads = LargeArray::<f32>::new(&g, "grads", cfg.n_params(), MemoryCategory::Gradients).expect("grads");
-    let owned = grid.backward_owned(ParamSlice { array: &grads, offset: 0 }).expect("owned");
-    assert_eq!(owned, matches!(kind, Bwd::Owned), "{kind:?} runs the kernel it names");
     let mut rec = g.recorder("bwd").expect("recorder");
     for c in grads.chunks() {
         ops::fill(&mut rec, c, 0.0f32, 0, c.len()).expect("zero");
@@ -388,9 +319,9 @@ fn check_backward_params(kind: Bwd, pts: Vec<[f32; 3]>, masked: &[usize], tol: f
     let mut rel: Vec<f64> = touched.iter().map(|&i| (got[i] as f64 - want[i]).abs() / (want[i].abs() + 1e-3)).collect();
     rel.sort_by(f64::total_cmp);
     let p99 = rel[(rel.len() * 99) / 100];
-    assert!(p99 < tol, "{kind:?}: 99th percentile relative error {p99:e}");
+    assert!(p99 < tol, "run {run}: 99th percentile relative error {p99:e}");
     let worst = rel.last().copied().unwrap_or(0.0);
-    assert!(worst < 1e-2, "{kind:?}: worst relative error {worst:e}");
+    assert!(worst < 1e-2, "run {run}: worst relative error {worst:e}");
     assert!((0..want.len()).filter(|&i| want[i] == 0.0).all(|i| got[i] == 0.0), "untouched entries stay zero");
     p99
 }
@@ -517,12 +448,6 @@ fn check_table1_grid(texel: bool) {
     assert!(n_params * 4 > g.caps().max_storage_buffer_range as usize || g.caps().max_storage_buffer_range > 1 << 28);
     let mut s = setup(&g, &cfg, 0, 21);
     s.grid.set_texel_reads(texel);
-    if hashgrid::backward_owned_supported(g.caps()) {
-        // A grid across gradient chunks keeps the atomics (they read each level's chunk directly).
-        s.grid.set_backward_owned(&g, true).expect("owned");
-        let owned = s.grid.backward_owned(ParamSlice { array: &s.params, offset: 0 }).expect("owned");
-        assert_eq!(owned, s.params.chunks().len() == 1, "owned kernel on {} chunks", s.params.chunks().len());
-    }
     let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
     assert!(if texel { levels_read > 0 } else { levels_read == 0 }, "{levels_read} levels read as texels");
     assert!(s.params.chunks().len() >= 2 || g.caps().max_storage_buffer_range as usize >= n_params * 4);
