@@ -67,15 +67,20 @@ const VARIANTS: &[Variant] = &[
     // render: rays, sampling, compositing and losses (src/nerf)
     v("ray_gen", "render/ray_gen.comp"),
     v("sample_initial", "render/sample_initial.comp"),
+    v("sample_initial_edges", "render/sample_initial_edges.comp"),
     v("density_weights", "render/density_weights.comp"),
+    v("density_weights_lanes", "render/density_weights_lanes.comp"),
     v("pdf_resample", "render/pdf_resample.comp"),
+    v("pdf_resample_lanes", "render/pdf_resample_lanes.comp"),
     v("colour_input", "render/colour_input.comp"),
     v("composite", "render/composite.comp"),
     v("interlevel", "render/interlevel.comp"),
+    v("interlevel_lanes", "render/interlevel_lanes.comp"),
     v("appearance_grad", "render/appearance_grad.comp"),
     // pose: SO3xR3 camera pose refinement (src/nerf/pose.rs)
     v("pose_apply", "pose/pose_apply.comp"),
     v("pose_ray_grad", "pose/pose_ray_grad.comp"),
+    v("pose_ray_grad_lanes", "pose/pose_ray_grad_lanes.comp"),
     v("pose_reduce", "pose/pose_reduce.comp"),
     v("pose_regularizer", "pose/pose_regularizer.comp"),
 ];

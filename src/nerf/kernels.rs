@@ -214,12 +214,65 @@ pub struct InterlevelBuffers<'a> {
     pub losses: &'a GpuBuffer<f32>,
 }
 
+/// Invocations per ray of the `_lanes` kernels (their workgroup; `glsl/render/ray_lanes.glsl`).
+pub const RAY_LANES: usize = 32;
+
+/// Most bins `pdf_resample_lanes` takes (its shared-memory cdf); more run the serial kernel.
+pub const PDF_LANES_MAX_BINS: usize = 1024;
+
+/// Whether the per-ray kernels run their GPU variants: the initial sampler one invocation per edge
+/// (`sample_initial_edges`), and the proposal weights, resampling, interlevel loss and pose ray gradient over
+/// [`RAY_LANES`] invocations per ray (`*_lanes`, with subgroup scans), instead of one invocation walking each ray:
+/// `MSNERF_RAY_LANES` (`1` or `0`) when set, else on GPUs with subgroup arithmetic. Without them a GPU runs a
+/// 4096-ray pass of these kernels as 4096 threads, each a serial loop over up to 512 samples (docs/benchmarks.md); a
+/// CPU device (lavapipe) runs the serial loops in SIMD and was 3-10x slower with the variants (same page). A value
+/// other than 0 or 1 is an error naming the variable.
+pub fn default_ray_lanes(ctx: &Context) -> GpuResult<bool> {
+    let caps = ctx.caps();
+    match crate::util::env::settings().ray_lanes.as_deref() {
+        None => Ok(!caps.is_cpu && caps.subgroup_arithmetic),
+        Some("0") => Ok(false),
+        Some("1") if caps.subgroup_arithmetic => Ok(true),
+        Some("1") => Err(GpuError::Config {
+            what: "MSNERF_RAY_LANES".into(),
+            msg: "the device has no subgroup arithmetic, which the lanes kernels need".into(),
+        }),
+        Some(v) => Err(GpuError::Config { what: "MSNERF_RAY_LANES".into(), msg: format!("{v:?} is not 0 or 1") }),
+    }
+}
+
+/// Refuses the lanes kernels on a device without subgroup arithmetic.
+pub fn check_ray_lanes(ctx: &Context, lanes: bool) -> GpuResult<()> {
+    if lanes && !ctx.caps().subgroup_arithmetic {
+        return Err(GpuError::Config {
+            what: "per-ray kernels".into(),
+            msg: "the lanes kernels need subgroup arithmetic, which the device lacks".into(),
+        });
+    }
+    Ok(())
+}
+
+/// Most NeRF and proposal samples per ray `interlevel_lanes` takes (its shared-memory arrays); more run the serial
+/// kernel.
+pub const INTERLEVEL_LANES_MAX: (usize, usize) = (256, 1024);
+
+/// The per-ray kernels over [`RAY_LANES`] invocations per ray.
+struct LanesKernels {
+    /// `sample_initial_edges`: one invocation per edge.
+    sample_initial: Kernel<SampleInitialPush>,
+    weights: Kernel<WeightsPush>,
+    pdf: Kernel<PdfPush>,
+    interlevel: Kernel<InterlevelPush>,
+}
+
 /// Every render kernel, created once per context.
 pub struct RenderKernels {
     ray_gen: Kernel<RayGenPush>,
     sample_initial: Kernel<SampleInitialPush>,
     weights: Kernel<WeightsPush>,
     pdf: Kernel<PdfPush>,
+    /// The lanes variants, when chosen ([`default_ray_lanes`]).
+    lanes: Option<LanesKernels>,
     colour_input: Kernel<ColourInputPush>,
     composite: Kernel<CompositePush>,
     interlevel: Kernel<InterlevelPush>,
@@ -232,12 +285,29 @@ fn b(x: bool) -> u32 {
 }
 
 impl RenderKernels {
+    /// The kernels, with the per-ray variants [`default_ray_lanes`] picks for this device.
     pub fn new(ctx: &Context) -> GpuResult<Self> {
+        Self::with_ray_lanes(ctx, default_ray_lanes(ctx)?)
+    }
+
+    /// As [`RenderKernels::new`], with the GPU variants of the per-ray kernels ([`default_ray_lanes`]) on or off.
+    pub fn with_ray_lanes(ctx: &Context, lanes: bool) -> GpuResult<Self> {
+        check_ray_lanes(ctx, lanes)?;
+        let lanes = match lanes {
+            true => Some(LanesKernels {
+                sample_initial: Kernel::new(ctx, &shaders::SAMPLE_INITIAL_EDGES)?,
+                weights: Kernel::new(ctx, &shaders::DENSITY_WEIGHTS_LANES)?,
+                pdf: Kernel::new(ctx, &shaders::PDF_RESAMPLE_LANES)?,
+                interlevel: Kernel::new(ctx, &shaders::INTERLEVEL_LANES)?,
+            }),
+            false => None,
+        };
         Ok(Self {
             ray_gen: Kernel::new(ctx, &shaders::RAY_GEN)?,
             sample_initial: Kernel::new(ctx, &shaders::SAMPLE_INITIAL)?,
             weights: Kernel::new(ctx, &shaders::DENSITY_WEIGHTS)?,
             pdf: Kernel::new(ctx, &shaders::PDF_RESAMPLE)?,
+            lanes,
             colour_input: Kernel::new(ctx, &shaders::COLOUR_INPUT)?,
             composite: Kernel::new(ctx, &shaders::COMPOSITE)?,
             interlevel: Kernel::new(ctx, &shaders::INTERLEVEL)?,
@@ -284,7 +354,15 @@ impl RenderKernels {
             ray_offset: rays.ray_offset,
         };
         let bindings = [rays.origins.binding(), rays.dirs.binding(), edges.binding(), positions.binding()];
-        rec.dispatch(&self.sample_initial, &bindings, &push, rays.n_rays as u64)
+        match &self.lanes {
+            Some(l) => rec.dispatch(&l.sample_initial, &bindings, &push, (rays.n_rays * (n + 1)) as u64),
+            None => rec.dispatch(&self.sample_initial, &bindings, &push, rays.n_rays as u64),
+        }
+    }
+
+    /// Whether the lanes variants run ([`RenderKernels::with_ray_lanes`]).
+    pub fn ray_lanes(&self) -> bool {
+        self.lanes.is_some()
     }
 
     /// Weights of a level from its raw densities (column 0 of rows of `raw_stride`).
@@ -311,7 +389,10 @@ impl RenderKernels {
         };
         let bindings =
             [edges.binding(), raw.0.binding(), weights.binding(), rays.origins.binding(), rays.dirs.binding()];
-        rec.dispatch(&self.weights, &bindings, &push, rays.n_rays as u64)
+        match &self.lanes {
+            Some(l) => rec.dispatch(&l.weights, &bindings, &push, (rays.n_rays * RAY_LANES) as u64),
+            None => rec.dispatch(&self.weights, &bindings, &push, rays.n_rays as u64),
+        }
     }
 
     /// PDF resampling from n bins to m samples (m + 1 edges), and their hash inputs.
@@ -349,7 +430,12 @@ impl RenderKernels {
             rays.origins.binding(),
             rays.dirs.binding(),
         ];
-        rec.dispatch(&self.pdf, &bindings, &push, rays.n_rays as u64)
+        match &self.lanes {
+            Some(l) if n <= PDF_LANES_MAX_BINS => {
+                rec.dispatch(&l.pdf, &bindings, &push, (rays.n_rays * RAY_LANES) as u64)
+            }
+            _ => rec.dispatch(&self.pdf, &bindings, &push, rays.n_rays as u64),
+        }
     }
 
     /// Colour MLP input rows; `appearance` = (embeddings, camera index per ray, dim, Some(row) for a fixed row);
@@ -485,7 +571,12 @@ impl RenderKernels {
             rays.origins.binding(),
             rays.dirs.binding(),
         ];
-        rec.dispatch(&self.interlevel, &bindings, &push, rays.n_rays as u64)
+        match &self.lanes {
+            Some(l) if n_nerf <= INTERLEVEL_LANES_MAX.0 && n_prop <= INTERLEVEL_LANES_MAX.1 => {
+                rec.dispatch(&l.interlevel, &bindings, &push, (rays.n_rays * RAY_LANES) as u64)
+            }
+            _ => rec.dispatch(&self.interlevel, &bindings, &push, rays.n_rays as u64),
+        }
     }
 
     /// Copies `cols` columns of `n` rows between row-major matrices: (buffer, stride, first column).

@@ -93,16 +93,27 @@ pub struct LevelGrad<'a> {
 
 pub struct PoseKernels {
     apply: Kernel<ApplyPush>,
+    /// `pose_ray_grad`, or `pose_ray_grad_lanes` (32 invocations per ray) where [`super::kernels::default_ray_lanes`]
+    /// picks them; `ray_lanes` says which.
     ray_grad: Kernel<RayGradPush>,
+    ray_lanes: bool,
     reduce: Kernel<ReducePush>,
     regularizer: Kernel<RegularizerPush>,
 }
 
 impl PoseKernels {
     pub fn new(ctx: &Context) -> GpuResult<Self> {
+        Self::with_ray_lanes(ctx, super::kernels::default_ray_lanes(ctx)?)
+    }
+
+    /// As [`PoseKernels::new`], with the per-ray gradient over 32 lanes per ray (`lanes`) or one invocation per ray.
+    pub fn with_ray_lanes(ctx: &Context, lanes: bool) -> GpuResult<Self> {
+        super::kernels::check_ray_lanes(ctx, lanes)?;
+        let ray_grad = if lanes { &shaders::POSE_RAY_GRAD_LANES } else { &shaders::POSE_RAY_GRAD };
         Ok(Self {
             apply: Kernel::new(ctx, &shaders::POSE_APPLY)?,
-            ray_grad: Kernel::new(ctx, &shaders::POSE_RAY_GRAD)?,
+            ray_grad: Kernel::new(ctx, ray_grad)?,
+            ray_lanes: lanes,
             reduce: Kernel::new(ctx, &shaders::POSE_REDUCE)?,
             regularizer: Kernel::new(ctx, &shaders::POSE_REGULARIZER)?,
         })
@@ -157,7 +168,8 @@ impl PoseKernels {
             cdx.binding(),
             ray_grads.binding(),
         ];
-        rec.dispatch(&self.ray_grad, &bindings, &push, rays.n_rays as u64)
+        let per_ray = if self.ray_lanes { super::kernels::RAY_LANES } else { 1 };
+        rec.dispatch(&self.ray_grad, &bindings, &push, (rays.n_rays * per_ray) as u64)
     }
 
     /// Adds every ray's share to its camera's [t, w] gradient.

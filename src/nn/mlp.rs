@@ -738,7 +738,8 @@ impl Mlp {
                 &bindings,
                 &grads.array.deps(),
                 &push,
-                (out_w * in_w) as u64,
+                // one workgroup of 256 per 32 elements (the kernel's header)
+                ((out_w * in_w).div_ceil(32) * 256) as u64,
             )?;
         }
         Ok(())

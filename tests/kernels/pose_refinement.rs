@@ -227,7 +227,7 @@ fn pose_kernels_match_their_twins() {
     let g = gpu();
     let k = PoseKernels::new(&g).expect("kernels");
     let mut r = rng(6);
-    let (nr, cams, offset, n) = (53, 6, 40, 9);
+    let (nr, cams, offset, n) = (53, 6, 40, 41);
     let poses = random_poses(&mut r, cams);
     let params = pose_array(&g, "params", offset, &poses);
     let grads = pose_array(&g, "grads", offset, &vec![0.5; poses.len()]);
@@ -274,7 +274,9 @@ fn pose_kernels_match_their_twins() {
     let ray_grads = up(&g, "ray grads", &vec![0.0; 6 * nr]);
     // nerfacto's SH degree 4 (16 columns) with contraction; degree 2 (4 columns: the rest are zero in the forward,
     // so their input gradient must not reach the direction) without.
-    for (contraction, sh_count) in [(true, 16), (false, 4)] {
+    // Both kernels: one invocation per ray, and 32 lanes per ray (two blocks of samples: n = 41).
+    for (contraction, sh_count, lanes) in [(true, 16, false), (false, 4, false), (true, 16, true), (false, 4, true)] {
+        let k = PoseKernels::with_ray_lanes(&g, lanes).expect("kernels");
         let geo = Geometry { near: NEAR as f32, far: FAR as f32, contraction };
         let mut rec = g.recorder("pose ray grad").expect("rec");
         let first = LevelGrad { n, edges: &edges, dpos: &dpos, colour_dx: None, sh_count, accumulate: false };
@@ -302,7 +304,8 @@ fn pose_kernels_match_their_twins() {
             want.extend(a_o.iter().zip(&b_o).map(|(a, b)| (a + b) as f64));
             want.extend(a_d.iter().zip(&b_d).map(|(a, b)| (a + b) as f64));
         }
-        check_grad(&got, &want, &format!("per-ray gradients (contraction {contraction}, {sh_count} SH columns)"));
+        let what = format!("per-ray gradients (contraction {contraction}, {sh_count} SH columns, lanes {lanes})");
+        check_grad(&got, &want, &what);
     }
 
     // pose_reduce: every ray's share into its camera's 6 gradients (on top of 0.5).
@@ -328,9 +331,12 @@ fn pose_kernels_match_their_twins() {
     check_grad(&got[offset..offset + 6 * cams], &want, "camera gradients");
     assert!(got[..offset].iter().chain(&got[offset + 6 * cams..]).all(|&v| v == 0.25), "outside the slot untouched");
 
-    // pose_regularizer: adds its gradient, writes per-camera losses (mean over 4 "training" cameras).
+    // pose_regularizer: adds its gradient, writes per-camera losses (mean over 4 "training" cameras). Fresh
+    // gradients: the regulariser's share (~1e-4) would drown in the rays' sums of 41 samples.
     let losses = up(&g, "losses", &vec![0.0; cams]);
-    let before = got;
+    let grads = pose_array(&g, "grads", offset, &vec![0.5; poses.len()]);
+    let slot = PoseSlot { params: &params, grads: &grads, offset };
+    let before = grads.download(&g).expect("grads");
     let mut rec = g.recorder("pose regulariser").expect("rec");
     k.regularizer(&mut rec, slot, (cams, 4), (0.01, 0.001), &losses).expect("regulariser");
     rec.submit_and_wait().expect("submit");

@@ -168,24 +168,52 @@ fn ray_gen_matches_the_camera_model() {
     }
 }
 
-/// Draws a batch, runs the sampling kernels of two levels, and checks them against the twin.
+/// The per-ray kernels' GPU variants are the default on GPUs and off on CPU devices, where they measured 3-10x
+/// slower (docs/benchmarks.md); `MSNERF_RAY_LANES` overrides both.
+#[test]
+fn ray_lanes_default_follows_the_device_kind() {
+    let g = gpu();
+    let want = match std::env::var("MSNERF_RAY_LANES").as_deref() {
+        Ok("1") => true,
+        Ok("0") => false,
+        Ok(v) => panic!("MSNERF_RAY_LANES={v} is not 0 or 1"),
+        Err(_) => !g.caps().is_cpu && g.caps().subgroup_arithmetic,
+    };
+    assert_eq!(msnerf::nerf::kernels::default_ray_lanes(&g).expect("default"), want);
+    assert_eq!(RenderKernels::new(&g).expect("kernels").ray_lanes(), want);
+}
+
+/// Draws a batch, runs the sampling kernels of two levels, and checks them against the twin: with the serial
+/// per-ray weights and resampling and with their lanes variants (32 invocations per ray; on lavapipe four subgroups
+/// of 8, so the shared-memory combination of subgroup scans runs too), for a level of one block of 32 samples and
+/// one of three blocks, the last partial.
 #[test]
 fn sampling_weights_and_resampling_match_twin() {
     let g = gpu();
-    let k = RenderKernels::new(&g).expect("kernels");
+    assert!(g.caps().subgroup_arithmetic, "the lanes kernels must be tested: the device lacks subgroup arithmetic");
+    for lanes in [false, true] {
+        let k = RenderKernels::with_ray_lanes(&g, lanes).expect("kernels");
+        assert_eq!(k.ray_lanes(), lanes);
+        for (n0, n1) in [(32, 12), (75, 40)] {
+            sampling_case(&g, &k, n0, n1);
+        }
+    }
+}
+
+fn sampling_case(g: &Context, k: &RenderKernels, n0: usize, n1: usize) {
     let mut r = rng(2);
-    let (nr, n0, n1) = (67, 32, 12);
+    let nr = 67;
     let rays = random_rays(&mut r, nr);
     for contraction in [true, false] {
         let geo = Geometry { near: 0.05, far: 1000.0, contraction };
-        let o = up(&g, "o", &rays.o.concat());
-        let d = up(&g, "d", &rays.d.concat());
+        let o = up(g, "o", &rays.o.concat());
+        let d = up(g, "d", &rays.d.concat());
         let rb = RayBuffers { origins: &o, dirs: &d, n_rays: nr, ray_offset: 1000 };
-        let (e0, p0) = (zeros(&g, "e0", nr * (n0 + 1)), zeros(&g, "p0", nr * n0 * 3));
+        let (e0, p0) = (zeros(g, "e0", nr * (n0 + 1)), zeros(g, "p0", nr * n0 * 3));
         let raw: Vec<f32> = (0..nr * n0).map(|_| r.random_range(-4.0f32..3.0)).collect();
-        let raw_b = up(&g, "raw", &raw);
-        let w0 = zeros(&g, "w0", nr * n0);
-        let (e1, p1) = (zeros(&g, "e1", nr * (n1 + 1)), zeros(&g, "p1", nr * n1 * 3));
+        let raw_b = up(g, "raw", &raw);
+        let w0 = zeros(g, "w0", nr * n0);
+        let (e1, p1) = (zeros(g, "e1", nr * (n1 + 1)), zeros(g, "p1", nr * n1 * 3));
         let jit = |level| Jitter { seed: 7, step: 3, level, enabled: true };
         let mut rec = g.recorder("sampling").expect("rec");
         k.sample_initial(&mut rec, rb, geo, n0, jit(0), (&e0, &p0)).expect("sample");
@@ -605,9 +633,19 @@ fn depth_losses_match_nerfstudio_formulas() {
 #[test]
 fn interlevel_matches_twin_and_finite_differences() {
     let g = gpu();
-    let k = RenderKernels::new(&g).expect("kernels");
+    // The serial kernel and the lanes variant (its searches and prefix sums over blocks of 32: two blocks of NeRF
+    // intervals, three of proposal samples in the second case).
+    for lanes in [false, true] {
+        let k = RenderKernels::with_ray_lanes(&g, lanes).expect("kernels");
+        for (n_nerf, n_prop) in [(9, 20), (45, 70)] {
+            interlevel_case(&g, &k, n_nerf, n_prop);
+        }
+    }
+}
+
+fn interlevel_case(g: &Context, k: &RenderKernels, n_nerf: usize, n_prop: usize) {
     let mut r = rng(5);
-    let (nr, n_nerf, n_prop) = (41, 9, 20);
+    let nr = 41;
     let rays = random_rays(&mut r, nr);
     let geo = Geometry { near: 0.05, far: 1000.0, contraction: true };
     let sorted = |r: &mut ChaCha8Rng, n: usize| {
@@ -619,13 +657,13 @@ fn interlevel_matches_twin_and_finite_differences() {
     let pe: Vec<f32> = (0..nr).flat_map(|_| sorted(&mut r, n_prop)).collect();
     let nw: Vec<f32> = (0..nr * n_nerf).map(|_| r.random_range(0.0f32..0.3)).collect();
     let praw: Vec<f32> = (0..nr * n_prop).map(|_| r.random_range(-3.0f32..5.0)).collect();
-    let o = up(&g, "o", &rays.o.concat());
-    let d = up(&g, "d", &rays.d.concat());
+    let o = up(g, "o", &rays.o.concat());
+    let d = up(g, "d", &rays.d.concat());
     let rb = RayBuffers { origins: &o, dirs: &d, n_rays: nr, ray_offset: 0 };
-    let (neb, nwb, peb, prb) = (up(&g, "ne", &ne), up(&g, "nw", &nw), up(&g, "pe", &pe), up(&g, "praw", &praw));
-    let pw = zeros(&g, "pw", nr * n_prop);
-    let dy = zeros(&g, "dy", nr * n_prop);
-    let losses = zeros(&g, "losses", nr);
+    let (neb, nwb, peb, prb) = (up(g, "ne", &ne), up(g, "nw", &nw), up(g, "pe", &pe), up(g, "praw", &praw));
+    let pw = zeros(g, "pw", nr * n_prop);
+    let dy = zeros(g, "dy", nr * n_prop);
+    let losses = zeros(g, "losses", nr);
     let norm = 1.0 / (nr * n_nerf) as f32;
     let mut rec = g.recorder("interlevel").expect("rec");
     k.weights(&mut rec, rb, geo, n_prop, &peb, (&prb, 1), 0.01, &pw).expect("weights");

@@ -148,37 +148,38 @@ fn interlevel_matches_twin(
 #[test]
 fn dense_media_weights_resampling_composite_and_interlevel_stay_finite() {
     let g = gpu();
-    let r = Render::new(&g);
-    let (nr, n, bands) = (5, 24, 4);
-    let rays = Rays::same(nr, [0.1, -0.2, 0.3], [0.3, 0.5, -0.8]);
-    let geo = CONTRACTED;
-    let edges: Vec<f32> = (0..nr).flat_map(|_| uniform_edges(n)).collect();
-    let profiles: Vec<Vec<f64>> = vec![
-        vec![1e4; n],                                                                 // opaque from the first sample
-        (0..n).map(|i| 10f64.powf(-2.0 + 6.0 * i as f64 / (n - 1) as f64)).collect(), // 1e-2 .. 1e4
-        (0..n).map(|i| if i % 2 == 0 { 0.0 } else { 1e4 }).collect(),                 // empty / opaque alternating
-        (0..n).map(|i| if i == n / 2 { 1e4 } else { 0.0 }).collect(),                 // one opaque wall mid-ray
-        (0..n).map(|i| if i >= n - 3 { 1e4 } else { 1e3 }).collect(),                 // dense everywhere
-    ];
-    let raw: Vec<f32> =
-        profiles.iter().enumerate().flat_map(|(i, p)| raw_for_tau(&edges[i * (n + 1)..], geo, p)).collect();
-    weights_match_twin(&r, &rays, geo, n, &edges, &raw, "dense weights");
-    for bg in [None, Some(1.0)] {
-        let mut c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
-        c.background = bg;
-        let out = composite_matches_twin(&r, &c, "dense composite");
-        for i in 0..nr {
-            let a = out.ray_out[i * (RAY_OUT_FIXED + bands) + RayOut::Accumulation.col()];
-            assert!((a - 1.0).abs() < 1e-5, "ray {i}: opaque ray accumulates 1, got {a}");
+    for r in Render::variants(&g) {
+        let (nr, n, bands) = (5, 24, 4);
+        let rays = Rays::same(nr, [0.1, -0.2, 0.3], [0.3, 0.5, -0.8]);
+        let geo = CONTRACTED;
+        let edges: Vec<f32> = (0..nr).flat_map(|_| uniform_edges(n)).collect();
+        let profiles: Vec<Vec<f64>> = vec![
+            vec![1e4; n],                                                                 // opaque from the first sample
+            (0..n).map(|i| 10f64.powf(-2.0 + 6.0 * i as f64 / (n - 1) as f64)).collect(), // 1e-2 .. 1e4
+            (0..n).map(|i| if i % 2 == 0 { 0.0 } else { 1e4 }).collect(),                 // empty / opaque alternating
+            (0..n).map(|i| if i == n / 2 { 1e4 } else { 0.0 }).collect(),                 // one opaque wall mid-ray
+            (0..n).map(|i| if i >= n - 3 { 1e4 } else { 1e3 }).collect(),                 // dense everywhere
+        ];
+        let raw: Vec<f32> =
+            profiles.iter().enumerate().flat_map(|(i, p)| raw_for_tau(&edges[i * (n + 1)..], geo, p)).collect();
+        weights_match_twin(&r, &rays, geo, n, &edges, &raw, "dense weights");
+        for bg in [None, Some(1.0)] {
+            let mut c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
+            c.background = bg;
+            let out = composite_matches_twin(&r, &c, "dense composite");
+            for i in 0..nr {
+                let a = out.ray_out[i * (RAY_OUT_FIXED + bands) + RayOut::Accumulation.col()];
+                assert!((a - 1.0).abs() < 1e-5, "ray {i}: opaque ray accumulates 1, got {a}");
+            }
         }
+        // Resample the dense weights (a one-hot pdf), then the interlevel loss of a dense proposal level.
+        let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
+        let m = 12;
+        let ne = pdf_matches_twin(&r, &rays, geo, (n, m), &edges, &w);
+        let nw: Vec<f32> = (0..nr * m).map(|i| if i % m == m / 2 { 1.0 } else { 0.0 }).collect();
+        let loss = interlevel_matches_twin(&r, &rays, geo, (m, n), &ne, &nw, &edges, &raw, "dense interlevel");
+        assert!(loss > 0.0, "the case exercises the interlevel loss");
     }
-    // Resample the dense weights (a one-hot pdf), then the interlevel loss of a dense proposal level.
-    let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
-    let m = 12;
-    let ne = pdf_matches_twin(&r, &rays, geo, (n, m), &edges, &w);
-    let nw: Vec<f32> = (0..nr * m).map(|i| if i % m == m / 2 { 1.0 } else { 0.0 }).collect();
-    let loss = interlevel_matches_twin(&r, &rays, geo, (m, n), &ne, &nw, &edges, &raw, "dense interlevel");
-    assert!(loss > 0.0, "the case exercises the interlevel loss");
 }
 
 /// Empty space: every density underflows to 0, so every weight is 0 and the accumulation is 0. Guards: the PDF adds
@@ -188,36 +189,37 @@ fn dense_media_weights_resampling_composite_and_interlevel_stay_finite() {
 #[test]
 fn empty_space_gives_zero_weights_and_finite_everything() {
     let g = gpu();
-    let r = Render::new(&g);
-    let (nr, n, bands) = (3, 16, 3);
-    let rays = Rays::same(nr, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
-    let edges: Vec<f32> = (0..nr).flat_map(|_| uniform_edges(n)).collect();
-    for (geo, raw_v) in
-        [(CONTRACTED, -200.0f32), (CONTRACTED, -40.0), (Geometry { contraction: false, ..CONTRACTED }, 5.0)]
-    {
-        // Without contraction the rays leave the [-1, 1]^3 box after t = 1: density is masked to 0 there.
-        let raw = vec![raw_v; nr * n];
-        weights_match_twin(&r, &rays, geo, n, &edges, &raw, "empty weights");
-        for bg in [None, Some(0.0), Some(1.0)] {
-            let mut c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
-            c.background = bg;
-            let out = composite_matches_twin(&r, &c, "empty composite");
-            if raw_v == -200.0 {
-                assert!(out.weights.iter().all(|&w| w == 0.0), "all weights zero");
-                for i in 0..nr {
-                    let ro = &out.ray_out[i * (RAY_OUT_FIXED + bands)..(i + 1) * (RAY_OUT_FIXED + bands)];
-                    assert_eq!(RayOut::Accumulation.of(ro), 0.0, "accumulation");
-                    assert_eq!(RayOut::ExpectedDepth.of(ro), 0.0, "expected depth of an empty ray");
-                    assert_eq!(RayOut::LossDistortion.of(ro), 0.0, "distortion of an empty ray");
+    for r in Render::variants(&g) {
+        let (nr, n, bands) = (3, 16, 3);
+        let rays = Rays::same(nr, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
+        let edges: Vec<f32> = (0..nr).flat_map(|_| uniform_edges(n)).collect();
+        for (geo, raw_v) in
+            [(CONTRACTED, -200.0f32), (CONTRACTED, -40.0), (Geometry { contraction: false, ..CONTRACTED }, 5.0)]
+        {
+            // Without contraction the rays leave the [-1, 1]^3 box after t = 1: density is masked to 0 there.
+            let raw = vec![raw_v; nr * n];
+            weights_match_twin(&r, &rays, geo, n, &edges, &raw, "empty weights");
+            for bg in [None, Some(0.0), Some(1.0)] {
+                let mut c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
+                c.background = bg;
+                let out = composite_matches_twin(&r, &c, "empty composite");
+                if raw_v == -200.0 {
+                    assert!(out.weights.iter().all(|&w| w == 0.0), "all weights zero");
+                    for i in 0..nr {
+                        let ro = &out.ray_out[i * (RAY_OUT_FIXED + bands)..(i + 1) * (RAY_OUT_FIXED + bands)];
+                        assert_eq!(RayOut::Accumulation.of(ro), 0.0, "accumulation");
+                        assert_eq!(RayOut::ExpectedDepth.of(ro), 0.0, "expected depth of an empty ray");
+                        assert_eq!(RayOut::LossDistortion.of(ro), 0.0, "distortion of an empty ray");
+                    }
                 }
             }
+            let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
+            let m = 8;
+            let ne = pdf_matches_twin(&r, &rays, geo, (n, m), &edges, &w);
+            let nw = vec![0.0f32; nr * m];
+            let loss = interlevel_matches_twin(&r, &rays, geo, (m, n), &ne, &nw, &edges, &raw, "empty interlevel");
+            assert_eq!(loss, 0.0);
         }
-        let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
-        let m = 8;
-        let ne = pdf_matches_twin(&r, &rays, geo, (n, m), &edges, &w);
-        let nw = vec![0.0f32; nr * m];
-        let loss = interlevel_matches_twin(&r, &rays, geo, (m, n), &ne, &nw, &edges, &raw, "empty interlevel");
-        assert_eq!(loss, 0.0);
     }
 }
 
@@ -229,49 +231,50 @@ fn empty_space_gives_zero_weights_and_finite_everything() {
 #[test]
 fn raw_density_above_88_gives_finite_weights_and_gradients() {
     let g = gpu();
-    let r = Render::new(&g);
-    let (nr, n, bands) = (4, 12, 3);
-    let rays = Rays::same(nr, [0.2, 0.1, -0.1], [-0.4, 0.2, 0.9]);
-    let geo = CONTRACTED;
-    let mut edges = Vec::new();
-    for i in 0..nr {
-        let mut e = uniform_edges(n);
-        if i % 2 == 1 {
-            // zero-width intervals 3 and 4 (edges 3..=5 equal)
-            e[4] = e[3];
-            e[5] = e[3];
-        }
-        edges.extend(e);
-    }
-    let big = [89.0f32, 100.0, 1e4, f32::MAX];
-    let raw: Vec<f32> = (0..nr * n)
-        .map(|s| {
-            let (i, k) = (s / n, s % n);
-            if (3..=4).contains(&k) {
-                big[i]
-            } else if k == 7 {
-                big[(i + 1) % 4]
-            } else {
-                -1.0
+    for r in Render::variants(&g) {
+        let (nr, n, bands) = (4, 12, 3);
+        let rays = Rays::same(nr, [0.2, 0.1, -0.1], [-0.4, 0.2, 0.9]);
+        let geo = CONTRACTED;
+        let mut edges = Vec::new();
+        for i in 0..nr {
+            let mut e = uniform_edges(n);
+            if i % 2 == 1 {
+                // zero-width intervals 3 and 4 (edges 3..=5 equal)
+                e[4] = e[3];
+                e[5] = e[3];
             }
-        })
-        .collect();
-    weights_match_twin(&r, &rays, geo, n, &edges, &raw, "overflow weights");
-    for bg in [None, Some(0.5)] {
-        let mut c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
-        c.background = bg;
-        composite_matches_twin(&r, &c, "overflow composite");
+            edges.extend(e);
+        }
+        let big = [89.0f32, 100.0, 1e4, f32::MAX];
+        let raw: Vec<f32> = (0..nr * n)
+            .map(|s| {
+                let (i, k) = (s / n, s % n);
+                if (3..=4).contains(&k) {
+                    big[i]
+                } else if k == 7 {
+                    big[(i + 1) % 4]
+                } else {
+                    -1.0
+                }
+            })
+            .collect();
+        weights_match_twin(&r, &rays, geo, n, &edges, &raw, "overflow weights");
+        for bg in [None, Some(0.5)] {
+            let mut c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
+            c.background = bg;
+            composite_matches_twin(&r, &c, "overflow composite");
+        }
+        let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
+        let m = 6;
+        let ne = pdf_matches_twin(&r, &rays, geo, (n, m), &edges, &w);
+        let nw: Vec<f32> = (0..nr * m).map(|i| if i % m == 1 { 0.9 } else { 0.02 }).collect();
+        interlevel_matches_twin(&r, &rays, geo, (m, n), &ne, &nw, &edges, &raw, "overflow interlevel");
+        // The trunc_exp derivative stays the clamped exp(15) x 0.01 however large the raw value.
+        let c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
+        let out = r.composite(&c, true);
+        let bound = 0.01 * 15f32.exp() * 1e3; // delta < 1e3, |g|, |S| <= a few units
+        assert!(out.d_raw.iter().all(|v| v.abs() < bound), "bounded trunc_exp gradients");
     }
-    let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
-    let m = 6;
-    let ne = pdf_matches_twin(&r, &rays, geo, (n, m), &edges, &w);
-    let nw: Vec<f32> = (0..nr * m).map(|i| if i % m == 1 { 0.9 } else { 0.02 }).collect();
-    interlevel_matches_twin(&r, &rays, geo, (m, n), &ne, &nw, &edges, &raw, "overflow interlevel");
-    // The trunc_exp derivative stays the clamped exp(15) x 0.01 however large the raw value.
-    let c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
-    let out = r.composite(&c, true);
-    let bound = 0.01 * 15f32.exp() * 1e3; // delta < 1e3, |g|, |S| <= a few units
-    assert!(out.d_raw.iter().all(|v| v.abs() < bound), "bounded trunc_exp gradients");
 }
 
 /// Far plane 1e6 (and 1e10) with near plane 0: the spacing inverse 1/(2 - 2s) cancels catastrophically in fp32 next
@@ -282,41 +285,42 @@ fn raw_density_above_88_gives_finite_weights_and_gradients() {
 #[test]
 fn far_plane_1e6_and_near_plane_0_match_the_f64_twin() {
     let g = gpu();
-    let r = Render::new(&g);
-    let (nr, n, bands) = (3, 32, 3);
-    let rays = Rays {
-        o: vec![[0.0, 0.0, 0.0], [0.9, -0.9, 0.5], [1.0, 1.0, 1.0]],
-        d: vec![[0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [0.0, 1.0, 0.0]],
-    };
-    for far in [1e6f32, 1e10] {
-        for contraction in [true, false] {
-            let geo = Geometry { near: 0.0, far, contraction };
-            let (edges, pos) = r.sample_initial(&rays, geo, n, false);
-            assert_finite(&pos, "positions");
-            for i in 0..nr {
-                let gm = rays.geom64(i, geo);
-                let e = f64s(&edges[i * (n + 1)..(i + 1) * (n + 1)]);
-                assert_eq!(e[0], 0.0);
-                assert_eq!(e[n], 1.0);
-                assert!((gm.t(e[0])).abs() < 1e-12, "near = 0: first edge at the origin");
-                assert!((gm.t(e[n]) - far as f64).abs() <= 1e-6 * far as f64, "last edge at the far plane");
-                let want: Vec<f64> = gm.positions(&e).concat();
-                check_vals(&pos[i * n * 3..(i + 1) * n * 3], &want, &format!("far {far} ray {i} positions"));
+    for r in Render::variants(&g) {
+        let (nr, n, bands) = (3, 32, 3);
+        let rays = Rays {
+            o: vec![[0.0, 0.0, 0.0], [0.9, -0.9, 0.5], [1.0, 1.0, 1.0]],
+            d: vec![[0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [0.0, 1.0, 0.0]],
+        };
+        for far in [1e6f32, 1e10] {
+            for contraction in [true, false] {
+                let geo = Geometry { near: 0.0, far, contraction };
+                let (edges, pos) = r.sample_initial(&rays, geo, n, false);
+                assert_finite(&pos, "positions");
+                for i in 0..nr {
+                    let gm = rays.geom64(i, geo);
+                    let e = f64s(&edges[i * (n + 1)..(i + 1) * (n + 1)]);
+                    assert_eq!(e[0], 0.0);
+                    assert_eq!(e[n], 1.0);
+                    assert!((gm.t(e[0])).abs() < 1e-12, "near = 0: first edge at the origin");
+                    assert!((gm.t(e[n]) - far as f64).abs() <= 1e-6 * far as f64, "last edge at the far plane");
+                    let want: Vec<f64> = gm.positions(&e).concat();
+                    check_vals(&pos[i * n * 3..(i + 1) * n * 3], &want, &format!("far {far} ray {i} positions"));
+                }
+                let raw: Vec<f32> = (0..nr * n).map(|s| -3.0 + (s % 7) as f32).collect();
+                weights_match_twin(&r, &rays, geo, n, &edges, &raw, "far-plane weights");
+                let c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
+                composite_matches_twin(&r, &c, &format!("far {far} composite"));
+                let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
+                pdf_matches_twin(&r, &rays, geo, (n, 16), &edges, &w);
             }
-            let raw: Vec<f32> = (0..nr * n).map(|s| -3.0 + (s % 7) as f32).collect();
-            weights_match_twin(&r, &rays, geo, n, &edges, &raw, "far-plane weights");
-            let c = case(rays.clone(), n, bands, edges.clone(), raw.clone(), geo);
-            composite_matches_twin(&r, &c, &format!("far {far} composite"));
-            let w = r.weights(&rays, geo, n, &edges, &raw, 0.01);
-            pdf_matches_twin(&r, &rays, geo, (n, 16), &edges, &w);
         }
-    }
-    // The twin itself: t(s) is continuous and increasing up to far for every far, in f32 as in f64.
-    for far in [1e3f32, 1e6, 1e10, 1e30] {
-        let ts: Vec<f32> = (0..=1000).map(|k| tw::edge_to_t(k as f32 / 1000.0, 0.0, far)).collect();
-        assert!(ts.iter().all(|t| t.is_finite()), "far {far}: finite");
-        assert!(ts.windows(2).all(|w| w[0] <= w[1]), "far {far}: non-decreasing");
-        assert!((ts[1000] - far).abs() <= 1e-6 * far, "far {far}: t(1) = {} ", ts[1000]);
+        // The twin itself: t(s) is continuous and increasing up to far for every far, in f32 as in f64.
+        for far in [1e3f32, 1e6, 1e10, 1e30] {
+            let ts: Vec<f32> = (0..=1000).map(|k| tw::edge_to_t(k as f32 / 1000.0, 0.0, far)).collect();
+            assert!(ts.iter().all(|t| t.is_finite()), "far {far}: finite");
+            assert!(ts.windows(2).all(|w| w[0] <= w[1]), "far {far}: non-decreasing");
+            assert!((ts[1000] - far).abs() <= 1e-6 * far, "far {far}: t(1) = {} ", ts[1000]);
+        }
     }
 }
 

@@ -143,6 +143,12 @@ impl<'a> Render<'a> {
         Render { g, k: RenderKernels::new(g).expect("render kernels") }
     }
 
+    /// The kernels with the serial per-ray weights and resampling, then with their lanes variants (32 invocations
+    /// per ray; `RenderKernels::with_ray_lanes`): the hard cases hold for both.
+    pub fn variants(g: &'a Context) -> [Self; 2] {
+        [false, true].map(|lanes| Render { g, k: RenderKernels::with_ray_lanes(g, lanes).expect("render kernels") })
+    }
+
     fn ray_bufs(&self, rays: &Rays) -> (GpuBuffer<f32>, GpuBuffer<f32>) {
         (up(self.g, "origins", &rays.o.concat()), up(self.g, "dirs", &rays.d.concat()))
     }

@@ -125,6 +125,44 @@ fn bench_train_takes_the_batch_and_chunk_sizes() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("--rays-per-chunk"), "the error names the flag");
 }
 
+/// `MSNERF_RAY_LANES` picks the per-ray kernels of a whole training step (issue 22): forced on, lavapipe runs the
+/// GPU variants and the per-kernel breakdown names them; off, the serial ones; a value other than 0 or 1 stops the
+/// command with an error naming the variable.
+#[test]
+fn ray_lanes_switch_picks_the_per_ray_kernels_and_refuses_bad_values() {
+    // From step 0, where every step updates the proposals: the interlevel loss runs too.
+    let args = [
+        "bench",
+        "train",
+        "--models",
+        "tiny",
+        "--bands",
+        "3",
+        "--rays-per-batch",
+        "48",
+        "--steps",
+        "2",
+        "--at-step",
+        "0",
+    ];
+    let kernels = |lanes: &str| -> Vec<String> {
+        let out = msnerf().args(args).arg("--json").env("MSNERF_RAY_LANES", lanes).output().expect("run msnerf");
+        assert!(out.status.success(), "MSNERF_RAY_LANES={lanes}: {}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+        v[0]["kernels"].as_array().expect("kernels").iter().map(|k| k["name"].as_str().unwrap().to_owned()).collect()
+    };
+    let on = kernels("1");
+    for k in ["sample_initial_edges", "density_weights_lanes", "pdf_resample_lanes", "interlevel_lanes"] {
+        assert!(on.iter().any(|n| n == k), "{k} runs with MSNERF_RAY_LANES=1: {on:?}");
+    }
+    let off = kernels("0");
+    assert!(off.iter().all(|n| !n.ends_with("_lanes") && n != "sample_initial_edges"), "{off:?}");
+    assert!(off.iter().any(|n| n == "density_weights"), "{off:?}");
+    let out = msnerf().args(args).env("MSNERF_RAY_LANES", "yes").output().expect("run msnerf");
+    assert!(!out.status.success(), "a bad value is refused");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("MSNERF_RAY_LANES"), "the error names the variable");
+}
+
 /// `tools/bench-vs-nerfstudio.sh` (issue 22): bad flags and a missing venv stop it with exit status 2 and a message
 /// that names the flag or says what to do, before anything heavy runs. (The comparison itself needs nerfstudio and
 /// minutes of CPU time: docs/benchmarks.md has its figures.)
