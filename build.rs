@@ -74,6 +74,7 @@ const VARIANTS: &[Variant] = &[
     v("pdf_resample_lanes", "render/pdf_resample_lanes.comp"),
     v("colour_input", "render/colour_input.comp"),
     v("composite", "render/composite.comp"),
+    v("composite_lanes", "render/composite_lanes.comp"),
     v("interlevel", "render/interlevel.comp"),
     v("interlevel_lanes", "render/interlevel_lanes.comp"),
     v("appearance_grad", "render/appearance_grad.comp"),

@@ -41,3 +41,17 @@ float lanes_add(float x) {
     lanes_exclusive_add(x, total);
     return total;
 }
+
+shared uint lanes_partial_u[LANES];
+
+// Workgroup-wide minimum of x.
+uint lanes_min_u(uint x) {
+    uint m = subgroupMin(x);
+    if (gl_NumSubgroups == 1u) return m;
+    barrier(); // the previous call's reads of lanes_partial_u are done
+    if (subgroupElect()) lanes_partial_u[gl_SubgroupID] = m;
+    barrier();
+    uint r = 0xffffffffu;
+    for (uint s = 0u; s < gl_NumSubgroups; ++s) r = min(r, lanes_partial_u[s]);
+    return r;
+}

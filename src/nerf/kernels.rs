@@ -221,12 +221,12 @@ pub const RAY_LANES: usize = 32;
 pub const PDF_LANES_MAX_BINS: usize = 1024;
 
 /// Whether the per-ray kernels run their GPU variants: the initial sampler one invocation per edge
-/// (`sample_initial_edges`), and the proposal weights, resampling, interlevel loss and pose ray gradient over
-/// [`RAY_LANES`] invocations per ray (`*_lanes`, with subgroup scans), instead of one invocation walking each ray:
-/// `MSNERF_RAY_LANES` (`1` or `0`) when set, else on GPUs with subgroup arithmetic. Without them a GPU runs a
-/// 4096-ray pass of these kernels as 4096 threads, each a serial loop over up to 512 samples (docs/benchmarks.md); a
-/// CPU device (lavapipe) runs the serial loops in SIMD and was 3-10x slower with the variants (same page). A value
-/// other than 0 or 1 is an error naming the variable.
+/// (`sample_initial_edges`), and the proposal weights, resampling, interlevel loss, compositing and pose ray
+/// gradient over [`RAY_LANES`] invocations per ray (`*_lanes`, with subgroup scans), instead of one invocation
+/// walking each ray: `MSNERF_RAY_LANES` (`1` or `0`) when set, else on GPUs with subgroup arithmetic. Without them
+/// a GPU runs a 4096-ray pass of these kernels as 4096 threads, each a serial loop over up to 512 samples
+/// (docs/benchmarks.md); a CPU device (lavapipe) runs the serial loops in SIMD and was 3-10x slower with the
+/// variants (same page). A value other than 0 or 1 is an error naming the variable.
 pub fn default_ray_lanes(ctx: &Context) -> GpuResult<bool> {
     let caps = ctx.caps();
     match crate::util::env::settings().ray_lanes.as_deref() {
@@ -263,7 +263,11 @@ struct LanesKernels {
     weights: Kernel<WeightsPush>,
     pdf: Kernel<PdfPush>,
     interlevel: Kernel<InterlevelPush>,
+    composite: Kernel<CompositePush>,
 }
+
+/// Most NeRF samples per ray `composite_lanes` takes (its shared-memory arrays); more run the serial kernel.
+pub const COMPOSITE_LANES_MAX_SAMPLES: usize = 256;
 
 /// Every render kernel, created once per context.
 pub struct RenderKernels {
@@ -299,6 +303,7 @@ impl RenderKernels {
                 weights: Kernel::new(ctx, &shaders::DENSITY_WEIGHTS_LANES)?,
                 pdf: Kernel::new(ctx, &shaders::PDF_RESAMPLE_LANES)?,
                 interlevel: Kernel::new(ctx, &shaders::INTERLEVEL_LANES)?,
+                composite: Kernel::new(ctx, &shaders::COMPOSITE_LANES)?,
             }),
             false => None,
         };
@@ -533,7 +538,12 @@ impl RenderKernels {
             rays.dirs.binding(),
             depth_targets.binding(),
         ];
-        rec.dispatch(&self.composite, &bindings, &push, rays.n_rays as u64)
+        match &self.lanes {
+            Some(l) if n <= COMPOSITE_LANES_MAX_SAMPLES => {
+                rec.dispatch(&l.composite, &bindings, &push, (rays.n_rays * RAY_LANES) as u64)
+            }
+            _ => rec.dispatch(&self.composite, &bindings, &push, rays.n_rays as u64),
+        }
     }
 
     /// Interlevel loss of one proposal level and its backward into `prop_dy` (column 0 of rows of `raw_stride`).

@@ -358,9 +358,16 @@ const DEPTH_NORM: f32 = 0.05;
 #[test]
 fn composite_matches_twin_for_every_background() {
     let g = gpu();
-    let k = RenderKernels::new(&g).expect("kernels");
+    // The serial kernel, and the lanes variant within one block of samples and over two (45 samples).
+    for (lanes, n) in [(false, 24), (true, 24), (true, 45)] {
+        let k = RenderKernels::with_ray_lanes(&g, lanes).expect("kernels");
+        composite_twin_case(&g, &k, n);
+    }
+}
+
+fn composite_twin_case(g: &Context, k: &RenderKernels, n: usize) {
     let mut r = rng(3);
-    let cc = composite_case(&mut r, 53, 24, 6);
+    let cc = composite_case(&mut r, 53, n, 6);
     let (nr, n, bb) = (cc.nr, cc.n, cc.bands);
     use msnerf::nerf::kernels::BackgroundMode;
     let random = BackgroundMode::Random { seed: 7, step: 3 };
@@ -375,23 +382,23 @@ fn composite_matches_twin_for_every_background() {
     for (bg, bgv, gs, depth_loss) in cases {
         let (mut with_loss, mut with_target) = (0usize, 0usize);
         let geo = Geometry { near: 0.05, far: 1000.0, contraction: true };
-        let o = up(&g, "o", &cc.rays.o.concat());
-        let d = up(&g, "d", &cc.rays.d.concat());
+        let o = up(g, "o", &cc.rays.o.concat());
+        let d = up(g, "d", &cc.rays.d.concat());
         let rb = RayBuffers { origins: &o, dirs: &d, n_rays: nr, ray_offset: 0 };
         let stride = 16;
         let mut density = vec![0.0f32; nr * n * stride];
         for s in 0..nr * n {
             density[s * stride] = cc.raw[s];
         }
-        let bufs_edges = up(&g, "edges", &cc.edges);
-        let dens = up(&g, "density", &density);
-        let cols = up(&g, "colours", &cc.colours);
-        let tg = up(&g, "targets", &cc.targets);
-        let bw = up(&g, "band weights", &cc.band_w);
-        let dyd = zeros(&g, "dy density", nr * n * stride);
-        let dyc = zeros(&g, "dy colour", nr * n * bb);
-        let wts = zeros(&g, "weights", nr * n);
-        let out = zeros(&g, "ray out", nr * (RAY_OUT_FIXED + bb));
+        let bufs_edges = up(g, "edges", &cc.edges);
+        let dens = up(g, "density", &density);
+        let cols = up(g, "colours", &cc.colours);
+        let tg = up(g, "targets", &cc.targets);
+        let bw = up(g, "band weights", &cc.band_w);
+        let dyd = zeros(g, "dy density", nr * n * stride);
+        let dyc = zeros(g, "dy colour", nr * n * bb);
+        let wts = zeros(g, "weights", nr * n);
+        let out = zeros(g, "ray out", nr * (RAY_OUT_FIXED + bb));
         let p = CompositeParams {
             bands: bb,
             density_stride: stride,
@@ -403,7 +410,7 @@ fn composite_matches_twin_for_every_background() {
             train: true,
             depth: depth_loss.map(|l| (l, DEPTH_NORM)),
         };
-        let dt = up(&g, "depth targets", &cc.depth);
+        let dt = up(g, "depth targets", &cc.depth);
         let bufs = CompositeBuffers {
             edges: &bufs_edges,
             density: &dens,

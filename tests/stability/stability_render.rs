@@ -330,22 +330,23 @@ fn far_plane_1e6_and_near_plane_0_match_the_f64_twin() {
 #[test]
 fn saturated_reflectance_and_targets_outside_the_unit_interval() {
     let g = gpu();
-    let r = Render::new(&g);
-    let (nr, n, bands) = (6, 10, 4);
-    let rays = Rays::same(nr, [0.0, 0.3, 0.0], [1.0, 0.0, 0.2]);
-    let geo = CONTRACTED;
-    let edges: Vec<f32> = (0..nr).flat_map(|_| uniform_edges(n)).collect();
-    let raw: Vec<f32> = (0..nr * n).map(|s| (s % 5) as f32 - 1.0).collect();
-    let mut c = case(rays.clone(), n, bands, edges, raw, geo);
-    c.colours = (0..nr * n * bands).map(|i| if (i / 3) % 2 == 0 { 0.0 } else { 1.0 }).collect();
-    c.targets = targets(nr, bands, &[0.0, 1.0, -0.25, 1.25, 0.0, 1.0, 2.0]);
-    for bg in [None, Some(0.0), Some(1.0)] {
-        c.background = bg;
-        composite_matches_twin(&r, &c, "saturated composite");
-        let eval = r.composite(&c, false);
-        for i in 0..nr {
-            let col = &eval.ray_out[i * (RAY_OUT_FIXED + bands) + RAY_OUT_FIXED..(i + 1) * (RAY_OUT_FIXED + bands)];
-            assert!(col.iter().all(|v| (0.0..=1.0).contains(v)), "evaluation colours clamped: {col:?}");
+    for r in Render::variants(&g) {
+        let (nr, n, bands) = (6, 10, 4);
+        let rays = Rays::same(nr, [0.0, 0.3, 0.0], [1.0, 0.0, 0.2]);
+        let geo = CONTRACTED;
+        let edges: Vec<f32> = (0..nr).flat_map(|_| uniform_edges(n)).collect();
+        let raw: Vec<f32> = (0..nr * n).map(|s| (s % 5) as f32 - 1.0).collect();
+        let mut c = case(rays.clone(), n, bands, edges, raw, geo);
+        c.colours = (0..nr * n * bands).map(|i| if (i / 3) % 2 == 0 { 0.0 } else { 1.0 }).collect();
+        c.targets = targets(nr, bands, &[0.0, 1.0, -0.25, 1.25, 0.0, 1.0, 2.0]);
+        for bg in [None, Some(0.0), Some(1.0)] {
+            c.background = bg;
+            composite_matches_twin(&r, &c, "saturated composite");
+            let eval = r.composite(&c, false);
+            for i in 0..nr {
+                let col = &eval.ray_out[i * (RAY_OUT_FIXED + bands) + RAY_OUT_FIXED..(i + 1) * (RAY_OUT_FIXED + bands)];
+                assert!(col.iter().all(|v| (0.0..=1.0).contains(v)), "evaluation colours clamped: {col:?}");
+            }
         }
     }
 }
@@ -357,36 +358,38 @@ fn saturated_reflectance_and_targets_outside_the_unit_interval() {
 #[test]
 fn median_and_quantiles_are_exact_crossings() {
     let g = gpu();
-    let r = Render::new(&g);
-    let (n, bands) = (24usize, 3usize);
-    let geo = Geometry { near: 0.05, far: 1000.0, contraction: false };
-    // A ray along +x from the origin stays inside the [-1, 1]^3 box up to t = 1: the slab is [0.3, 0.8].
-    let rays = Rays::same(3, [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
-    // s in [0, 0.45] maps to t < 1 (the linear branch of the spacing: t = 2 (s g(far) + (1 - s) g(near))).
-    let edges_one: Vec<f32> = (0..=n).map(|i| i as f32 / n as f32 * 0.45).collect();
-    let ts: Vec<f64> = edges_one.iter().map(|&s| tw::edge_to_t(s as f64, 0.05, 1000.0)).collect();
-    let (ia, ib) = (ts.iter().position(|&t| t >= 0.3).unwrap(), ts.iter().position(|&t| t >= 0.8).unwrap());
-    let (t_a, t_b) = (ts[ia], ts[ib]);
-    assert!(ib - ia >= 8, "the slab spans several intervals ({} .. {})", ia, ib);
-    for sigma in [2.0f64, 8.0, 40.0] {
-        let tau: Vec<f64> = (0..n).map(|i| if i >= ia && i < ib { sigma * (ts[i + 1] - ts[i]) } else { 0.0 }).collect();
-        let raw = raw_for_tau(&edges_one, geo, &tau);
-        let c = case(rays.clone(), n, bands, edges_one.repeat(3), raw.repeat(3), geo);
-        let out = composite_matches_twin(&r, &c, "slab composite");
-        let ro = &out.ray_out[..RAY_OUT_FIXED + bands];
-        let total = 1.0 - (-sigma * (t_b - t_a)).exp();
-        let cross = |level: f64| t_a - (1.0 - level).ln() / sigma;
-        let cell = (t_b - t_a) / (ib - ia) as f64;
-        let tol = 2e-4 + 1e-3 * cell;
-        let (acc, median) = (RayOut::Accumulation.of(ro) as f64, RayOut::MedianDepth.of(ro) as f64);
-        assert!((acc - total).abs() < 1e-4, "sigma {sigma}: accumulation {acc} want {total}");
-        if total >= 0.5 {
-            let want = t_a + 2f64.ln() / sigma;
-            assert!((median - want).abs() < tol, "sigma {sigma}: median {median} want {want}");
+    for r in Render::variants(&g) {
+        let (n, bands) = (24usize, 3usize);
+        let geo = Geometry { near: 0.05, far: 1000.0, contraction: false };
+        // A ray along +x from the origin stays inside the [-1, 1]^3 box up to t = 1: the slab is [0.3, 0.8].
+        let rays = Rays::same(3, [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
+        // s in [0, 0.45] maps to t < 1 (the linear branch of the spacing: t = 2 (s g(far) + (1 - s) g(near))).
+        let edges_one: Vec<f32> = (0..=n).map(|i| i as f32 / n as f32 * 0.45).collect();
+        let ts: Vec<f64> = edges_one.iter().map(|&s| tw::edge_to_t(s as f64, 0.05, 1000.0)).collect();
+        let (ia, ib) = (ts.iter().position(|&t| t >= 0.3).unwrap(), ts.iter().position(|&t| t >= 0.8).unwrap());
+        let (t_a, t_b) = (ts[ia], ts[ib]);
+        assert!(ib - ia >= 8, "the slab spans several intervals ({} .. {})", ia, ib);
+        for sigma in [2.0f64, 8.0, 40.0] {
+            let tau: Vec<f64> =
+                (0..n).map(|i| if i >= ia && i < ib { sigma * (ts[i + 1] - ts[i]) } else { 0.0 }).collect();
+            let raw = raw_for_tau(&edges_one, geo, &tau);
+            let c = case(rays.clone(), n, bands, edges_one.repeat(3), raw.repeat(3), geo);
+            let out = composite_matches_twin(&r, &c, "slab composite");
+            let ro = &out.ray_out[..RAY_OUT_FIXED + bands];
+            let total = 1.0 - (-sigma * (t_b - t_a)).exp();
+            let cross = |level: f64| t_a - (1.0 - level).ln() / sigma;
+            let cell = (t_b - t_a) / (ib - ia) as f64;
+            let tol = 2e-4 + 1e-3 * cell;
+            let (acc, median) = (RayOut::Accumulation.of(ro) as f64, RayOut::MedianDepth.of(ro) as f64);
+            assert!((acc - total).abs() < 1e-4, "sigma {sigma}: accumulation {acc} want {total}");
+            if total >= 0.5 {
+                let want = t_a + 2f64.ln() / sigma;
+                assert!((median - want).abs() < tol, "sigma {sigma}: median {median} want {want}");
+            }
+            let (q25, q75) = (cross(0.25 * total), cross(0.75 * total));
+            let (g25, g75) = (RayOut::DepthQ25.of(ro) as f64, RayOut::DepthQ75.of(ro) as f64);
+            assert!((g25 - q25).abs() < tol, "sigma {sigma}: q25 {g25} want {q25}");
+            assert!((g75 - q75).abs() < tol, "sigma {sigma}: q75 {g75} want {q75}");
         }
-        let (q25, q75) = (cross(0.25 * total), cross(0.75 * total));
-        let (g25, g75) = (RayOut::DepthQ25.of(ro) as f64, RayOut::DepthQ75.of(ro) as f64);
-        assert!((g25 - q25).abs() < tol, "sigma {sigma}: q25 {g25} want {q25}");
-        assert!((g75 - q75).abs() < tol, "sigma {sigma}: q75 {g75} want {q75}");
     }
 }
