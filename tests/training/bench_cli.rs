@@ -131,34 +131,24 @@ fn bench_train_takes_the_batch_and_chunk_sizes() {
 #[test]
 fn ray_lanes_switch_picks_the_per_ray_kernels_and_refuses_bad_values() {
     // From step 0, where every step updates the proposals: the interlevel loss runs too.
-    let args = [
-        "bench",
-        "train",
-        "--models",
-        "tiny",
-        "--bands",
-        "3",
-        "--rays-per-batch",
-        "48",
-        "--steps",
-        "2",
-        "--at-step",
-        "0",
-    ];
+    let args: Vec<&str> =
+        "bench train --models tiny --bands 3 --rays-per-batch 48 --steps 2 --at-step 0".split(' ').collect();
     let kernels = |lanes: &str| -> Vec<String> {
-        let out = msnerf().args(args).arg("--json").env("MSNERF_RAY_LANES", lanes).output().expect("run msnerf");
+        let out = msnerf().args(&args).arg("--json").env("MSNERF_RAY_LANES", lanes).output().expect("run msnerf");
         assert!(out.status.success(), "MSNERF_RAY_LANES={lanes}: {}", String::from_utf8_lossy(&out.stderr));
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
         v[0]["kernels"].as_array().expect("kernels").iter().map(|k| k["name"].as_str().unwrap().to_owned()).collect()
     };
     let on = kernels("1");
-    for k in ["sample_initial_edges", "density_weights_lanes", "pdf_resample_lanes", "interlevel_lanes"] {
+    for k in
+        ["sample_initial_edges", "density_weights_lanes", "pdf_resample_lanes", "interlevel_lanes", "composite_lanes"]
+    {
         assert!(on.iter().any(|n| n == k), "{k} runs with MSNERF_RAY_LANES=1: {on:?}");
     }
     let off = kernels("0");
     assert!(off.iter().all(|n| !n.ends_with("_lanes") && n != "sample_initial_edges"), "{off:?}");
     assert!(off.iter().any(|n| n == "density_weights"), "{off:?}");
-    let out = msnerf().args(args).env("MSNERF_RAY_LANES", "yes").output().expect("run msnerf");
+    let out = msnerf().args(&args).env("MSNERF_RAY_LANES", "yes").output().expect("run msnerf");
     assert!(!out.status.success(), "a bad value is refused");
     assert!(String::from_utf8_lossy(&out.stderr).contains("MSNERF_RAY_LANES"), "the error names the variable");
 }
