@@ -9,11 +9,12 @@
 // - backward: blocks from the far end, lanes in reverse order, so the suffix sums S, Sw and Swm are prefix sums; the
 //   distortion gradient takes W_k and M_k from the forward prefixes instead of W - w - Sw.
 // The exclusive prefix of sigma delta stays in shared memory: dy_density is written once, with the gradient.
-// For n <= COMPOSITE_LANES_MAX_SAMPLES (256) and B <= 128; the host runs composite above that.
+// For n <= COMPOSITE_LANES_MAX_SAMPLES (256), where the host runs composite above that; B <= 128 for both kernels
+// (the host refuses more: `COMPOSITE_MAX_BANDS`).
 // Bindings: as composite.comp (0 edges, 1 density rows, 2 colours, 3 targets, 4 band weights, 5 dy_density, 6
 //           dy_colour, 7 weights, 8 ray_out, 9 origins, 10 directions, 11 depth targets).
 // Push:     as composite.comp.
-// Threads:  one workgroup of 32 per ray, folded into 2D past 65535 groups; about 5.5 KiB of shared memory.
+// Threads:  one workgroup of 32 per ray, folded into 2D past 65535 groups; about 4.8 KiB of shared memory.
 #version 460
 #define WG_SIZE 32
 #define COMPOSITE_LANES_MAX_SAMPLES 256u

@@ -266,6 +266,9 @@ struct LanesKernels {
     composite: Kernel<CompositePush>,
 }
 
+/// Most bands `composite` and `composite_lanes` take (their per-band arrays, `MAX_BANDS` in the kernels).
+pub const COMPOSITE_MAX_BANDS: usize = 128;
+
 /// Most NeRF samples per ray `composite_lanes` takes (its shared-memory arrays); more run the serial kernel.
 pub const COMPOSITE_LANES_MAX_SAMPLES: usize = 256;
 
@@ -516,6 +519,12 @@ impl RenderKernels {
             },
             depth_norm: p.depth.map_or(0.0, |(_, w)| w),
         };
+        if p.bands > COMPOSITE_MAX_BANDS || p.bands == 0 {
+            return Err(GpuError::Dispatch {
+                kernel: "composite".into(),
+                msg: format!("{} bands: the kernel takes 1 to {COMPOSITE_MAX_BANDS}", p.bands),
+            });
+        }
         if p.depth.is_some() && bufs.depth_targets.is_none() {
             return Err(GpuError::Dispatch {
                 kernel: "composite".into(),

@@ -153,6 +153,22 @@ fn ray_lanes_switch_picks_the_per_ray_kernels_and_refuses_bad_values() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("MSNERF_RAY_LANES"), "the error names the variable");
 }
 
+/// The compositing kernels hold per-band arrays of 128: 129 bands is refused when the pipeline is built, with the
+/// count named, instead of writing past those arrays on the device; 128 trains.
+#[test]
+fn more_bands_than_the_renderer_takes_are_refused_by_count() {
+    let run = |bands: &str| {
+        let args = ["bench", "train", "--models", "tiny", "--bands", bands, "--rays-per-batch", "16", "--steps", "1"];
+        msnerf().args(args).output().expect("run msnerf")
+    };
+    let out = run("129");
+    assert!(!out.status.success(), "129 bands refused");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("129 bands") && err.contains("1 to 128"), "the error names the count and the limit: {err}");
+    let out = run("128");
+    assert!(out.status.success(), "128 bands train: {}", String::from_utf8_lossy(&out.stderr));
+}
+
 /// `tools/bench-vs-nerfstudio.sh` (issue 22): bad flags and a missing venv stop it with exit status 2 and a message
 /// that names the flag or says what to do, before anything heavy runs. (The comparison itself needs nerfstudio and
 /// minutes of CPU time: docs/benchmarks.md has its figures.)
