@@ -37,7 +37,7 @@ float padded_weight(uint r, uint i) {
 // New edge k (s-space) of ray r: the inverse of the piecewise-linear cdf at u_k.
 float new_edge(uint r, uint k, float ju, float inv_m) {
     float u = (float(k) + ju) * inv_m;
-    uint lo = 0u, hi = pc.n; // i = the number of cdf values <= u
+    uint lo = 0u, hi = min(pc.n, PDF_LANES_MAX_BINS); // i = the number of cdf values <= u (bounded: see main)
     while (lo < hi) {
         uint mid = (lo + hi) >> 1u;
         if (cdf_s[mid] <= u) lo = mid + 1u; else hi = mid;
@@ -68,7 +68,9 @@ void main() {
         float x = i < pc.n ? (padded_weight(r, i) + pad) * inv_total : 0.0;
         float block;
         float excl = lanes_exclusive_add(x, block);
-        if (i < pc.n) cdf_s[i] = min(1.0, carry + excl + x);
+        // Bounded by the array: past it the host runs pdf_resample, and a misrouted dispatch gives wrong edges
+        // (which the tests see) rather than writes outside shared memory.
+        if (i < pc.n && i < PDF_LANES_MAX_BINS) cdf_s[i] = min(1.0, carry + excl + x);
         carry += block;
     }
     barrier();

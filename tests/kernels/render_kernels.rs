@@ -198,6 +198,9 @@ fn sampling_weights_and_resampling_match_twin() {
             sampling_case(&g, &k, n0, n1);
         }
     }
+    // Past pdf_resample_lanes' 1024 bins the serial resampler runs, with the lanes weights before it.
+    let k = RenderKernels::with_ray_lanes(&g, true).expect("kernels");
+    sampling_case(&g, &k, msnerf::nerf::kernels::PDF_LANES_MAX_BINS + 76, 16);
 }
 
 fn sampling_case(g: &Context, k: &RenderKernels, n0: usize, n1: usize) {
@@ -358,8 +361,10 @@ const DEPTH_NORM: f32 = 0.05;
 #[test]
 fn composite_matches_twin_for_every_background() {
     let g = gpu();
-    // The serial kernel, and the lanes variant within one block of samples and over two (45 samples).
-    for (lanes, n) in [(false, 24), (true, 24), (true, 45)] {
+    // The serial kernel, the lanes variant within one block of samples and over two (45 samples), and past the
+    // variant's 256 samples, where the serial kernel runs.
+    let past = msnerf::nerf::kernels::COMPOSITE_LANES_MAX_SAMPLES + 44;
+    for (lanes, n) in [(false, 24), (true, 24), (true, 45), (true, past)] {
         let k = RenderKernels::with_ray_lanes(&g, lanes).expect("kernels");
         composite_twin_case(&g, &k, n);
     }
@@ -648,6 +653,9 @@ fn interlevel_matches_twin_and_finite_differences() {
             interlevel_case(&g, &k, n_nerf, n_prop);
         }
     }
+    // Past interlevel_lanes' 256 NeRF samples the serial kernel runs.
+    let k = RenderKernels::with_ray_lanes(&g, true).expect("kernels");
+    interlevel_case(&g, &k, msnerf::nerf::kernels::INTERLEVEL_LANES_MAX.0 + 44, 40);
 }
 
 fn interlevel_case(g: &Context, k: &RenderKernels, n_nerf: usize, n_prop: usize) {
