@@ -11,14 +11,7 @@
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 layout(local_size_x = WG_SIZE) in;
-layout(std430, binding = 0) readonly buffer Edges { float edges[]; };
-layout(std430, binding = 1) readonly buffer Raw { float raw[]; };
-layout(std430, binding = 2) writeonly buffer Weights { float weights[]; };
-layout(std430, binding = 3) readonly buffer Origins { float origins[]; };
-layout(std430, binding = 4) readonly buffer Dirs { float dirs[]; };
-layout(push_constant) uniform Push {
-    uint n_rays; uint n; float near; float far; uint raw_stride; float density_scale; uint contraction;
-} pc;
+#include "render/density_weights_io.glsl"
 
 void main() {
     uint r = global_index();

@@ -18,29 +18,7 @@
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 layout(local_size_x = WG_SIZE) in;
-layout(std430, binding = 0) readonly buffer NerfEdges { float c[]; };
-layout(std430, binding = 1) readonly buffer NerfWeights { float w[]; };
-layout(std430, binding = 2) readonly buffer PropEdges { float cp[]; };
-layout(std430, binding = 3) readonly buffer PropRaw { float raw[]; };
-layout(std430, binding = 4) buffer PropWeights { float wp[]; };
-layout(std430, binding = 5) buffer PropDy { float dy[]; };
-layout(std430, binding = 6) writeonly buffer Losses { float losses[]; };
-layout(std430, binding = 7) readonly buffer Origins { float origins[]; };
-layout(std430, binding = 8) readonly buffer Dirs { float dirs[]; };
-layout(push_constant) uniform Push {
-    uint n_rays; uint n_nerf; uint n_prop; float near; float far; uint raw_stride; float density_scale; float norm;
-    uint contraction;
-} pc;
-
-float prop_sigma(uint r, uint j, vec3 o, vec3 d, float tmid) {
-    float s = density_from_raw(raw[(r * pc.n_prop + j) * pc.raw_stride], pc.density_scale);
-    if (pc.contraction == 0u) {
-        bool inside;
-        hash_input(o + d * tmid, false, inside);
-        if (!inside) s = 0.0;
-    }
-    return s;
-}
+#include "render/interlevel_io.glsl"
 
 void main() {
     uint r = global_index();

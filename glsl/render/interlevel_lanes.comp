@@ -24,34 +24,12 @@
 #include "render/render_common.glsl"
 #include "render/ray_lanes.glsl"
 layout(local_size_x = WG_SIZE) in;
-layout(std430, binding = 0) readonly buffer NerfEdges { float c[]; };
-layout(std430, binding = 1) readonly buffer NerfWeights { float w[]; };
-layout(std430, binding = 2) readonly buffer PropEdges { float cp[]; };
-layout(std430, binding = 3) readonly buffer PropRaw { float raw[]; };
-layout(std430, binding = 4) buffer PropWeights { float wp[]; };
-layout(std430, binding = 5) buffer PropDy { float dy[]; };
-layout(std430, binding = 6) writeonly buffer Losses { float losses[]; };
-layout(std430, binding = 7) readonly buffer Origins { float origins[]; };
-layout(std430, binding = 8) readonly buffer Dirs { float dirs[]; };
-layout(push_constant) uniform Push {
-    uint n_rays; uint n_nerf; uint n_prop; float near; float far; uint raw_stride; float density_scale; float norm;
-    uint contraction;
-} pc;
+#include "render/interlevel_io.glsl"
 
 shared float p_s[IL_LANES_MAX_PROP + 1u]; // exclusive prefix of the proposal weights
 shared float gc_s[IL_LANES_MAX_NERF]; // gcoef per NeRF interval
 shared uint lo_s[IL_LANES_MAX_NERF];
 shared uint h_s[IL_LANES_MAX_NERF];
-
-float prop_sigma(uint r, uint j, vec3 o, vec3 d, float tmid) {
-    float s = density_from_raw(raw[(r * pc.n_prop + j) * pc.raw_stride], pc.density_scale);
-    if (pc.contraction == 0u) {
-        bool inside;
-        hash_input(o + d * tmid, false, inside);
-        if (!inside) s = 0.0;
-    }
-    return s;
-}
 
 // Number of j in [j0, j1) with cp[pe + j + off] <= x (the proposal edges are sorted).
 uint count_le(uint pe, uint j0, uint j1, uint off, float x) {

@@ -15,24 +15,9 @@
 #include "render/render_common.glsl"
 #include "render/ray_lanes.glsl"
 layout(local_size_x = WG_SIZE) in;
-layout(std430, binding = 0) readonly buffer EdgesIn { float edges_in[]; };
-layout(std430, binding = 1) readonly buffer Weights { float weights[]; };
-layout(std430, binding = 2) writeonly buffer EdgesOut { float edges_out[]; };
-layout(std430, binding = 3) writeonly buffer Positions { float pos[]; };
-layout(std430, binding = 4) readonly buffer Origins { float origins[]; };
-layout(std430, binding = 5) readonly buffer Dirs { float dirs[]; };
-layout(push_constant) uniform Push {
-    uint n_rays; uint n; uint m; float near; float far; float anneal; uint seed; uint step; uint level; uint jitter;
-    uint contraction; uint ray_offset;
-} pc;
+#include "render/pdf_resample_io.glsl"
 
 shared float cdf_s[PDF_LANES_MAX_BINS];
-
-float padded_weight(uint r, uint i) {
-    float w = max(weights[r * pc.n + i], 0.0);
-    float a = w == 0.0 && pc.anneal == 0.0 ? 1.0 : pow(w, pc.anneal);
-    return a + 0.01;
-}
 
 // New edge k (s-space) of ray r: the inverse of the piecewise-linear cdf at u_k.
 float new_edge(uint r, uint k, float ju, float inv_m) {

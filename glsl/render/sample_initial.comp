@@ -12,30 +12,14 @@
 #include "common/index.glsl"
 #include "render/render_common.glsl"
 layout(local_size_x = WG_SIZE) in;
-layout(std430, binding = 0) readonly buffer Origins { float origins[]; };
-layout(std430, binding = 1) readonly buffer Dirs { float dirs[]; };
-layout(std430, binding = 2) buffer Edges { float edges[]; };
-layout(std430, binding = 3) writeonly buffer Positions { float pos[]; };
-layout(push_constant) uniform Push {
-    uint n_rays; uint n; float near; float far; uint seed; uint step; uint level; uint jitter; uint contraction;
-    uint ray_offset;
-} pc;
+#include "render/sample_initial_io.glsl"
 
 void main() {
     uint r = global_index();
     if (r >= pc.n_rays) return;
     float u = pc.jitter != 0u ? ray_uniform(pc.seed, pc.step, pc.ray_offset + r, pc.level) : 0.5;
     uint e0 = r * (pc.n + 1u);
-    float inv = 1.0 / float(pc.n);
-    for (uint k = 0u; k <= pc.n; ++k) {
-        float e = float(k) * inv;
-        if (pc.jitter != 0u) {
-            float lower = k == 0u ? 0.0 : e - 0.5 * inv;
-            float upper = k == pc.n ? 1.0 : e + 0.5 * inv;
-            e = lower + u * (upper - lower);
-        }
-        edges[e0 + k] = e;
-    }
+    for (uint k = 0u; k <= pc.n; ++k) edges[e0 + k] = edge_s(k, u);
     vec3 o = vec3(origins[3u * r], origins[3u * r + 1u], origins[3u * r + 2u]);
     vec3 d = vec3(dirs[3u * r], dirs[3u * r + 1u], dirs[3u * r + 2u]);
     WRITE_POSITIONS(edges, e0, pc.n, o, d, pc.near, pc.far, pc.contraction != 0u, pos, r * pc.n)

@@ -220,6 +220,30 @@ pub const RAY_LANES: usize = 32;
 /// Most bins `pdf_resample_lanes` takes (its shared-memory cdf); more run the serial kernel.
 pub const PDF_LANES_MAX_BINS: usize = 1024;
 
+/// Most NeRF and proposal samples per ray `interlevel_lanes` takes (its shared-memory arrays); more run the serial
+/// kernel.
+pub const INTERLEVEL_LANES_MAX: (usize, usize) = (256, 1024);
+
+/// Most NeRF samples per ray `composite_lanes` takes (its shared-memory arrays); more run the serial kernel.
+pub const COMPOSITE_LANES_MAX_SAMPLES: usize = 256;
+
+/// Most bands `composite` and `composite_lanes` take (their per-band arrays, `MAX_BANDS` in
+/// `glsl/render/composite_io.glsl`).
+pub const COMPOSITE_MAX_BANDS: usize = 128;
+
+/// Refuses a band count the compositing kernels cannot hold, naming it.
+pub fn check_bands(bands: usize) -> GpuResult<()> {
+    if bands == 0 || bands > COMPOSITE_MAX_BANDS {
+        return Err(GpuError::Config {
+            what: "bands".into(),
+            msg: format!(
+                "{bands} bands: the renderer takes 1 to {COMPOSITE_MAX_BANDS} (the compositing kernels' arrays)"
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Whether the per-ray kernels run their GPU variants: the initial sampler one invocation per edge
 /// (`sample_initial_edges`), and the proposal weights, resampling, interlevel loss, compositing and pose ray
 /// gradient over [`RAY_LANES`] invocations per ray (`*_lanes`, with subgroup scans), instead of one invocation
@@ -252,10 +276,6 @@ pub fn check_ray_lanes(ctx: &Context, lanes: bool) -> GpuResult<()> {
     Ok(())
 }
 
-/// Most NeRF and proposal samples per ray `interlevel_lanes` takes (its shared-memory arrays); more run the serial
-/// kernel.
-pub const INTERLEVEL_LANES_MAX: (usize, usize) = (256, 1024);
-
 /// The per-ray kernels over [`RAY_LANES`] invocations per ray.
 struct LanesKernels {
     /// `sample_initial_edges`: one invocation per edge.
@@ -265,12 +285,6 @@ struct LanesKernels {
     interlevel: Kernel<InterlevelPush>,
     composite: Kernel<CompositePush>,
 }
-
-/// Most bands `composite` and `composite_lanes` take (their per-band arrays, `MAX_BANDS` in the kernels).
-pub const COMPOSITE_MAX_BANDS: usize = 128;
-
-/// Most NeRF samples per ray `composite_lanes` takes (its shared-memory arrays); more run the serial kernel.
-pub const COMPOSITE_LANES_MAX_SAMPLES: usize = 256;
 
 /// Every render kernel, created once per context.
 pub struct RenderKernels {
@@ -519,12 +533,7 @@ impl RenderKernels {
             },
             depth_norm: p.depth.map_or(0.0, |(_, w)| w),
         };
-        if p.bands > COMPOSITE_MAX_BANDS || p.bands == 0 {
-            return Err(GpuError::Dispatch {
-                kernel: "composite".into(),
-                msg: format!("{} bands: the kernel takes 1 to {COMPOSITE_MAX_BANDS}", p.bands),
-            });
-        }
+        check_bands(p.bands)?;
         if p.depth.is_some() && bufs.depth_targets.is_none() {
             return Err(GpuError::Dispatch {
                 kernel: "composite".into(),

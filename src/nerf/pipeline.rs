@@ -184,16 +184,7 @@ impl Pipeline {
     /// `cameras`: the camera table in the normalised frame: one entry per dataset frame, then (`rig_cameras`) every
     /// frame's band cameras ([`super::rig_rays::RigRays::table`]).
     pub fn new(ctx: &Context, model: Model, cameras: &[GpuCamera]) -> GpuResult<Self> {
-        if model.bands == 0 || model.bands > super::kernels::COMPOSITE_MAX_BANDS {
-            return Err(crate::gpu::GpuError::Config {
-                what: "bands".into(),
-                msg: format!(
-                    "{} bands: the renderer takes 1 to {} (the compositing kernel's per-band arrays)",
-                    model.bands,
-                    super::kernels::COMPOSITE_MAX_BANDS
-                ),
-            });
-        }
+        super::kernels::check_bands(model.bands)?;
         let kernels = RenderKernels::new(ctx)?;
         let cameras = GpuBuffer::from_slice(ctx, "camera table", MemoryCategory::Rays, cameras)?;
         let pose_kernels = if model.cfg.camera_optimizer.enabled() { Some(PoseKernels::new(ctx)?) } else { None };
