@@ -42,13 +42,8 @@ vec2 depth_term(float w, float t, float delta, float d, float s) {
 }
 
 float sigma_of(uint r, uint i, vec3 o, vec3 d, float tmid) {
-    float s = density_from_raw(density[(r * pc.n + i) * pc.density_stride], pc.density_scale);
-    if (pc.contraction == 0u) {
-        bool inside;
-        hash_input(o + d * tmid, false, inside);
-        if (!inside) s = 0.0;
-    }
-    return s;
+    float raw_i = density[(r * pc.n + i) * pc.density_stride];
+    return density_at(raw_i, pc.density_scale, o + d * tmid, pc.contraction != 0u);
 }
 
 float bg_of(uint r, uint b) {

@@ -95,7 +95,8 @@ void main() {
     depth_sum = lanes_add(depth_sum);
     med_i = lanes_min_u(med_i);
     barrier(); // the shared per-sample arrays are complete
-    float tmid_last = 0.5 * (edge_to_t(edges[e0 + n - 1u], pc.near, pc.far) + edge_to_t(edges[e0 + n], pc.near, pc.far));
+    float t_penult = edge_to_t(edges[e0 + n - 1u], pc.near, pc.far);
+    float tmid_last = 0.5 * (t_penult + edge_to_t(edges[e0 + n], pc.near, pc.far));
     float median = crossing_at(r, med_i, 0.5, o, d, tmid_last);
     // The crossings of 0.25 A and 0.75 A; below A = 1e-4 both are the last midpoint (composite.comp).
     uint q25_i = n, q75_i = n;

@@ -23,12 +23,8 @@ void main() {
     float acc = 0.0; // sum of sigma delta so far
     for (uint i = 0u; i < pc.n; ++i) {
         float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
-        float sigma = density_from_raw(raw[(r * pc.n + i) * pc.raw_stride], pc.density_scale);
-        if (pc.contraction == 0u) {
-            bool inside;
-            hash_input(o + d * (0.5 * (t0 + t1)), false, inside);
-            if (!inside) sigma = 0.0;
-        }
+        float raw_i = raw[(r * pc.n + i) * pc.raw_stride];
+        float sigma = density_at(raw_i, pc.density_scale, o + d * (0.5 * (t0 + t1)), pc.contraction != 0u);
         float tau = sigma * (t1 - t0);
         float w = exp(-acc) * alpha_of(tau);
         weights[r * pc.n + i] = isnan(w) ? 0.0 : w;

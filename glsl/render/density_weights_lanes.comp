@@ -28,12 +28,8 @@ void main() {
         if (i < pc.n) {
             float t0 = edge_to_t(edges[e0 + i], pc.near, pc.far);
             float t1 = edge_to_t(edges[e0 + i + 1u], pc.near, pc.far);
-            float sigma = density_from_raw(raw[(r * pc.n + i) * pc.raw_stride], pc.density_scale);
-            if (pc.contraction == 0u) {
-                bool inside;
-                hash_input(o + d * (0.5 * (t0 + t1)), false, inside);
-                if (!inside) sigma = 0.0;
-            }
+            float raw_i = raw[(r * pc.n + i) * pc.raw_stride];
+            float sigma = density_at(raw_i, pc.density_scale, o + d * (0.5 * (t0 + t1)), pc.contraction != 0u);
             tau = sigma * (t1 - t0);
         }
         float block;

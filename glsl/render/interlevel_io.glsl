@@ -16,11 +16,5 @@ layout(push_constant) uniform Push {
 } pc;
 
 float prop_sigma(uint r, uint j, vec3 o, vec3 d, float tmid) {
-    float s = density_from_raw(raw[(r * pc.n_prop + j) * pc.raw_stride], pc.density_scale);
-    if (pc.contraction == 0u) {
-        bool inside;
-        hash_input(o + d * tmid, false, inside);
-        if (!inside) s = 0.0;
-    }
-    return s;
+    return density_at(raw[(r * pc.n_prop + j) * pc.raw_stride], pc.density_scale, o + d * tmid, pc.contraction != 0u);
 }

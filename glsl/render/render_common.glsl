@@ -65,6 +65,18 @@ float density_from_raw(float raw, float scale) {
     return scale * exp(raw > 88.0 ? 88.0 : raw);
 }
 
+// Density at a sample x on the ray: sigma from raw (density_from_raw), and without contraction 0 outside the
+// [-1, 1]^3 box (only the box carries density there).
+float density_at(float raw, float scale, vec3 x, bool contraction) {
+    float s = density_from_raw(raw, scale);
+    if (!contraction) {
+        bool inside;
+        hash_input(x, false, inside);
+        if (!inside) s = 0.0;
+    }
+    return s;
+}
+
 // Opacity 1 - exp(-tau) of an interval. Below tau = 2^-7 a 4-term series (relative error < 2e-10): 1 - exp(-tau)
 // cancels, and an exp that is one ulp off (lavapipe: exp(-4e-20) = 1 - 6e-8) turned near-empty space into weights
 // of 6e-8 per sample, hence an accumulation of 1e-6 and a made-up expected depth (docs/stability.md).
