@@ -48,10 +48,12 @@ const VARIANTS: &[Variant] = &[
     // encoding: multiresolution hash grid (src/nn/hashgrid.rs)
     v("hashgrid_fwd", "encoding/hashgrid_fwd.comp"),
     vd("hashgrid_fwd_texel", "encoding/hashgrid_fwd.comp", &[("HASH_TEXEL", "1")]),
+    vd("hashgrid_fwd_levels", "encoding/hashgrid_fwd.comp", &[("HASH_LEVELS", "1")]),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
     v("hashgrid_bwd_runs", "encoding/hashgrid_bwd_runs.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
     vd("hashgrid_bwd_input_texel", "encoding/hashgrid_bwd_input.comp", &[("HASH_TEXEL", "1")]),
+    vd("hashgrid_bwd_input_levels", "encoding/hashgrid_bwd_input.comp", &[("HASH_LEVELS", "1")]),
     // network: MLP layer, tile and weight-gradient kernels (src/nn/mlp.rs); not fused across layers
     v("mlp_layer_fwd", "network/mlp_layer_fwd.comp"),
     v("mlp_layer_bwd", "network/mlp_layer_bwd.comp"),

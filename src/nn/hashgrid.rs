@@ -15,6 +15,10 @@
 //! - `_texel` variants of the forward and the input gradient read a level's table as a uniform texel buffer of
 //!   the chunk holding it ([`LargeArray::texel_binding`]) instead of through its device address: on lavapipe a
 //!   texel fetch is a branch-free gather. Levels that straddle chunks keep the device-address read.
+//! - `_levels` variants of the forward and the input gradient: one dispatch for all the grid's levels (the forward
+//!   z over levels, as tcnn's blockIdx.y; the input gradient one invocation per point walking the levels), the
+//!   level table read from a buffer. The default on GPUs, where one level's dispatch fills less than a wave and
+//!   the input gradient's levels each waited on a barrier; see [`default_one_dispatch`].
 //!
 //! Coarse-to-fine ([`HashGrid::set_active_levels`], `field.coarse_to_fine`): every kernel multiplies level l's
 //! features, or their gradients, by clamp(active - l, 0, 1), a push constant (1 by default).
@@ -174,6 +178,36 @@ crate::push_constants! {
 }
 
 crate::push_constants! {
+    /// `hashgrid_fwd_levels`: the grid's first float and column; level l's weight is clamp(active - l, 0, 1).
+    struct FwdLevelsPush {
+        params: u64,
+        shift: u32,
+        param_offset: u32,
+        n: u32,
+        out_stride: u32,
+        out_col: u32,
+        pad_value: f32,
+        active_levels: f32,
+        pad0: u32,
+    }
+}
+
+crate::push_constants! {
+    /// `hashgrid_bwd_input_levels`: the grid's first float and dL/dy column, as [`FwdLevelsPush`].
+    struct InputLevelsPush {
+        table: u64,
+        shift: u32,
+        param_offset: u32,
+        n: u32,
+        dy_stride: u32,
+        dy_col: u32,
+        active_levels: f32,
+        n_levels: u32,
+        pad0: u32,
+    }
+}
+
+crate::push_constants! {
     struct BwdPush {
         grads: u64,
         shift: u32,
@@ -196,6 +230,9 @@ pub struct HashGrid {
     /// The forward and the input gradient read each level's table as a texel buffer where the level lies in one
     /// chunk (the `_texel` kernel variants); see [`default_texel_reads`].
     texel_reads: bool,
+    /// The forward and the input gradient record one dispatch for all levels (the `_levels` kernel variants) instead
+    /// of one per level; see [`default_one_dispatch`]. Takes precedence over `texel_reads`.
+    one_dispatch: bool,
     /// Coarse-to-fine (`field.coarse_to_fine`): level l's features are multiplied by clamp(active - l, 0, 1) in
     /// the forward and its gradients alike; `n_levels` (every weight 1) unless set.
     active: std::cell::Cell<f32>,
@@ -274,6 +311,22 @@ pub fn default_texel_reads(ctx: &crate::gpu::Context) -> GpuResult<bool> {
     }
 }
 
+/// Whether the forward and the input gradient record one dispatch for all of a grid's levels:
+/// `MSNERF_HASH_ONE_DISPATCH` (`1` or `0`) when set, else on GPUs. There one level's points fill less than a wave
+/// of the chip and the input gradient's levels each waited on a barrier; on lavapipe the per-level kernels keep
+/// their texel reads and their level parameters in push constants (read once per dispatch, not once per lane).
+/// A value other than 0 or 1 is an error naming the variable.
+pub fn default_one_dispatch(ctx: &crate::gpu::Context) -> GpuResult<bool> {
+    match crate::util::env::settings().hash_one_dispatch.as_deref() {
+        None => Ok(!ctx.caps().is_cpu),
+        Some("0") => Ok(false),
+        Some("1") => Ok(true),
+        Some(v) => {
+            Err(GpuError::Config { what: "MSNERF_HASH_ONE_DISPATCH".into(), msg: format!("{v:?} is not 0 or 1") })
+        }
+    }
+}
+
 impl HashGrid {
     pub fn new(ctx: &crate::gpu::Context, config: &HashGridConfig) -> GpuResult<Self> {
         Self::with_backward_run(ctx, config, default_backward_run(ctx)?)
@@ -304,6 +357,7 @@ impl HashGrid {
             },
             bwd_run: run,
             texel_reads: default_texel_reads(ctx)?,
+            one_dispatch: default_one_dispatch(ctx)?,
             active: std::cell::Cell::new(config.n_levels as f32),
         })
     }
@@ -328,14 +382,14 @@ impl HashGrid {
     /// The chunk holding a level's table as a texel buffer, when this grid reads texels, the level lies in one
     /// chunk and the device can bind that chunk so.
     fn table_texels(&self, array: &LargeArray<f32>, chunked: bool, chunk: usize) -> GpuResult<Option<Binding>> {
-        if !self.texel_reads || chunked {
+        if !self.texel_reads || self.one_dispatch || chunked {
             return Ok(None);
         }
         array.texel_binding(chunk, texel_format(self.config.features_per_level))
     }
 
     /// How many of the grid's levels, stored at `params`, the forward and the input gradient read as texels (0 with
-    /// texel reads off; tests check that the texel kernels run).
+    /// texel reads off or one dispatch for all levels; tests check that the texel kernels run).
     pub fn texel_levels(&self, params: ParamSlice) -> GpuResult<usize> {
         let mut n = 0;
         for r in self.level_reads(params.array, params.offset)? {
@@ -349,7 +403,18 @@ impl HashGrid {
         self.texel_reads = on;
     }
 
-    fn grid(&self, rec: &Recorder, kernel: &Kernel<BwdPush>, n: usize) -> GpuResult<[u32; 3]> {
+    /// Chooses between one dispatch for all levels and one per level (tests and benchmarks compare both).
+    pub fn set_one_dispatch(&mut self, on: bool) {
+        self.one_dispatch = on;
+    }
+
+    /// Whether the forward and the input gradient record one dispatch for all levels.
+    pub fn one_dispatch(&self) -> bool {
+        self.one_dispatch
+    }
+
+    /// Workgroups for `n` invocations (folded into x and y) of every level (z).
+    fn grid<P: Pod>(&self, rec: &Recorder, kernel: &Kernel<P>, n: usize) -> GpuResult<[u32; 3]> {
         let groups = kernel.groups_for(n as u64);
         let caps = rec.context().caps();
         let [x, y, _] = crate::gpu::kernel::fold_groups(groups, caps.max_workgroup_count).ok_or_else(|| {
@@ -380,6 +445,30 @@ impl HashGrid {
             return Ok(());
         }
         let c = &self.config;
+        if self.one_dispatch {
+            let (base, offset, chunked) = grid_base(params, param_offset, c.n_params())?;
+            let spec = [
+                ("F", c.features_per_level),
+                ("HASH_CHUNKED", u32::from(chunked)),
+                ("PAD", (slot.pad_to - c.n_output()) as u32),
+                ("VEC_OUT", vec_width(&[slot.stride, slot.col, c.features_per_level as usize])),
+            ];
+            let kernel = Kernel::<FwdLevelsPush>::with_spec(rec.context(), &shaders::HASHGRID_FWD_LEVELS, &spec)?;
+            let push = FwdLevelsPush {
+                params: base,
+                shift: params.chunk_shift(),
+                param_offset: offset as u32,
+                n: n as u32,
+                out_stride: slot.stride as u32,
+                out_col: slot.col as u32,
+                pad_value: slot.pad_value,
+                active_levels: self.active.get(),
+                pad0: 0,
+            };
+            let bindings = [positions.binding(), out.binding(), self.levels.binding()];
+            let grid = self.grid(rec, &kernel, n)?;
+            return rec.dispatch_groups("hashgrid_fwd", &kernel, &bindings, &params.deps(), &push, grid);
+        }
         let f = c.features_per_level as usize;
         let levels = self.level_reads(params, param_offset)?;
         // The levels write disjoint columns of `out`: no barrier among them.
@@ -480,6 +569,30 @@ impl HashGrid {
             return Ok(());
         }
         let dy = RowSlice { buf: dy, stride: dy_stride, col: dy_col };
+        if self.one_dispatch {
+            let c = &self.config;
+            let (base, offset, chunked) = grid_base(params, param_offset, c.n_params())?;
+            let spec = [
+                ("F", c.features_per_level),
+                ("HASH_CHUNKED", u32::from(chunked)),
+                ("VEC_DY", vec_width(&[dy.stride, dy.col, c.features_per_level as usize])),
+            ];
+            let kernel =
+                Kernel::<InputLevelsPush>::with_spec(rec.context(), &shaders::HASHGRID_BWD_INPUT_LEVELS, &spec)?;
+            let push = InputLevelsPush {
+                table: base,
+                shift: params.chunk_shift(),
+                param_offset: offset as u32,
+                n: n as u32,
+                dy_stride: dy.stride as u32,
+                dy_col: dy.col as u32,
+                active_levels: self.active.get(),
+                n_levels: c.n_levels,
+                pad0: 0,
+            };
+            let bindings = [positions.binding(), dy.buf.binding(), dp.binding(), self.levels.binding()];
+            return rec.dispatch_named("hashgrid_bwd_input", &kernel, &bindings, &params.deps(), &push, n as u64);
+        }
         let input = &shaders::HASHGRID_BWD_INPUT;
         self.record_level_backward(rec, input, "hashgrid_bwd_input", (params, param_offset), positions, n, dy, Some(dp))
     }

@@ -14,6 +14,7 @@
 //! | `MSNERF_MLP_TILING` | MLP kernel family and block sizes (benchmarks; `nn::mlp::MlpTiling`) |
 //! | `MSNERF_HASH_BWD_RUN` | points per hash-grid backward invocation (default 8 on GPUs, 1 on CPU devices) |
 //! | `MSNERF_HASH_TEXEL` | hash tables read as texel buffers: `1` on, `0` off (default: on CPU devices) |
+//! | `MSNERF_HASH_ONE_DISPATCH` | hash-grid forward and input gradient in one dispatch for all levels: `1` on, `0` off (default: on GPUs) |
 //! | `MSNERF_RAY_LANES` | per-ray kernels over 32 lanes per ray: `1` on, `0` off (default: on GPUs) |
 
 use std::sync::OnceLock;
@@ -31,6 +32,7 @@ pub struct EnvSettings {
     pub mlp_tiling: Option<String>,
     pub hash_bwd_run: Option<String>,
     pub hash_texel: Option<String>,
+    pub hash_one_dispatch: Option<String>,
     pub ray_lanes: Option<String>,
 }
 
@@ -56,6 +58,7 @@ impl EnvSettings {
             mlp_tiling: text("MSNERF_MLP_TILING"),
             hash_bwd_run: text("MSNERF_HASH_BWD_RUN"),
             hash_texel: text("MSNERF_HASH_TEXEL"),
+            hash_one_dispatch: text("MSNERF_HASH_ONE_DISPATCH"),
             ray_lanes: text("MSNERF_RAY_LANES"),
         }
     }
@@ -79,6 +82,7 @@ impl EnvSettings {
             ("MSNERF_MLP_TILING", &self.mlp_tiling),
             ("MSNERF_HASH_BWD_RUN", &self.hash_bwd_run),
             ("MSNERF_HASH_TEXEL", &self.hash_texel),
+            ("MSNERF_HASH_ONE_DISPATCH", &self.hash_one_dispatch),
             ("MSNERF_RAY_LANES", &self.ray_lanes),
         ] {
             if let Some(x) = value {

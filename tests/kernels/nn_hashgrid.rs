@@ -101,14 +101,79 @@ fn setup(g: &Context, cfg: &HashGridConfig, offset: usize, seed: u64) -> Setup {
     Setup { grid, params, host, offset }
 }
 
+/// How the forward and the input gradient read the tables: one dispatch per level through device addresses or as
+/// texel buffers, or one dispatch for all levels (the `_levels` kernels).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Reads {
+    Buffer,
+    Texel,
+    OneDispatch,
+}
+
+const ALL_READS: [Reads; 3] = [Reads::Buffer, Reads::Texel, Reads::OneDispatch];
+
+impl Reads {
+    fn apply(self, grid: &mut HashGrid) {
+        grid.set_texel_reads(self == Reads::Texel);
+        grid.set_one_dispatch(self == Reads::OneDispatch);
+    }
+
+    /// The levels read as texels when the grid lies in one chunk.
+    fn texel_levels(self, cfg: &HashGridConfig) -> usize {
+        if self == Reads::Texel {
+            cfg.n_levels as usize
+        } else {
+            0
+        }
+    }
+
+    /// Dispatches a forward or an input gradient records: one per level, or one.
+    fn dispatches(self, cfg: &HashGridConfig) -> usize {
+        if self == Reads::OneDispatch {
+            1
+        } else {
+            cfg.n_levels as usize
+        }
+    }
+}
+
+/// Submits `rec` with timestamps and checks that it ran `want` dispatches of `kernel` (where the queue has
+/// timestamps; lavapipe's has).
+fn submit_counting(rec: msnerf::gpu::Recorder, kernel: &str, want: usize, what: &str) {
+    let report = rec.submit_and_wait().expect("submit");
+    if !report.dispatches.is_empty() {
+        let n = report.dispatches.iter().filter(|d| d.name == kernel).count();
+        assert_eq!(n, want, "{what}: {kernel} dispatches");
+    }
+}
+
 #[test]
 fn forward_matches_twin_with_padding() {
-    check_forward_with_padding(false, None);
+    check_forward_with_padding(Reads::Buffer, None);
 }
 
 #[test]
 fn forward_matches_twin_with_padding_from_texel_buffers() {
-    check_forward_with_padding(true, None);
+    check_forward_with_padding(Reads::Texel, None);
+}
+
+#[test]
+fn forward_matches_twin_with_padding_in_one_dispatch() {
+    check_forward_with_padding(Reads::OneDispatch, None);
+}
+
+/// `MSNERF_HASH_ONE_DISPATCH` overrides the default (one dispatch on GPUs, per level on CPU devices).
+#[test]
+fn one_dispatch_default_follows_the_device_kind() {
+    let g = gpu();
+    let want = match std::env::var("MSNERF_HASH_ONE_DISPATCH").as_deref() {
+        Ok("1") => true,
+        Ok("0") => false,
+        Ok(v) => panic!("MSNERF_HASH_ONE_DISPATCH={v} is not 0 or 1"),
+        Err(_) => !g.caps().is_cpu,
+    };
+    assert_eq!(hashgrid::default_one_dispatch(&g).expect("default"), want);
+    assert_eq!(HashGrid::new(&g, &small()).expect("grid").one_dispatch(), want);
 }
 
 /// Coarse-to-fine (`field.coarse_to_fine`): with 2.5 of the 6 levels active, levels 0-1 keep weight 1, level 2
@@ -116,35 +181,37 @@ fn forward_matches_twin_with_padding_from_texel_buffers() {
 /// functions (which the finite-difference tests below check), with every read path.
 #[test]
 fn coarse_to_fine_levels_match_twin() {
-    for texel in [false, true] {
-        check_forward_with_padding(texel, Some(2.5));
-        check_backward_input(texel, Some(2.5));
+    for reads in ALL_READS {
+        check_forward_with_padding(reads, Some(2.5));
+        check_backward_input(reads, Some(2.5));
     }
     let cfg = small();
     for run in [1, 8] {
         check_backward_params(run, points(&cfg, 3001, 8, 0.0), &[3, 4], 1e-4, Some(2.5));
     }
     // Every level held back but the coarsest; and all of them active again.
-    check_forward_with_padding(false, Some(1.0));
+    check_forward_with_padding(Reads::Buffer, Some(1.0));
+    check_forward_with_padding(Reads::OneDispatch, Some(1.0));
+    check_backward_input(Reads::OneDispatch, Some(1.0));
     check_backward_params(1, points(&cfg, 3001, 8, 0.0), &[], 1e-4, Some(6.0));
 }
 
-/// The forward against the twin, its tables read through device addresses or as texel buffers; `active`: the
-/// grid's coarse-to-fine levels (None: the default, all of them).
-fn check_forward_with_padding(texel: bool, active: Option<f32>) {
+/// The forward against the twin, its tables read as `reads` says; `active`: the grid's coarse-to-fine levels (None:
+/// the default, all of them).
+fn check_forward_with_padding(reads: Reads, active: Option<f32>) {
     let g = gpu();
     let cfg = small();
     let mut s = setup(&g, &cfg, 24, 5);
-    s.grid.set_texel_reads(texel);
+    reads.apply(&mut s.grid);
     let weights = set_active(&s.grid, &cfg, active);
     let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
-    assert_eq!(levels_read, if texel { cfg.n_levels as usize } else { 0 }, "the texel kernels run");
+    assert_eq!(levels_read, reads.texel_levels(&cfg), "{reads:?}: the texel kernels run");
     let n = 1013; // not a multiple of the 128-wide workgroup
     let pts = points(&cfg, n, 6, 0.0);
     let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
     let (stride, col, pad_to) = (20, 3, 16); // 12 features + 4 padding columns inside a 20-wide row
     let out = GpuBuffer::from_slice(&g, "out", MemoryCategory::Activations, &vec![-9.0f32; n * stride]).expect("out");
-    let mut rec = g.recorder("fwd").expect("recorder");
+    let mut rec = g.recorder_timed("fwd", true).expect("recorder");
     s.grid
         .forward(
             &mut rec,
@@ -155,7 +222,7 @@ fn check_forward_with_padding(texel: bool, active: Option<f32>) {
             OutputSlot { stride, col, pad_to, pad_value: 1.0 },
         )
         .expect("fwd");
-    rec.submit_and_wait().expect("submit");
+    submit_counting(rec, "hashgrid_fwd", reads.dispatches(&cfg), &format!("forward, {reads:?}"));
     let got = g.download(&out).expect("download");
     let levels = cfg.levels();
     let mut want = vec![-9.0f32; n * stride];
@@ -164,7 +231,7 @@ fn check_forward_with_padding(texel: bool, active: Option<f32>) {
         want[i * stride + col..i * stride + col + 12].copy_from_slice(&enc);
         want[i * stride + col + 12..i * stride + col + 16].fill(1.0);
     }
-    assert_all_close_f32(&got, &want, &format!("hash grid forward (active levels {active:?})"));
+    assert_all_close_f32(&got, &want, &format!("hash grid forward, {reads:?} (active levels {active:?})"));
     if let Some(a) = active {
         let held_back = (a.ceil() as usize * 2)..12;
         assert!(
@@ -197,8 +264,8 @@ fn one_four_and_eight_features_read_texels_as_buffers_do() {
         let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
         let levels = cfg.levels();
         let want: Vec<f32> = pts.iter().flat_map(|p| twin::forward(&levels, f as usize, &s.host, *p)).collect();
-        for texel in [false, true] {
-            s.grid.set_texel_reads(texel);
+        for reads in ALL_READS {
+            reads.apply(&mut s.grid);
             let out = s.grid.output_buffer(&g, n, width).expect("out");
             let mut rec = g.recorder("fwd").expect("recorder");
             let slot = OutputSlot { stride: width, col: 0, pad_to: width, pad_value: 0.0 };
@@ -206,9 +273,9 @@ fn one_four_and_eight_features_read_texels_as_buffers_do() {
             s.grid.forward(&mut rec, params, &pos, n, &out, slot).expect("fwd");
             rec.submit_and_wait().expect("submit");
             let got = g.download(&out).expect("download");
-            assert_all_close_f32(&got, &want, &format!("forward, {f} features, texel reads {texel}"));
+            assert_all_close_f32(&got, &want, &format!("forward, {f} features, {reads:?}"));
             let read = s.grid.texel_levels(params).expect("levels");
-            assert_eq!(read, if texel { cfg.n_levels as usize } else { 0 }, "{f} features: the texel kernels run");
+            assert_eq!(read, reads.texel_levels(&cfg), "{f} features, {reads:?}: the texel kernels run");
             // The input gradient reads the same entries.
             let dy_host = random_params(n * width, 42, 1.0);
             let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
@@ -225,7 +292,7 @@ fn one_four_and_eight_features_read_texels_as_buffers_do() {
                 let want = twin::backward_input(&levels, f as usize, &host64, p64, &d64);
                 for d in 0..3 {
                     let (a, b) = (got[3 * i + d] as f64, want[d]);
-                    assert!(common::close(a, b, 1e-3, 1e-4), "{f} features, texel {texel}: dp[{i}][{d}] {a} vs {b}");
+                    assert!(common::close(a, b, 1e-3, 1e-4), "{f} features, {reads:?}: dp[{i}][{d}] {a} vs {b}");
                 }
             }
         }
@@ -328,24 +395,29 @@ fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f6
 
 #[test]
 fn backward_input_matches_twin_and_finite_differences() {
-    check_backward_input(false, None);
+    check_backward_input(Reads::Buffer, None);
 }
 
 #[test]
 fn backward_input_matches_twin_and_finite_differences_from_texel_buffers() {
-    check_backward_input(true, None);
+    check_backward_input(Reads::Texel, None);
+}
+
+#[test]
+fn backward_input_matches_twin_and_finite_differences_in_one_dispatch() {
+    check_backward_input(Reads::OneDispatch, None);
 }
 
 /// The input gradient against the twin and central differences (of the weighted forward with `active` levels, as
-/// in `check_forward_with_padding`), its tables read either way.
-fn check_backward_input(texel: bool, active: Option<f32>) {
+/// in `check_forward_with_padding`), its tables read as `reads` says.
+fn check_backward_input(reads: Reads, active: Option<f32>) {
     let g = gpu();
     let cfg = small();
     let mut s = setup(&g, &cfg, 8, 11);
-    s.grid.set_texel_reads(texel);
+    reads.apply(&mut s.grid);
     let weights: Vec<f64> = set_active(&s.grid, &cfg, active).iter().map(|&w| w as f64).collect();
     let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
-    assert_eq!(levels_read, if texel { cfg.n_levels as usize } else { 0 }, "the texel kernels run");
+    assert_eq!(levels_read, reads.texel_levels(&cfg), "{reads:?}: the texel kernels run");
     let n = 300;
     let pts = points(&cfg, n, 12, 0.05);
     let dy_host = random_params(n * 12, 13, 1.0);
@@ -353,7 +425,9 @@ fn check_backward_input(texel: bool, active: Option<f32>) {
     let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
     let dp = GpuBuffer::<f32>::new(&g, &BufferDesc { name: "dp", len: 3 * n, category: MemoryCategory::Activations })
         .expect("dp");
-    let mut rec = g.recorder("bwd input").expect("recorder");
+    // dp starts as NaN: every kernel shape must write it, not add to it.
+    g.upload(&dp, 0, &vec![f32::NAN; 3 * n]).expect("poison dp");
+    let mut rec = g.recorder_timed("bwd input", true).expect("recorder");
     s.grid
         .backward_input(
             &mut rec,
@@ -364,7 +438,7 @@ fn check_backward_input(texel: bool, active: Option<f32>) {
             &dp,
         )
         .expect("bwd input");
-    rec.submit_and_wait().expect("submit");
+    submit_counting(rec, "hashgrid_bwd_input", reads.dispatches(&cfg), &format!("input gradient, {reads:?}"));
     let got = g.download(&dp).expect("download");
     let levels = cfg.levels();
     let host64: Vec<f64> = s.host.iter().map(|&v| v as f64).collect();
@@ -389,7 +463,12 @@ fn check_backward_input(texel: bool, active: Option<f32>) {
     }
     // The input gradient sums over levels with large scales: allow the fp32 rounding of that sum.
     for i in 0..got.len() {
-        assert!(common::close(got[i] as f64, want[i] as f64, 1e-3, 1e-4), "dp[{i}]: got {} want {}", got[i], want[i]);
+        assert!(
+            common::close(got[i] as f64, want[i] as f64, 1e-3, 1e-4),
+            "{reads:?} dp[{i}]: {} vs {}",
+            got[i],
+            want[i]
+        );
     }
 }
 
@@ -425,16 +504,22 @@ fn parameter_gradient_matches_finite_differences() {
 
 #[test]
 fn table1_grid_of_256_mib_works_on_every_device() {
-    check_table1_grid(false);
+    check_table1_grid(Reads::Buffer);
 }
 
 #[test]
 fn table1_grid_of_256_mib_works_on_every_device_from_texel_buffers() {
-    check_table1_grid(true);
+    check_table1_grid(Reads::Texel);
 }
 
-/// Table 1's grid over two chunks: with texel reads the levels inside one chunk use texels, the one across chunks the device address.
-fn check_table1_grid(texel: bool) {
+#[test]
+fn table1_grid_of_256_mib_works_on_every_device_in_one_dispatch() {
+    check_table1_grid(Reads::OneDispatch);
+}
+
+/// Table 1's grid over two chunks: with texel reads the levels inside one chunk use texels, the one across chunks
+/// the device address; in one dispatch every entry's chunk is looked up in the chunk table.
+fn check_table1_grid(reads: Reads) {
     // Multispectral-NeRF Table 1: 16 levels x 2 features x 2^21 entries: 256 MiB of fp32, more than one binding.
     let g = gpu();
     let cfg = HashGridConfig {
@@ -447,8 +532,9 @@ fn check_table1_grid(texel: bool) {
     let n_params = cfg.n_params();
     assert!(n_params * 4 > g.caps().max_storage_buffer_range as usize || g.caps().max_storage_buffer_range > 1 << 28);
     let mut s = setup(&g, &cfg, 0, 21);
-    s.grid.set_texel_reads(texel);
+    reads.apply(&mut s.grid);
     let levels_read = s.grid.texel_levels(ParamSlice { array: &s.params, offset: s.offset }).expect("levels");
+    let texel = reads == Reads::Texel;
     assert!(if texel { levels_read > 0 } else { levels_read == 0 }, "{levels_read} levels read as texels");
     assert!(s.params.chunks().len() >= 2 || g.caps().max_storage_buffer_range as usize >= n_params * 4);
     let n = 257;
@@ -470,5 +556,26 @@ fn check_table1_grid(texel: bool) {
     let got = g.download(&out).expect("download");
     let levels = cfg.levels();
     let want: Vec<f32> = pts.iter().flat_map(|p| twin::forward(&levels, 2, &s.host, *p)).collect();
-    assert_all_close_f32(&got, &want, "Table 1 grid forward");
+    assert_all_close_f32(&got, &want, &format!("Table 1 grid forward, {reads:?}"));
+    // The input gradient reads the same entries, the level across the chunk boundary included. At scales up to
+    // 8192 its fp32 cell fractions carry errors of ~5e-4 cells, so it is compared with the per-level device-address
+    // kernel (which the small grids' tests hold to the twin and to finite differences), not with the f64 twin.
+    if reads != Reads::Buffer {
+        let dy_host = random_params(n * 32, 23, 1.0);
+        let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
+        let mut dps = Vec::new();
+        for mode in [reads, Reads::Buffer] {
+            mode.apply(&mut s.grid);
+            let dp = s.grid.output_buffer(&g, n, 3).expect("dp");
+            let mut rec = g.recorder("table1 input gradient").expect("recorder");
+            let (params, dys) = (ParamSlice { array: &s.params, offset: 0 }, RowSlice { buf: &dy, stride: 32, col: 0 });
+            s.grid.backward_input(&mut rec, params, &pos, n, dys, &dp).expect("bwd input");
+            rec.submit_and_wait().expect("submit");
+            dps.push(g.download(&dp).expect("download"));
+        }
+        assert!(dps[0].iter().all(|v| v.is_finite()) && dps[0].iter().any(|&v| v.abs() > 1.0), "a real gradient");
+        for (i, (a, b)) in dps[0].iter().zip(&dps[1]).enumerate() {
+            assert!(common::close(*a as f64, *b as f64, 1e-5, 1e-4), "Table 1, {reads:?}: dp[{i}] {a} vs {b}");
+        }
+    }
 }

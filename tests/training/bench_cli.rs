@@ -153,6 +153,28 @@ fn ray_lanes_switch_picks_the_per_ray_kernels_and_refuses_bad_values() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("MSNERF_RAY_LANES"), "the error names the variable");
 }
 
+/// `MSNERF_HASH_ONE_DISPATCH` picks how a whole training step records the hash grids' forward (issue 22): on, one
+/// dispatch per grid and pass (the tiny profile's field and two proposal grids: 3 per step); off, one per level; a
+/// value other than 0 or 1 stops the command with an error naming the variable.
+#[test]
+fn hash_one_dispatch_switch_records_one_forward_per_grid_and_refuses_bad_values() {
+    let args: Vec<&str> =
+        "bench train --models tiny --bands 3 --rays-per-batch 48 --steps 2 --at-step 0 --json".split(' ').collect();
+    let forwards = |on: &str| -> u64 {
+        let out = msnerf().args(&args).env("MSNERF_HASH_ONE_DISPATCH", on).output().expect("run msnerf");
+        assert!(out.status.success(), "MSNERF_HASH_ONE_DISPATCH={on}: {}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+        let k = v[0]["kernels"].as_array().expect("kernels").iter().find(|k| k["name"] == "hashgrid_fwd").cloned();
+        k.expect("hashgrid_fwd runs")["count"].as_u64().expect("count")
+    };
+    assert_eq!(forwards("1"), 2 * 3, "one forward per grid in each of the 2 steps");
+    let per_level = forwards("0");
+    assert!(per_level >= 2 * 3 * 2, "one forward per level: {per_level}");
+    let out = msnerf().args(&args).env("MSNERF_HASH_ONE_DISPATCH", "2").output().expect("run msnerf");
+    assert!(!out.status.success(), "a bad value is refused");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("MSNERF_HASH_ONE_DISPATCH"), "the error names the variable");
+}
+
 /// The compositing kernels hold per-band arrays of 128: 129 bands is refused when the pipeline is built, with the
 /// count named, instead of writing past those arrays on the device; 128 trains.
 #[test]
