@@ -50,6 +50,7 @@ const VARIANTS: &[Variant] = &[
     vd("hashgrid_fwd_texel", "encoding/hashgrid_fwd.comp", &[("HASH_TEXEL", "1")]),
     vd("hashgrid_fwd_levels", "encoding/hashgrid_fwd.comp", &[("HASH_LEVELS", "1")]),
     v("hashgrid_bwd", "encoding/hashgrid_bwd.comp"),
+    vd("hashgrid_bwd_prefetch", "encoding/hashgrid_bwd.comp", &[("HASH_PREFETCH", "1")]),
     v("hashgrid_bwd_runs", "encoding/hashgrid_bwd_runs.comp"),
     v("hashgrid_bwd_input", "encoding/hashgrid_bwd_input.comp"),
     vd("hashgrid_bwd_input_texel", "encoding/hashgrid_bwd_input.comp", &[("HASH_TEXEL", "1")]),

@@ -3,11 +3,17 @@
 // (VK_EXT_shader_atomic_float). The gradient array has the same chunking as the parameters.
 // One dispatch per level with the level's parameters in push constants (as hashgrid_fwd); a point's F output
 // gradients are read in one access. Points whose output gradient is zero (masked-out samples) issue no atomics.
-// Bindings: 0 positions (float[3N]), 1 dL/dy (float rows of dy_stride).
+// The `_prefetch` variant (build.rs defines HASH_PREFETCH; CPU devices): before its atomics an invocation gathers
+// the 8 corners' entries of the gradient table through a texel view, and ANDs their sum's bits with a zero push
+// constant into the atomics' addresses. On lavapipe a texel fetch is a gather whose 8 lanes' cache misses overlap,
+// while every locked add waits for its own (x86 locked instructions are full fences); with the lines fetched first
+// the adds hit the cache. The values read are discarded: stale values are harmless.
+// Bindings: 0 positions (float[3N]), 1 dL/dy (float rows of dy_stride); `_prefetch` also texel 12, the level's
+//           chunk of the gradient array (R32, R32G32 or R32G32B32A32 SFLOAT for F = 1, 2, 4 and 8).
 // Push:     grads (the level's chunk address, or the chunk table's address when HASH_CHUNKED), shift, param_offset
 //           (first float of the level, in the chunk or in the array), n, dy_stride, dy_col (the level's first
 //           column), scale, res, entries, weight (the level's coarse-to-fine weight, as in the forward: dL/dy is
-//           multiplied by it, so a held-back level gets no gradient and issues no atomics).
+//           multiplied by it, so a held-back level gets no gradient and issues no atomics); `_prefetch`: zero (0).
 // Spec:     0 F, 1 HASHED, 2 HASH_CHUNKED, 3 VEC_DY (read width of dL/dy, floats).
 // Threads:  one invocation per point, 64 per group, folded into 2D past 65535 groups.
 #version 460
@@ -29,7 +35,13 @@ ROWS_DECLARE(1, dy, readonly)
 layout(push_constant) uniform Push {
     uint64_t table; uint shift; uint param_offset; uint n; uint dy_stride; uint dy_col; // table: the gradients
     float scale; uint res; uint entries; float weight;
+#ifdef HASH_PREFETCH
+    uint zero;
+#endif
 } pc;
+#ifdef HASH_PREFETCH
+layout(binding = 12) uniform samplerBuffer grad_texels;
+#endif
 
 void main() {
     uint row = global_index();
@@ -45,9 +57,20 @@ void main() {
     uvec3 cell;
     vec3 frac;
     hash_cell(lv, p, cell, frac);
+    uint es[8]; // the corners' first floats
+    [[unroll]] for (uint c = 0u; c < 8u; ++c) {
+        es[c] = pc.param_offset + hash_index_known(lv, corner_vertex(c, cell), HASHED != 0u) * F;
+    }
+#ifdef HASH_PREFETCH
+    float touch = 0.0; // texel (F floats, or 4 of them for F = 8) holding each corner's first float
+    [[unroll]] for (uint c = 0u; c < 8u; ++c) touch += texelFetch(grad_texels, int(es[c] / min(F, 4u))).x;
+    uint dep = floatBitsToUint(touch) & pc.zero; // 0, known only at run time
+#else
+    uint dep = 0u;
+#endif
     [[unroll]] for (uint c = 0u; c < 8u; ++c) {
         float w = corner_weight(c, frac);
-        uint e = pc.param_offset + hash_index_known(lv, corner_vertex(c, cell), HASHED != 0u) * F;
+        uint e = es[c] + dep;
         uint64_t a;
         uint o;
         hash_locate(pc.table, pc.shift, e, a, o);

@@ -36,6 +36,9 @@ pub struct HashResult {
     /// drifts), for the forward and for the input gradient. `None` where no level can be bound as texels.
     pub forward_texel_speedup: Option<f64>,
     pub input_grad_texel_speedup: Option<f64>,
+    /// The same for the parameter gradient: its texel gather of the corners' gradient entries before the atomics
+    /// (`hashgrid_bwd_prefetch`) against the atomics alone.
+    pub param_grad_prefetch_speedup: Option<f64>,
     /// Levels read as texels in those (the others straddle chunks and keep the device-address read).
     pub texel_levels: usize,
 }
@@ -144,7 +147,8 @@ pub fn bench_hash(
         let run = |grid: &HashGrid| {
             run_recorded(ctx, &|rec| match which {
                 0 => grid.forward(rec, p, &rays, points, &out, slot),
-                _ => grid.backward_input(rec, p, &rays, points, dys, &dp),
+                1 => grid.backward_input(rec, p, &rays, points, dys, &dp),
+                _ => grid.backward_params(rec, g, &rays, points, dys),
             })
         };
         let mut r = Vec::with_capacity(repeats);
@@ -162,7 +166,8 @@ pub fn bench_hash(
         }
         Ok(Some(median(r)))
     };
-    let (fwd_texel, input_texel) = if texel_levels > 0 { (ratio(0)?, ratio(1)?) } else { (None, None) };
+    let (fwd_texel, input_texel, prefetch) =
+        if texel_levels > 0 { (ratio(0)?, ratio(1)?, ratio(2)?) } else { (None, None, None) };
     let grid8 = HashGrid::with_backward_run(ctx, cfg, BENCH_RUN)?;
     let bwd_run8 = time_ms(repeats, || run_recorded(ctx, &|rec| grid8.backward_params(rec, g, &rays, points, dys)))?;
     let atomics = (points * cfg.n_levels as usize * 8 * cfg.features_per_level as usize) as f64;
@@ -177,6 +182,7 @@ pub fn bench_hash(
         backward_rays_run8_mpts_per_s: points as f64 / bwd_run8 / 1e3,
         forward_texel_speedup: fwd_texel,
         input_grad_texel_speedup: input_texel,
+        param_grad_prefetch_speedup: prefetch,
         texel_levels,
     })
 }
@@ -436,7 +442,7 @@ impl KernelBench {
     pub fn table(&self) -> String {
         let mut s = format!("device: {} ({}), host threads: {}\n\n", self.device, self.driver, self.host_threads);
         s += &format!(
-            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14} {:>14} {:>14} {:>10} {:>10}\n",
+            "{:<26} {:>9} {:>11} {:>12} {:>13} {:>14} {:>14} {:>14} {:>10} {:>10} {:>12}\n",
             "hash grid",
             "points",
             "params",
@@ -446,11 +452,12 @@ impl KernelBench {
             "rays bwd Mpt/s",
             "rays run8 Mpt/s",
             "texel fwd",
-            "texel dp"
+            "texel dp",
+            "prefetch bwd"
         );
         for h in &self.hash {
             s += &format!(
-                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1} {:>14.2} {:>14.2} {:>10} {:>10}\n",
+                "{:<26} {:>9} {:>11} {:>12.2} {:>13.2} {:>14.1} {:>14.2} {:>14.2} {:>10} {:>10} {:>12}\n",
                 h.name,
                 h.points,
                 h.params,
@@ -460,7 +467,8 @@ impl KernelBench {
                 h.backward_rays_mpts_per_s,
                 h.backward_rays_run8_mpts_per_s,
                 h.forward_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x")),
-                h.input_grad_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x"))
+                h.input_grad_texel_speedup.map_or("-".into(), |r| format!("{r:.2}x")),
+                h.param_grad_prefetch_speedup.map_or("-".into(), |r| format!("{r:.2}x"))
             );
         }
         s += &format!(

@@ -7,7 +7,10 @@
 //!   invocation per point; writes F features per row, and the last level the padding columns. The levels are one
 //!   [`Recorder::independent`] group: no barrier among them (they write disjoint columns).
 //! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array, one dispatch per level
-//!   as the forward, also one independent group (each level adds into its own range). `hashgrid_bwd_runs` combines
+//!   as the forward, also one independent group (each level adds into its own range). With texel reads (CPU
+//!   devices) its `_prefetch` variant first gathers the point's 8 corner entries of the gradient table as texels
+//!   and makes the atomics' addresses depend on them: the cache misses overlap in the gathers instead of each
+//!   locked add waiting for its own (1.2-1.6x on lavapipe, docs/benchmarks.md). `hashgrid_bwd_runs` combines
 //!   runs of consecutive points in one cell first: the default on GPUs (8 points per invocation; 1.1-1.9x on an
 //!   H100, where the atomics contend), not on CPU devices (slower on lavapipe); see [`default_backward_run`].
 //! - `hashgrid_bwd_input`: gradient to the positions, one dispatch per level (the first writes, the others add),
@@ -173,7 +176,8 @@ crate::push_constants! {
         entries: u32,
         /// The level's coarse-to-fine weight ([`HashGrid::level_weight`]).
         weight: f32,
-        pad2: u32,
+        /// Zero: `hashgrid_bwd_prefetch` ANDs its table reads with it, so the atomics depend on them.
+        zero: u32,
     }
 }
 
@@ -617,12 +621,13 @@ impl HashGrid {
         let record = |rec: &mut Recorder| -> GpuResult<()> {
             for LevelRead { l, lv, base, offset, chunked, chunk } in levels {
                 let col = dy.col + l * f;
-                // The input gradient reads the level's table as texels where the forward does; the parameter
-                // gradient's table takes atomics.
-                let texel = if dp.is_some() { self.table_texels(array, chunked, chunk)? } else { None };
+                // Where the forward reads the level's table as texels, the input gradient does too, and the
+                // parameter gradient gathers its corners' entries of the gradient table as texels before its
+                // atomics (`hashgrid_bwd_prefetch`).
+                let texel = self.table_texels(array, chunked, chunk)?;
                 let mut spec =
                     vec![("F", c.features_per_level), ("HASHED", lv.hashed), ("VEC_DY", vec_width(&[dy.stride, col]))];
-                if texel.is_none() {
+                if texel.is_none() || dp.is_none() {
                     spec.push(("HASH_CHUNKED", u32::from(chunked)));
                 }
                 let mut bindings = vec![positions.binding(), dy.buf.binding()];
@@ -630,7 +635,11 @@ impl HashGrid {
                     spec.push(("FIRST", u32::from(l == 0)));
                     bindings.push(dp.binding());
                 }
-                let blob = if texel.is_some() { &shaders::HASHGRID_BWD_INPUT_TEXEL } else { blob };
+                let blob = match (&texel, dp) {
+                    (None, _) => blob,
+                    (Some(_), Some(_)) => &shaders::HASHGRID_BWD_INPUT_TEXEL,
+                    (Some(_), None) => &shaders::HASHGRID_BWD_PREFETCH,
+                };
                 bindings.extend(texel);
                 let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), blob, &spec)?;
                 let push = LevelBwdPush {
@@ -644,7 +653,7 @@ impl HashGrid {
                     res: lv.res,
                     entries: lv.entries,
                     weight: self.level_weight(l),
-                    pad2: 0,
+                    zero: 0,
                 };
                 rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;
             }

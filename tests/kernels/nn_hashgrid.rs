@@ -318,10 +318,26 @@ fn backward_run_default_follows_the_device_kind() {
     assert_eq!(hashgrid::default_backward_run(&g).expect("default"), want);
 }
 
+/// The parameter gradient with its texel prefetch (`hashgrid_bwd_prefetch`: the corners' gradient entries gathered
+/// before the atomics) and without, on random and on ray-ordered points with masked ones, coarse-to-fine levels
+/// included: the same sums.
 #[test]
-fn backward_params_with_run_combining_matches_twin() {
-    // hashgrid_bwd with RUN = 8 on ray-ordered points (runs of equal coarse cells), n not a multiple of 8, and
-    // masked-out points (zero dL/dy) inside runs: the same sums as one point per invocation.
+fn backward_params_with_and_without_the_texel_prefetch_match_twin() {
+    let cfg = small();
+    let g = gpu();
+    let mut grid = HashGrid::with_backward_run(&g, &cfg, 1).expect("grid");
+    grid.set_texel_reads(true);
+    let params = LargeArray::<f32>::new(&g, "grads", cfg.n_params(), MemoryCategory::Gradients).expect("grads");
+    let levels = grid.texel_levels(ParamSlice { array: &params, offset: 0 }).expect("levels");
+    assert_eq!(levels, cfg.n_levels as usize, "every level's gradient table has a texel view: the prefetch runs");
+    for texel in [false, true] {
+        check_backward_params_reading(Some(texel), 1, points(&cfg, 3001, 8, 0.0), &[], 1e-4, None);
+        check_backward_params_reading(Some(texel), 1, ray_points(), &[5, 6, 7, 8, 9, 100, 2999], 3e-4, Some(4.5));
+    }
+}
+
+/// 3001 points in runs of 24 along short random rays (ray-ordered, as training produces them).
+fn ray_points() -> Vec<[f32; 3]> {
     let mut pts = Vec::new();
     let mut r = common::rng(21);
     while pts.len() < 3001 {
@@ -332,6 +348,14 @@ fn backward_params_with_run_combining_matches_twin() {
         }
     }
     pts.truncate(3001);
+    pts
+}
+
+#[test]
+fn backward_params_with_run_combining_matches_twin() {
+    // hashgrid_bwd with RUN = 8 on ray-ordered points (runs of equal coarse cells), n not a multiple of 8, and
+    // masked-out points (zero dL/dy) inside runs: the same sums as one point per invocation.
+    let pts = ray_points();
     let masked = [5, 6, 7, 8, 9, 100, 2999];
     // Ray-ordered points pile hundreds of contributions onto the coarse levels' entries: fp32 sums of that length
     // (in either kernel) sit at a 99th-percentile error of about 1.2e-4 here, hence 3e-4.
@@ -342,10 +366,29 @@ fn backward_params_with_run_combining_matches_twin() {
 
 /// The parameter gradient of `pts` (with dL/dy zeroed for the points in `masked`) against the twin; returns the
 /// 99th-percentile relative error after asserting it is below `tol`; `active` as in `check_forward_with_padding`.
+///
+/// One point per invocation (`run` 1) runs `hashgrid_bwd_prefetch` where the grid reads texels (the default on CPU
+/// devices) and `hashgrid_bwd` where it does not; `MSNERF_HASH_TEXEL` sets it for every test but
+/// `backward_params_with_and_without_the_texel_prefetch_match_twin`, which runs both.
 fn check_backward_params(run: u32, pts: Vec<[f32; 3]>, masked: &[usize], tol: f64, active: Option<f32>) -> f64 {
+    check_backward_params_reading(None, run, pts, masked, tol, active)
+}
+
+/// As `check_backward_params`, with texel reads (and so the prefetch) set when `texel` is given.
+fn check_backward_params_reading(
+    texel: Option<bool>,
+    run: u32,
+    pts: Vec<[f32; 3]>,
+    masked: &[usize],
+    tol: f64,
+    active: Option<f32>,
+) -> f64 {
     let g = gpu();
     let cfg = small();
-    let grid = HashGrid::with_backward_run(&g, &cfg, run).expect("grid");
+    let mut grid = HashGrid::with_backward_run(&g, &cfg, run).expect("grid");
+    if let Some(t) = texel {
+        grid.set_texel_reads(t);
+    }
     let weights: Vec<f64> = set_active(&grid, &cfg, active).iter().map(|&w| w as f64).collect();
     let n = pts.len();
     let mut dy_host = random_params(n * 12, 9, 1.0);
