@@ -2,7 +2,8 @@
 //!
 //! [`HashGridConfig`] computes tcnn's level table (vertex-count resolutions, dense levels where res^3 fits the
 //! table, CoherentPrime hashing otherwise, entries padded to multiples of 8). [`HashGrid`] records the kernels:
-//! - `hashgrid_fwd`: one dispatch per level (its table is what the dispatch reads: tcnn's cache-friendly order), the
+//! - `hashgrid_fwd`: per level (the default on CPU devices), one dispatch per level (its table is what the
+//!   dispatch reads: tcnn's cache-friendly order), the
 //!   level's parameters in push constants (on lavapipe read once for all invocations, not once per lane), one
 //!   invocation per point; writes F features per row, and the last level the padding columns. The levels are one
 //!   [`Recorder::independent`] group: no barrier among them (they write disjoint columns).
@@ -13,8 +14,8 @@
 //!   locked add waiting for its own (1.2-1.6x on lavapipe, docs/benchmarks.md). `hashgrid_bwd_runs` combines
 //!   runs of consecutive points in one cell first: the default on GPUs (8 points per invocation; 1.1-1.9x on an
 //!   H100, where the atomics contend), not on CPU devices (slower on lavapipe); see [`default_backward_run`].
-//! - `hashgrid_bwd_input`: gradient to the positions, one dispatch per level (the first writes, the others add),
-//!   one invocation per point.
+//! - `hashgrid_bwd_input`: gradient to the positions, per level (the default on CPU devices) one dispatch per level
+//!   (the first writes, the others add), one invocation per point.
 //! - `_texel` variants of the forward and the input gradient read a level's table as a uniform texel buffer of
 //!   the chunk holding it ([`LargeArray::texel_binding`]) instead of through its device address: on lavapipe a
 //!   texel fetch is a branch-free gather. Levels that straddle chunks keep the device-address read.
@@ -383,17 +384,20 @@ impl HashGrid {
         (self.active.get() - l as f32).clamp(0.0, 1.0)
     }
 
-    /// The chunk holding a level's table as a texel buffer, when this grid reads texels, the level lies in one
-    /// chunk and the device can bind that chunk so.
+    /// The chunk holding a level's table as a texel buffer for the per-level kernels, when this grid reads texels,
+    /// the level lies in one chunk and the device can bind that chunk so. The one-dispatch forward and input
+    /// gradient return before asking; the parameter gradient (per level on CPU devices) asks whatever
+    /// `one_dispatch` says, for its prefetch.
     fn table_texels(&self, array: &LargeArray<f32>, chunked: bool, chunk: usize) -> GpuResult<Option<Binding>> {
-        if !self.texel_reads || self.one_dispatch || chunked {
+        if !self.texel_reads || chunked {
             return Ok(None);
         }
         array.texel_binding(chunk, texel_format(self.config.features_per_level))
     }
 
-    /// How many of the grid's levels, stored at `params`, the forward and the input gradient read as texels (0 with
-    /// texel reads off or one dispatch for all levels; tests check that the texel kernels run).
+    /// How many of the grid's levels, stored at `params`, the per-level kernels read as texels: the forward and the
+    /// input gradient when they run per level (not with one dispatch for all levels), and the parameter gradient's
+    /// prefetch (0 with texel reads off; tests check that the texel kernels run).
     pub fn texel_levels(&self, params: ParamSlice) -> GpuResult<usize> {
         let mut n = 0;
         for r in self.level_reads(params.array, params.offset)? {
