@@ -197,8 +197,22 @@ fn coarse_to_fine_levels_match_twin() {
 }
 
 /// The forward against the twin, its tables read as `reads` says; `active`: the grid's coarse-to-fine levels (None:
-/// the default, all of them).
+/// the default, all of them). Rows of 20 floats from column 3: every store one float wide.
 fn check_forward_with_padding(reads: Reads, active: Option<f32>) {
+    check_forward_in_rows(reads, active, 20, 3);
+}
+
+/// The padding columns next to wide stores: rows of 24 floats from column 4, so each level's two features and
+/// the last level's padding are stored two floats at a time.
+#[test]
+fn forward_pads_rows_stored_two_floats_at_a_time() {
+    for reads in ALL_READS {
+        check_forward_in_rows(reads, None, 24, 4);
+    }
+}
+
+/// As `check_forward_with_padding`, the 12 features and 4 padding columns at `col` of rows of `stride` floats.
+fn check_forward_in_rows(reads: Reads, active: Option<f32>, stride: usize, col: usize) {
     let g = gpu();
     let cfg = small();
     let mut s = setup(&g, &cfg, 24, 5);
@@ -209,7 +223,7 @@ fn check_forward_with_padding(reads: Reads, active: Option<f32>) {
     let n = 1013; // not a multiple of the 128-wide workgroup
     let pts = points(&cfg, n, 6, 0.0);
     let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
-    let (stride, col, pad_to) = (20, 3, 16); // 12 features + 4 padding columns inside a 20-wide row
+    let pad_to = 16; // 12 features + 4 padding columns
     let out = GpuBuffer::from_slice(&g, "out", MemoryCategory::Activations, &vec![-9.0f32; n * stride]).expect("out");
     let mut rec = g.recorder_timed("fwd", true).expect("recorder");
     s.grid
