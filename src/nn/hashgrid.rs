@@ -2,10 +2,9 @@
 //!
 //! [`HashGridConfig`] computes tcnn's level table (vertex-count resolutions, dense levels where res^3 fits the
 //! table, CoherentPrime hashing otherwise, entries padded to multiples of 8). [`HashGrid`] records the kernels:
-//! - `hashgrid_fwd`: per level (the default on CPU devices), one dispatch per level (its table is what the
-//!   dispatch reads: tcnn's cache-friendly order), the
-//!   level's parameters in push constants (on lavapipe read once for all invocations, not once per lane), one
-//!   invocation per point; writes F features per row, and the last level the padding columns. The levels are one
+//! - `hashgrid_fwd`: per level (the default on CPU devices), one dispatch per level (its table is what the dispatch
+//!   reads: tcnn's cache-friendly order), the level's parameters in push constants (on lavapipe read once for all
+//!   invocations, not once per lane), one invocation per point; writes F features per row, and the last level the padding columns. The levels are one
 //!   [`Recorder::independent`] group: no barrier among them (they write disjoint columns).
 //! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array, one dispatch per level
 //!   as the forward, also one independent group (each level adds into its own range). With texel reads (CPU
@@ -548,16 +547,7 @@ impl HashGrid {
             return rec.dispatch_groups("hashgrid_bwd", runs, &bindings, &grads.deps(), &push, grid);
         }
         let dy = RowSlice { buf: dy, stride: dy_stride, col: dy_col };
-        self.record_level_backward(
-            rec,
-            &shaders::HASHGRID_BWD,
-            "hashgrid_bwd",
-            (grads, param_offset),
-            positions,
-            n,
-            dy,
-            None,
-        )
+        self.record_level_backward(rec, (grads, param_offset), positions, n, dy, None)
     }
 
     /// Records dL/dp (float[3n]) from dL/dy.
@@ -601,18 +591,16 @@ impl HashGrid {
             let bindings = [positions.binding(), dy.buf.binding(), dp.binding(), self.levels.binding()];
             return rec.dispatch_named("hashgrid_bwd_input", &kernel, &bindings, &params.deps(), &push, n as u64);
         }
-        let input = &shaders::HASHGRID_BWD_INPUT;
-        self.record_level_backward(rec, input, "hashgrid_bwd_input", (params, param_offset), positions, n, dy, Some(dp))
+        self.record_level_backward(rec, (params, param_offset), positions, n, dy, Some(dp))
     }
 
     /// One dispatch per level of a kernel that reads the level's F columns of `dy` and the level's table entries of
-    /// `array` (constants F, HASHED, HASH_CHUNKED, VEC_DY, and FIRST = first level when `dp` is given, bound third).
-    #[allow(clippy::too_many_arguments)]
+    /// `array` (constants F, HASHED, HASH_CHUNKED, VEC_DY, and FIRST = first level when `dp` is given, bound third):
+    /// the input gradient when `dp` is given, else the parameter gradient, each in its texel variant where the
+    /// level's table has a texel view.
     fn record_level_backward(
         &self,
         rec: &mut Recorder,
-        blob: &'static crate::gpu::ShaderBlob,
-        label: &'static str,
         (array, param_offset): (&LargeArray<f32>, usize),
         positions: &GpuBuffer<f32>,
         n: usize,
@@ -639,10 +627,11 @@ impl HashGrid {
                     spec.push(("FIRST", u32::from(l == 0)));
                     bindings.push(dp.binding());
                 }
-                let blob = match (&texel, dp) {
-                    (None, _) => blob,
-                    (Some(_), Some(_)) => &shaders::HASHGRID_BWD_INPUT_TEXEL,
-                    (Some(_), None) => &shaders::HASHGRID_BWD_PREFETCH,
+                let blob = match (texel.is_some(), dp.is_some()) {
+                    (false, false) => &shaders::HASHGRID_BWD,
+                    (true, false) => &shaders::HASHGRID_BWD_PREFETCH,
+                    (false, true) => &shaders::HASHGRID_BWD_INPUT,
+                    (true, true) => &shaders::HASHGRID_BWD_INPUT_TEXEL,
                 };
                 bindings.extend(texel);
                 let kernel = Kernel::<LevelBwdPush>::with_spec(rec.context(), blob, &spec)?;
@@ -659,6 +648,7 @@ impl HashGrid {
                     weight: self.level_weight(l),
                     zero: 0,
                 };
+                let label = if dp.is_some() { "hashgrid_bwd_input" } else { "hashgrid_bwd" };
                 rec.dispatch_named(label, &kernel, &bindings, &array.deps(), &push, n as u64)?;
             }
             Ok(())
