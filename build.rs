@@ -57,7 +57,9 @@ const VARIANTS: &[Variant] = &[
     vd("hashgrid_bwd_input_levels", "encoding/hashgrid_bwd_input.comp", &[("HASH_LEVELS", "1")]),
     // network: MLP layer, tile and weight-gradient kernels (src/nn/mlp.rs); not fused across layers
     v("mlp_layer_fwd", "network/mlp_layer_fwd.comp"),
+    vd("mlp_layer_fwd_texel", "network/mlp_layer_fwd.comp", &[("MLP_TEXEL", "1")]),
     v("mlp_layer_bwd", "network/mlp_layer_bwd.comp"),
+    vd("mlp_layer_bwd_texel", "network/mlp_layer_bwd.comp", &[("MLP_TEXEL", "1")]),
     v("mlp_out_delta", "network/mlp_out_delta.comp"),
     v("mlp_wgrad", "network/mlp_wgrad.comp"),
     v("mlp_wgrad_reduce", "network/mlp_wgrad_reduce.comp"),

@@ -6,7 +6,9 @@
 // KB are multiples of 4 and w_addr is 16-byte aligned), fully unrolled, 8 inputs accumulated together; the host
 // keeps OUT_W x KB under a budget.
 // Bindings: 0 d_out rows (d_stride, OUT_W floats from d_col), 1 act_in rows (a_stride, KB floats from a_col; read
-//           when MASK = 1), 2 d_in rows (out_stride, KB floats from out_col, written).
+//           when MASK = 1), 2 d_in rows (out_stride, KB floats from out_col, written); the `_texel` variant (build.rs
+//           defines MLP_TEXEL): 0 d_in rows, texels 12 and 13 d_out and act_in as R32G32B32A32 views of their
+//           buffers (row_io.glsl's ROWS_LOAD_TEX; VEC_D, VEC_A and HALF_A unused; with MASK = 0, 13 is not read).
 // Push:     w_addr (device address of W[0][k0], the block's first column), n, d_stride, d_col, a_stride, a_col,
 //           out_stride, out_col.
 // Spec:     0 OUT_W, 1 IN_W, 2 KB, 3 MASK, 4 VEC_D, 5 VEC_A, 6 VEC_OUT (access widths, in the rows' element type),
@@ -29,9 +31,15 @@ layout(constant_id = 7) const uint HALF_A = 0;
 const uint ACC = KB < 8u ? KB : 8u; // inputs accumulated together (independent add chains)
 
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Weights { vec4 v[]; };
+#ifdef MLP_TEXEL
+ROWS_DECLARE(0, din, writeonly)
+layout(binding = 12) uniform samplerBuffer dout_tex;
+layout(binding = 13) uniform samplerBuffer ain_tex;
+#else
 ROWS_DECLARE(0, dout, readonly)
 ROWS_DECLARE(1, ain, readonly)
 ROWS_DECLARE(2, din, writeonly)
+#endif
 layout(push_constant) uniform Push {
     uint64_t w_addr; uint n; uint d_stride; uint d_col; uint a_stride; uint a_col; uint out_stride; uint out_col;
 } pc;
@@ -41,7 +49,11 @@ void main() {
     uint r = min(row, pc.n - 1u);
     Weights w = Weights(pc.w_addr);
     float d[OUT_W];
+#ifdef MLP_TEXEL
+    ROWS_LOAD_TEX(dout_tex, r * pc.d_stride + pc.d_col, d, 0u, OUT_W)
+#else
     ROWS_LOAD(dout, VEC_D, r * pc.d_stride + pc.d_col, d, 0u, OUT_W)
+#endif
     float g[KB];
     [[unroll]] for (uint k0 = 0u; k0 < KB; k0 += ACC) {
         float acc[ACC];
@@ -58,7 +70,11 @@ void main() {
     }
     if (MASK != 0u) {
         float h[KB];
+#ifdef MLP_TEXEL
+        ROWS_LOAD_TEX(ain_tex, r * pc.a_stride + pc.a_col, h, 0u, KB)
+#else
         ROWS_LOAD_X(HALF_A, ain, VEC_A, r * pc.a_stride + pc.a_col, h, 0u, KB)
+#endif
         [[unroll]] for (uint k = 0u; k < KB; ++k) g[k] = h[k] > 0.0 ? g[k] : 0.0;
     }
     if (row < pc.n) ROWS_STORE(din, VEC_OUT, row * pc.out_stride + pc.out_col, g, 0u, KB)

@@ -6,7 +6,9 @@
 // 8 rows, on GPUs a uniform load. Weights are read as vec4 (lavapipe's shader front end takes time quadratic in the
 // number of loads: 8x faster pipeline creation than float reads); IN_W is a multiple of 4 and w_addr 16-byte aligned. Outputs are accumulated 8 at a time (independent add chains). The host keeps
 // IN_W x JB under a budget: lavapipe's compile time grows faster than linearly with unrolled code.
-// Bindings: 0 input rows (in_stride, IN_W floats from in_col), 1 output rows (out_stride, JB floats from out_col).
+// Bindings: 0 input rows (in_stride, IN_W floats from in_col), 1 output rows (out_stride, JB floats from out_col);
+//           the `_texel` variant (build.rs defines MLP_TEXEL): 0 output rows, texel 12 the input rows as an
+//           R32G32B32A32 view of their buffer (row_io.glsl's ROWS_LOAD_TEX; VEC_IN and HALF_IN unused).
 // Push:     w_addr (device address of the block's first weight W[j0][0]), n, in_stride, in_col, out_stride, out_col.
 // Spec:     0 IN_W, 1 JB, 2 ACT (0 none, 1 sigmoid, 2 exp, 3 ReLU), 3 VEC_IN, 4 VEC_OUT (access widths, in the
 //           rows' element type), 5 HALF_IN, 6 HALF_OUT (1: those rows are fp16, strides and columns in halves).
@@ -29,8 +31,13 @@ layout(constant_id = 6) const uint HALF_OUT = 0;
 const uint ACC = JB < 8u ? JB : 8u; // outputs accumulated together (independent add chains)
 
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Weights { vec4 v[]; };
+#ifdef MLP_TEXEL
+ROWS_DECLARE(0, yout, writeonly)
+layout(binding = 12) uniform samplerBuffer xin_tex;
+#else
 ROWS_DECLARE(0, xin, readonly)
 ROWS_DECLARE(1, yout, writeonly)
+#endif
 layout(push_constant) uniform Push {
     uint64_t w_addr; uint n; uint in_stride; uint in_col; uint out_stride; uint out_col;
 } pc;
@@ -39,7 +46,11 @@ void main() {
     uint row = global_index();
     Weights w = Weights(pc.w_addr);
     float x[IN_W];
+#ifdef MLP_TEXEL
+    ROWS_LOAD_TEX(xin_tex, min(row, pc.n - 1u) * pc.in_stride + pc.in_col, x, 0u, IN_W)
+#else
     ROWS_LOAD_X(HALF_IN, xin, VEC_IN, min(row, pc.n - 1u) * pc.in_stride + pc.in_col, x, 0u, IN_W)
+#endif
     float y[JB];
     [[unroll]] for (uint j0 = 0u; j0 < JB; j0 += ACC) {
         float acc[ACC];

@@ -162,3 +162,16 @@ uint64_t rows_pack_h4(float a, float b, float c, float d) {
     if ((HALF) != 0u) ROWS_LOAD_H(NAME, VEC, base, dst, DOFF, COUNT) else ROWS_LOAD(NAME, VEC, base, dst, DOFF, COUNT)
 #define ROWS_STORE_X(HALF, NAME, VEC, base, src, SOFF, COUNT) \
     if ((HALF) != 0u) ROWS_STORE_H(NAME, VEC, base, src, SOFF, COUNT) else ROWS_STORE(NAME, VEC, base, src, SOFF, COUNT)
+
+// ROWS_LOAD_TEX(TEX, base, dst, DOFF, COUNT): dst[DOFF + i] = float base + i of a buffer, for i < COUNT, read from
+// TEX, an R32G32B32A32 texel view of that buffer (a uniform samplerBuffer; base a multiple of 4). A last partial
+// texel reads floats past the run, inside the buffer: a view covers whole texels. On lavapipe a texelFetch at a
+// per-lane index is a branch-free gather where a storage-buffer read is a loop over the lanes (src/gpu/texel.rs):
+// the register-tile layers read their input rows so on CPU devices (`MlpTiling::texel_rows`, docs/benchmarks.md).
+#define ROWS_LOAD_TEX(TEX, base, dst, DOFF, COUNT) { \
+    int t_ = int((base) / 4u); \
+    [[unroll]] for (uint i_ = 0u; i_ < (COUNT); i_ += 4u) { \
+        vec4 v_ = texelFetch(TEX, t_ + int(i_ / 4u)); \
+        [[unroll]] for (uint c_ = 0u; c_ < 4u; ++c_) if (i_ + c_ < (COUNT)) dst[(DOFF) + i_ + c_] = v_[c_]; \
+    } \
+}

@@ -8,7 +8,7 @@
 
 use crate::gpu::{Context, GpuBuffer, GpuResult, KernelTime, LargeArray, MemoryCategory, Recorder};
 use crate::nn::hashgrid::{HashGrid, HashGridConfig, OutputSlot};
-use crate::nn::mlp::{Activation, Mlp, MlpConfig, MlpTrainBuffers};
+use crate::nn::mlp::{Activation, Mlp, MlpConfig, MlpTiling, MlpTrainBuffers};
 use crate::nn::{ParamSlice, RowSlice};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
@@ -72,6 +72,10 @@ pub struct MlpResult {
     /// is the median over repeats of sgemm time / our time (our GFLOP/s as a fraction of the sgemm's, measured
     /// under the same load: this virtual machine's speed drifts between minutes, not within one pair).
     pub sgemm_ratio: Option<f64>,
+    /// Register tiles (`shared_tiles` off): a training pass with the layers' rows read through texel views against
+    /// the same pass with storage-buffer reads (`MlpTiling::texel_rows` on and off), timed back to back in every
+    /// repeat, median of the per-repeat ratios (storage time / texel time). `None` on shared tiles.
+    pub texel_rows_speedup: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -244,6 +248,30 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
     } else {
         (time_ms(repeats, || run_recorded(ctx, &train_pass))?, None, None)
     };
+    let texel_rows_speedup = if mlp.tiling.shared_tiles {
+        None
+    } else {
+        let with = |texel_rows| Mlp::with_tiling(ctx, cfg, MlpTiling { texel_rows, ..mlp.tiling });
+        let (storage, texel) = (with(false)?, with(true)?);
+        let pass = |m: &Mlp| {
+            run_recorded(ctx, &|rec: &mut Recorder| {
+                m.forward(rec, p, xs, rows, ys, &acts)?;
+                m.backward(rec, p, g, (xs, ys, dys), rows, &bufs, Some(dxs))
+            })
+        };
+        pass(&storage)?;
+        pass(&texel)?;
+        let mut r = Vec::new();
+        for _ in 0..repeats.max(1) {
+            let s = Instant::now();
+            pass(&storage)?;
+            let t_storage = s.elapsed().as_secs_f64();
+            let s = Instant::now();
+            pass(&texel)?;
+            r.push(t_storage / s.elapsed().as_secs_f64());
+        }
+        Some(median(r))
+    };
     let mut rec = ctx.recorder("bench")?;
     train_pass(&mut rec)?;
     let train_kernels = rec.submit_and_wait()?.by_kernel();
@@ -266,6 +294,7 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
         train_kernel_gflops,
         cpu_sgemm_gflops,
         sgemm_ratio,
+        texel_rows_speedup,
     })
 }
 
@@ -473,16 +502,25 @@ impl KernelBench {
             );
         }
         s += &format!(
-            "\n{:<26} {:<18} {:>8} {:>11} {:>13} {:>14} {:>12} {:>7}\n",
-            "MLP", "shape", "rows", "fwd GFLOP/s", "train GFLOP/s", "train, kernels", "CPU sgemm", "ratio"
+            "\n{:<26} {:<18} {:>8} {:>11} {:>13} {:>14} {:>12} {:>7} {:>11}\n",
+            "MLP",
+            "shape",
+            "rows",
+            "fwd GFLOP/s",
+            "train GFLOP/s",
+            "train, kernels",
+            "CPU sgemm",
+            "ratio",
+            "texel rows"
         );
         for m in &self.mlp {
             let cpu = m.cpu_sgemm_gflops.map_or("-".into(), |c| format!("{c:.1}"));
             let ratio = m.sgemm_ratio.map_or("-".into(), |r| format!("{:.0}%", 100.0 * r));
             let kernels = m.train_kernel_gflops.map_or("-".into(), |g| format!("{g:.2}"));
+            let texel = m.texel_rows_speedup.map_or("-".into(), |r| format!("{r:.2}x"));
             s += &format!(
-                "{:<26} {:<18} {:>8} {:>11.2} {:>13.2} {:>14} {:>12} {:>7}\n",
-                m.name, m.shape, m.rows, m.forward_gflops, m.train_gflops, kernels, cpu, ratio
+                "{:<26} {:<18} {:>8} {:>11.2} {:>13.2} {:>14} {:>12} {:>7} {:>11}\n",
+                m.name, m.shape, m.rows, m.forward_gflops, m.train_gflops, kernels, cpu, ratio, texel
             );
         }
         s

@@ -31,7 +31,7 @@
 
 use super::SettingError;
 use super::{vec_width, ParamSlice, RowSlice};
-use crate::gpu::{Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder};
+use crate::gpu::{Binding, Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, Kernel, LargeArray, Recorder};
 use crate::shaders;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
@@ -210,6 +210,12 @@ pub struct MlpTiling {
     /// every layer product cost the 30 s demo 0.8 dB of held-out PSNR on an H200 (38.85 against 39.66 dB, three
     /// runs each, 2026-11-27), where tensor cores for the weight gradients alone cost nothing (39.69 dB).
     pub coop_layers: bool,
+    /// Register tiles: the layers read their fp32 input rows (and the backward its deltas and activations) through
+    /// R32G32B32A32 texel views (the `_texel` variants of `mlp_layer_fwd` / `mlp_layer_bwd`) where the rows start
+    /// on whole texels and the device can view the buffer so. On lavapipe a texel fetch is a branch-free gather and
+    /// a storage read at a per-lane address a loop over the lanes: on by default on CPU devices (docs/benchmarks.md),
+    /// off on GPUs, which coalesce either read.
+    pub texel_rows: bool,
 }
 
 impl MlpTiling {
@@ -222,6 +228,7 @@ impl MlpTiling {
         wgrad_rows: 4,
         coop_matrix: false,
         coop_layers: false,
+        texel_rows: true,
     };
     /// GPUs' kernels and block sizes, tensor cores aside (see [`MlpTiling::for_device`]).
     pub const GPU_DEFAULTS: Self = Self {
@@ -232,6 +239,7 @@ impl MlpTiling {
         wgrad_rows: 1,
         coop_matrix: false,
         coop_layers: false,
+        texel_rows: false,
     };
 
     /// CPU devices (lavapipe): register tiles, 16384 multiply-adds per pipeline (a 128 x 128 layer in one block:
@@ -246,7 +254,7 @@ impl MlpTiling {
     /// register-tile fields below still apply when `shared=0`: 4096, 4 x 4.
     /// GPUs with cooperative matrices (and a build that carries their kernels): those for the weight gradients, on
     /// the same tiles; the layers' products stay fp32 unless `coop_layers=1` (see [`MlpTiling::coop_layers`]).
-    /// `MSNERF_MLP_TILING=shared=0|1,coop=0|1,coop_layers=0|1,mac_budget=N,wgrad_tile=N,wgrad_tile_j=N,wgrad_tile_k=N,wgrad_rows=N`
+    /// `MSNERF_MLP_TILING=shared=0|1,coop=0|1,coop_layers=0|1,texel=0|1,mac_budget=N,wgrad_tile=N,wgrad_tile_j=N,wgrad_tile_k=N,wgrad_rows=N`
     /// overrides any of them (benchmarks; `wgrad_tile` sets both tile sides).
     pub fn for_device(caps: &DeviceCaps) -> GpuResult<Self> {
         let t = if caps.is_cpu {
@@ -273,13 +281,14 @@ impl MlpTiling {
             let (key, value) = part.split_once('=').ok_or_else(|| SettingError::new(part, "is not key=value"))?;
             let n: usize =
                 value.trim().parse().map_err(|_| SettingError::new(key, format!("{value:?} is not a number")))?;
-            if matches!(key.trim(), "shared" | "coop" | "coop_layers") {
+            if matches!(key.trim(), "shared" | "coop" | "coop_layers" | "texel") {
                 if n > 1 {
                     return Err(SettingError::new(key.trim(), format!("{n} is not 0 or 1")));
                 }
                 match key.trim() {
                     "shared" => self.shared_tiles = n == 1,
                     "coop" => (self.coop_matrix, coop_given) = (n == 1, true),
+                    "texel" => self.texel_rows = n == 1,
                     _ => (self.coop_layers, layers_given) = (n == 1, true),
                 }
                 continue;
@@ -295,7 +304,7 @@ impl MlpTiling {
                 "wgrad_rows" => self.wgrad_rows = n,
                 other => {
                     let keys =
-                        "shared, coop, coop_layers, mac_budget, wgrad_tile, wgrad_tile_j, wgrad_tile_k, wgrad_rows";
+                        "shared, coop, coop_layers, texel, mac_budget, wgrad_tile, wgrad_tile_j, wgrad_tile_k, wgrad_rows";
                     return Err(SettingError::new(other, format!("unknown key ({keys})")));
                 }
             }
@@ -502,6 +511,25 @@ impl Mlp {
         Ok(Self { config: config.clone(), tiling, reduce: Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)? })
     }
 
+    /// `buf` as an R32G32B32A32 texel binding for the layers' `_texel` variants: when this tiling reads rows as
+    /// texels ([`MlpTiling::texel_rows`]), the rows are fp32 and start on whole texels (every float offset in
+    /// `offsets` a multiple of 4), and the device can view the buffer so; else `None` (the storage-buffer read).
+    fn texel_rows(&self, buf: &GpuBuffer<f32>, half: bool, offsets: &[usize]) -> GpuResult<Option<Binding>> {
+        if !self.tiling.texel_rows || half || offsets.iter().any(|o| o % 4 != 0) {
+            return Ok(None);
+        }
+        buf.texel_binding(ash::vk::Format::R32G32B32A32_SFLOAT)
+    }
+
+    /// Whether the layers read `rows` (fp16 ones when `half`) through a texel view (the `_texel` variants of the
+    /// register tiles; see [`MlpTiling::texel_rows`]).
+    pub fn reads_texels(&self, rows: RowSlice, half: bool) -> GpuResult<bool> {
+        if self.tiling.shared_tiles {
+            return Ok(false);
+        }
+        Ok(self.texel_rows(rows.buf, half, &[rows.stride, rows.col])?.is_some())
+    }
+
     /// Floats of the split-K scratch for `n` rows.
     pub fn wgrad_scratch_floats(&self, n: usize) -> usize {
         self.config.wgrad_scratch_floats(n)
@@ -587,17 +615,22 @@ impl Mlp {
                 self.tile_layer(rec, (w_addr, &deps), TileOp::Forward(act), (src, dst, halves), n, (in_w, out_w))?;
                 continue;
             }
+            let texel = self.texel_rows(src.buf, half_in, &[src.stride, src.col])?;
             for b in blocks(out_w, self.tiling.mac_budget / in_w) {
-                let spec = [
+                let mut spec = vec![
                     ("IN_W", in_w as u32),
                     ("JB", b.len() as u32),
                     ("ACT", act.code()),
-                    ("VEC_IN", row_vec(half_in, &[src.stride, src.col])),
                     ("VEC_OUT", row_vec(half_out, &[dst.stride, dst.col + b.start])),
-                    ("HALF_IN", u32::from(half_in)),
                     ("HALF_OUT", u32::from(half_out)),
                 ];
-                let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_FWD, &spec)?;
+                // The texel variant reads the input through its view: no access width, never fp16.
+                if texel.is_none() {
+                    spec.push(("VEC_IN", row_vec(half_in, &[src.stride, src.col])));
+                    spec.push(("HALF_IN", u32::from(half_in)));
+                }
+                let blob = if texel.is_some() { &shaders::MLP_LAYER_FWD_TEXEL } else { &shaders::MLP_LAYER_FWD };
+                let k = Kernel::with_spec(ctx, blob, &spec)?;
                 let push = LayerFwdPush {
                     w_addr: base + 4 * (offsets[layer] + b.start * in_w) as u64,
                     n: n as u32,
@@ -607,7 +640,12 @@ impl Mlp {
                     out_col: (dst.col + b.start) as u32,
                     pad: 0,
                 };
-                rec.dispatch_named("mlp_fwd", &k, &[src.buf.binding(), dst.buf.binding()], &deps, &push, n as u64)?;
+                // The texel variant's only storage binding is its output.
+                let bindings = match &texel {
+                    Some(t) => vec![dst.buf.binding(), t.clone()],
+                    None => vec![src.buf.binding(), dst.buf.binding()],
+                };
+                rec.dispatch_named("mlp_fwd", &k, &bindings, &deps, &push, n as u64)?;
             }
         }
         Ok(())
@@ -685,17 +723,29 @@ impl Mlp {
             }
             let a = mask.unwrap_or(d_in);
             for b in blocks(in_w, self.tiling.mac_budget / d_w) {
-                let spec = [
+                let mut spec = vec![
                     ("OUT_W", d_w as u32),
                     ("IN_W", in_w as u32),
                     ("KB", b.len() as u32),
                     ("MASK", u32::from(mask.is_some())),
-                    ("VEC_D", vec_width(&[d_in.stride, d_in.col])),
-                    ("VEC_A", if mask.is_some() { row_vec(half_mask, &[a.stride, a.col + b.start]) } else { 1 }),
                     ("VEC_OUT", vec_width(&[target.stride, target.col + b.start])),
-                    ("HALF_A", u32::from(half_mask)),
                 ];
-                let k = Kernel::with_spec(ctx, &shaders::MLP_LAYER_BWD, &spec)?;
+                // The texel variant reads both row sets through views (with MASK = 0, the deltas' twice: its
+                // activation slot is bound but not read).
+                let texels = match self.texel_rows(d_in.buf, false, &[d_in.stride, d_in.col])? {
+                    Some(d_tex) => {
+                        self.texel_rows(a.buf, half_mask, &[a.stride, a.col + b.start])?.map(|a_tex| [d_tex, a_tex])
+                    }
+                    None => None,
+                };
+                if texels.is_none() {
+                    spec.push(("VEC_D", vec_width(&[d_in.stride, d_in.col])));
+                    let vec_a = if mask.is_some() { row_vec(half_mask, &[a.stride, a.col + b.start]) } else { 1 };
+                    spec.push(("VEC_A", vec_a));
+                    spec.push(("HALF_A", u32::from(half_mask)));
+                }
+                let blob = if texels.is_some() { &shaders::MLP_LAYER_BWD_TEXEL } else { &shaders::MLP_LAYER_BWD };
+                let k = Kernel::with_spec(ctx, blob, &spec)?;
                 let push = LayerBwdPush {
                     w_addr: base + 4 * (offsets[m] + b.start) as u64,
                     n: n as u32,
@@ -707,7 +757,10 @@ impl Mlp {
                     out_col: (target.col + b.start) as u32,
                     pad: 0,
                 };
-                let bindings = [d_in.buf.binding(), a.buf.binding(), target.buf.binding()];
+                let bindings = match texels {
+                    Some([d_tex, a_tex]) => vec![target.buf.binding(), d_tex, a_tex],
+                    None => vec![d_in.buf.binding(), a.buf.binding(), target.buf.binding()],
+                };
                 rec.dispatch_named("mlp_bwd", &k, &bindings, &deps, &push, n as u64)?;
             }
         }
@@ -957,6 +1010,7 @@ mod tests {
             wgrad_rows: 4,
             coop_matrix: false,
             coop_layers: false,
+            texel_rows: true,
         };
         let o = t.with_overrides("mac_budget=8192, wgrad_rows=8,shared=1,wgrad_tile_j=64").expect("valid");
         let want = MlpTiling {
@@ -967,8 +1021,11 @@ mod tests {
             wgrad_rows: 8,
             coop_matrix: false,
             coop_layers: false,
+            texel_rows: true,
         };
         assert_eq!(o, want);
+        assert!(!t.with_overrides("texel=0").expect("valid").texel_rows);
+        assert!(t.with_overrides("texel=2").unwrap_err().to_string().contains("texel"));
         let both = t.with_overrides("wgrad_tile=16").expect("valid");
         assert_eq!((both.wgrad_tile_j, both.wgrad_tile_k), (16, 16));
         assert!(t.with_overrides("shared=2").unwrap_err().to_string().contains("shared"));

@@ -37,12 +37,25 @@ fn weights(c: &MlpConfig, seed: u64) -> Vec<f32> {
 fn check_config(g: &Context, c: &MlpConfig, n: usize, seed: u64) {
     let default = MlpTiling::for_device(g.caps()).expect("tiling");
     let fp32 = MlpTiling { coop_matrix: false, coop_layers: false, ..default };
+    let register = MlpTiling { shared_tiles: false, ..fp32 };
+    // The device's choice, the other kind of tiles, and the register tiles with rows read both ways (texel views
+    // and storage reads).
     let mut tilings = vec![default, MlpTiling { shared_tiles: !default.shared_tiles, ..fp32 }];
+    for texel_rows in [true, false] {
+        tilings.push(MlpTiling { texel_rows, ..register });
+    }
     if default.coop_matrix {
         tilings.push(fp32);
     }
+    let mut done: Vec<MlpTiling> = Vec::new();
     for tiling in tilings {
-        check_with(g, c, n, seed, tiling);
+        if !done.contains(&tiling) {
+            // Input rows on whole texels and off them (the texel variants fall back to storage reads there).
+            for aligned in [true, false] {
+                check_with(g, c, n, seed, tiling, aligned);
+            }
+            done.push(tiling);
+        }
     }
 }
 
@@ -52,7 +65,7 @@ fn check_both_precisions(g: &Context, c: &MlpConfig, n: usize, seed: u64) {
     check_config(g, &MlpConfig { half_activations: true, ..c.clone() }, n, seed);
 }
 
-fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling) {
+fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling, aligned: bool) {
     let mlp = Mlp::with_tiling(g, c, tiling).expect("mlp");
     let w = weights(c, seed);
     let offset = 40;
@@ -60,8 +73,9 @@ fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling
     params.upload(g, offset, &w).expect("upload");
     let grads = LargeArray::<f32>::new(g, "grads", offset + w.len(), MemoryCategory::Gradients).expect("grads");
     let mut r = rng(seed + 1);
-    // Input rows: in_pad columns at column 2 of a wider row (padding columns are real inputs too).
-    let (in_stride, in_col) = (c.in_pad() + 3, 2);
+    // Input rows: in_pad columns inside a wider row (padding columns are real inputs too), starting on a whole
+    // texel (column 4 of rows of a multiple of 4 floats) or not (column 2 of an odd width).
+    let (in_stride, in_col) = if aligned { (c.in_pad() + 4, 4) } else { (c.in_pad() + 3, 2) };
     let x: Vec<f32> = (0..n * in_stride).map(|_| r.random_range(-1.0..1.0)).collect();
     let dy_host: Vec<f32> = (0..n * c.n_output).map(|_| r.random_range(-1.0..1.0)).collect();
     let (out_stride, out_col) = (c.n_output + 1, 1);
@@ -76,6 +90,9 @@ fn check_with(g: &Context, c: &MlpConfig, n: usize, seed: u64, tiling: MlpTiling
     let p = ParamSlice { array: &params, offset };
     let gs = ParamSlice { array: &grads, offset };
     let xin = RowSlice { buf: &input, stride: in_stride, col: in_col };
+    // The first layer reads its input through a texel view exactly where that is asked for and possible.
+    let texel_input = tiling.texel_rows && !tiling.shared_tiles && aligned;
+    assert_eq!(mlp.reads_texels(xin, false).expect("texel view"), texel_input, "{tiling:?}, aligned {aligned}");
     let loose = if c.half_activations || tiling.coop_matrix || tiling.coop_layers { 100.0 } else { 1.0 };
     let close = |a: f32, b: f32| common::close(a as f64, b as f64, 1e-5 * loose, 1e-4 * loose);
     let y = RowSlice { buf: &out, stride: out_stride, col: out_col };
@@ -262,17 +279,24 @@ fn cooperative_matrix_kernels_match_the_twin_or_are_refused() {
     }
     assert!(default.coop_matrix, "cooperative matrices are the default where available");
     let only_wgrad = MlpTiling { coop_matrix: true, coop_layers: false, shared_tiles: true, ..default };
-    check_with(&g, &cfg(63, 6, 64, 2, Activation::Sigmoid), 777, 3, only_wgrad);
+    check_with(&g, &cfg(63, 6, 64, 2, Activation::Sigmoid), 777, 3, only_wgrad, false);
     check_tiny_deltas(&g, only_wgrad);
     let coop = MlpTiling { coop_layers: true, ..only_wgrad };
-    check_with(&g, &c, 1003, 1, coop);
-    check_with(&g, &MlpConfig { half_activations: true, ..cfg(10, 1, 16, 1, Activation::None) }, 517, 2, coop);
-    check_with(&g, &cfg(63, 6, 64, 2, Activation::Sigmoid), 777, 3, coop);
-    check_with(&g, &cfg(79, 6, 128, 2, Activation::Sigmoid), 2049, 9, coop);
-    check_with(&g, &MlpConfig { half_activations: true, ..cfg(79, 6, 128, 2, Activation::Sigmoid) }, 211, 9, coop);
-    check_with(&g, &cfg(20, 3, 32, 3, Activation::Exponential), 301, 5, coop);
-    check_with(&g, &cfg(32, 128, 128, 2, Activation::Sigmoid), 203, 4, coop);
-    check_with(&g, &cfg(16, 3, 16, 1, Activation::None), 70_001, 12, coop);
+    check_with(&g, &c, 1003, 1, coop, false);
+    check_with(&g, &MlpConfig { half_activations: true, ..cfg(10, 1, 16, 1, Activation::None) }, 517, 2, coop, false);
+    check_with(&g, &cfg(63, 6, 64, 2, Activation::Sigmoid), 777, 3, coop, false);
+    check_with(&g, &cfg(79, 6, 128, 2, Activation::Sigmoid), 2049, 9, coop, false);
+    check_with(
+        &g,
+        &MlpConfig { half_activations: true, ..cfg(79, 6, 128, 2, Activation::Sigmoid) },
+        211,
+        9,
+        coop,
+        false,
+    );
+    check_with(&g, &cfg(20, 3, 32, 3, Activation::Exponential), 301, 5, coop, false);
+    check_with(&g, &cfg(32, 128, 128, 2, Activation::Sigmoid), 203, 4, coop, false);
+    check_with(&g, &cfg(16, 3, 16, 1, Activation::None), 70_001, 12, coop, false);
     check_tiny_deltas(&g, coop);
 }
 
