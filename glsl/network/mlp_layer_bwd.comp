@@ -24,10 +24,12 @@ layout(constant_id = 0) const uint OUT_W = 64;
 layout(constant_id = 1) const uint IN_W = 64;
 layout(constant_id = 2) const uint KB = 64;
 layout(constant_id = 3) const uint MASK = 1;
+#ifndef MLP_TEXEL // the texel variant reads fp32 texels: no access widths, no fp16 activations
 layout(constant_id = 4) const uint VEC_D = 1;
 layout(constant_id = 5) const uint VEC_A = 1;
-layout(constant_id = 6) const uint VEC_OUT = 1;
 layout(constant_id = 7) const uint HALF_A = 0;
+#endif
+layout(constant_id = 6) const uint VEC_OUT = 1;
 const uint ACC = KB < 8u ? KB : 8u; // inputs accumulated together (independent add chains)
 
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Weights { vec4 v[]; };

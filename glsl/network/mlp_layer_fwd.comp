@@ -23,9 +23,11 @@ layout(local_size_x = WG_SIZE) in;
 layout(constant_id = 0) const uint IN_W = 64;
 layout(constant_id = 1) const uint JB = 64;
 layout(constant_id = 2) const uint ACT = 3;
+#ifndef MLP_TEXEL // the texel variant reads fp32 input texels: no access width, no fp16 input
 layout(constant_id = 3) const uint VEC_IN = 1;
-layout(constant_id = 4) const uint VEC_OUT = 1;
 layout(constant_id = 5) const uint HALF_IN = 0;
+#endif
+layout(constant_id = 4) const uint VEC_OUT = 1;
 layout(constant_id = 6) const uint HALF_OUT = 0;
 #include "network/activation.glsl"
 const uint ACC = JB < 8u ? JB : 8u; // outputs accumulated together (independent add chains)

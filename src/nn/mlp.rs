@@ -22,8 +22,10 @@
 //! Which family runs, and its block sizes, come from the device ([`MlpTiling::for_device`]): lavapipe compiles
 //! each pipeline with LLVM, whose time grows faster than linearly with the unrolled code, so a register kernel's
 //! block is kept under a multiply-add budget.
-//! Rows are read and written as wide as their alignment allows (`row_io.glsl`). Why this shape, and what it
-//! reaches against a CPU sgemm: docs/benchmarks.md.
+//! Rows are read and written as wide as their alignment allows (`row_io.glsl`). On CPU devices the register-tile
+//! layers read their fp32 rows through texel views instead (the `_texel` variants, [`MlpTiling::texel_rows`]): a
+//! branch-free gather on lavapipe, where a storage read at a per-lane address is a loop over the SIMD lanes. Why
+//! this shape, and what it reaches against a CPU sgemm: docs/benchmarks.md.
 //!
 //! With `MlpConfig::half_activations` every kernel that writes or reads the hidden activations (forward outputs,
 //! the backward pass's ReLU mask, the weight gradients' inputs) stores them as fp16 pairs in 32-bit words (spec
@@ -35,6 +37,7 @@ use crate::gpu::{Binding, Context, DeviceCaps, GpuBuffer, GpuError, GpuResult, K
 use crate::shaders;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -481,6 +484,8 @@ pub struct Mlp {
     pub config: MlpConfig,
     pub tiling: MlpTiling,
     reduce: Kernel<ReducePush>,
+    /// Layer kernels recorded in their `_texel` variant so far ([`Mlp::texel_dispatches`]).
+    texel_dispatches: AtomicUsize,
 }
 
 impl Mlp {
@@ -508,7 +513,8 @@ impl Mlp {
                 msg: format!("cooperative matrices: {why}"),
             });
         }
-        Ok(Self { config: config.clone(), tiling, reduce: Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)? })
+        let reduce = Kernel::new(ctx, &shaders::MLP_WGRAD_REDUCE)?;
+        Ok(Self { config: config.clone(), tiling, reduce, texel_dispatches: AtomicUsize::new(0) })
     }
 
     /// `buf` as an R32G32B32A32 texel binding for the layers' `_texel` variants: when this tiling reads rows as
@@ -521,13 +527,10 @@ impl Mlp {
         buf.texel_binding(ash::vk::Format::R32G32B32A32_SFLOAT)
     }
 
-    /// Whether the layers read `rows` (fp16 ones when `half`) through a texel view (the `_texel` variants of the
-    /// register tiles; see [`MlpTiling::texel_rows`]).
-    pub fn reads_texels(&self, rows: RowSlice, half: bool) -> GpuResult<bool> {
-        if self.tiling.shared_tiles {
-            return Ok(false);
-        }
-        Ok(self.texel_rows(rows.buf, half, &[rows.stride, rows.col])?.is_some())
+    /// How many layer kernels (`mlp_layer_fwd` / `mlp_layer_bwd` dispatches) this MLP has recorded in their
+    /// `_texel` variant: tests check that the texel reads run where they should, not a silent fallback.
+    pub fn texel_dispatches(&self) -> usize {
+        self.texel_dispatches.load(Ordering::Relaxed)
     }
 
     /// Floats of the split-K scratch for `n` rows.
@@ -630,6 +633,7 @@ impl Mlp {
                     spec.push(("HALF_IN", u32::from(half_in)));
                 }
                 let blob = if texel.is_some() { &shaders::MLP_LAYER_FWD_TEXEL } else { &shaders::MLP_LAYER_FWD };
+                self.texel_dispatches.fetch_add(usize::from(texel.is_some()), Ordering::Relaxed);
                 let k = Kernel::with_spec(ctx, blob, &spec)?;
                 let push = LayerFwdPush {
                     w_addr: base + 4 * (offsets[layer] + b.start * in_w) as u64,
@@ -745,6 +749,7 @@ impl Mlp {
                     spec.push(("HALF_A", u32::from(half_mask)));
                 }
                 let blob = if texels.is_some() { &shaders::MLP_LAYER_BWD_TEXEL } else { &shaders::MLP_LAYER_BWD };
+                self.texel_dispatches.fetch_add(usize::from(texels.is_some()), Ordering::Relaxed);
                 let k = Kernel::with_spec(ctx, blob, &spec)?;
                 let push = LayerBwdPush {
                     w_addr: base + 4 * (offsets[m] + b.start) as u64,

@@ -51,6 +51,8 @@ fn bench_kernels_reports_the_proposal_grid_and_mlp() {
     assert_eq!(m["shared_tiles"].as_bool(), Some(!is_cpu), "{m}");
     // The ratio comes from paired timings: present exactly when the sgemm is, positive.
     assert_eq!(m["sgemm_ratio"].as_f64().is_some_and(|r| r > 0.0), is_cpu, "{m}");
+    // The texel-rows pairing runs on the register tiles only.
+    assert_eq!(m["texel_rows_speedup"].as_f64().is_some_and(|r| r > 0.0), is_cpu, "{m}");
 }
 
 #[test]
