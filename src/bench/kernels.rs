@@ -99,6 +99,25 @@ fn time_ms(repeats: usize, mut f: impl FnMut() -> GpuResult<()>) -> GpuResult<f6
 }
 
 /// The middle value (the upper one of an even count); `v` is not empty.
+/// `run(false)` then `run(true)`, timed back to back in every repeat after one untimed pair (pipeline compilation):
+/// the median of the per-repeat ratios time(false) / time(true), the speed-up of `true`. Paired so that this
+/// machine's drift between minutes cancels.
+fn paired_speedup(repeats: usize, mut run: impl FnMut(bool) -> GpuResult<()>) -> GpuResult<f64> {
+    let mut r = Vec::with_capacity(repeats);
+    for k in 0..=repeats.max(1) {
+        let mut t = [0.0; 2];
+        for (on, t) in [false, true].into_iter().zip(&mut t) {
+            let s = Instant::now();
+            run(on)?;
+            *t = s.elapsed().as_secs_f64();
+        }
+        if k > 0 {
+            r.push(t[0] / t[1]);
+        }
+    }
+    Ok(median(r))
+}
+
 fn median(v: Vec<f64>) -> f64 {
     crate::util::stats::upper_median(&v)
 }
@@ -149,27 +168,16 @@ pub fn bench_hash(
     let texel_levels = paired.texel_levels(p)?;
     let dp = zeros(ctx, "bench dp", points * 3)?;
     let mut ratio = |which: usize| -> GpuResult<Option<f64>> {
-        let run = |grid: &HashGrid| {
+        let speedup = paired_speedup(repeats, |texel| {
+            paired.set_texel_reads(texel);
+            let grid = &paired;
             run_recorded(ctx, &|rec| match which {
                 0 => grid.forward(rec, p, &rays, points, &out, slot),
                 1 => grid.backward_input(rec, p, &rays, points, dys, &dp),
                 _ => grid.backward_params(rec, g, &rays, points, dys),
             })
-        };
-        let mut r = Vec::with_capacity(repeats);
-        for k in 0..=repeats.max(1) {
-            let mut t = [0.0; 2];
-            for (texel, t) in [false, true].into_iter().zip(&mut t) {
-                paired.set_texel_reads(texel);
-                let s = Instant::now();
-                run(&paired)?;
-                *t = s.elapsed().as_secs_f64();
-            }
-            if k > 0 {
-                r.push(t[0] / t[1]); // the first pair compiles the pipelines
-            }
-        }
-        Ok(Some(median(r)))
+        })?;
+        Ok(Some(speedup))
     };
     let (fwd_texel, input_texel, prefetch) =
         if texel_levels > 0 { (ratio(0)?, ratio(1)?, ratio(2)?) } else { (None, None, None) };
@@ -253,24 +261,13 @@ pub fn bench_mlp(ctx: &Context, name: &str, cfg: &MlpConfig, rows: usize, repeat
     } else {
         let with = |texel_rows| Mlp::with_tiling(ctx, cfg, MlpTiling { texel_rows, ..mlp.tiling });
         let (storage, texel) = (with(false)?, with(true)?);
-        let pass = |m: &Mlp| {
+        Some(paired_speedup(repeats, |texel_rows| {
+            let m = if texel_rows { &texel } else { &storage };
             run_recorded(ctx, &|rec: &mut Recorder| {
                 m.forward(rec, p, xs, rows, ys, &acts)?;
                 m.backward(rec, p, g, (xs, ys, dys), rows, &bufs, Some(dxs))
             })
-        };
-        pass(&storage)?;
-        pass(&texel)?;
-        let mut r = Vec::new();
-        for _ in 0..repeats.max(1) {
-            let s = Instant::now();
-            pass(&storage)?;
-            let t_storage = s.elapsed().as_secs_f64();
-            let s = Instant::now();
-            pass(&texel)?;
-            r.push(t_storage / s.elapsed().as_secs_f64());
-        }
-        Some(median(r))
+        })?)
     };
     let mut rec = ctx.recorder("bench")?;
     train_pass(&mut rec)?;

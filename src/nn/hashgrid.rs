@@ -4,8 +4,9 @@
 //! table, CoherentPrime hashing otherwise, entries padded to multiples of 8). [`HashGrid`] records the kernels:
 //! - `hashgrid_fwd`: per level (the default on CPU devices), one dispatch per level (its table is what the dispatch
 //!   reads: tcnn's cache-friendly order), the level's parameters in push constants (on lavapipe read once for all
-//!   invocations, not once per lane), one invocation per point; writes F features per row, and the last level the padding columns. The levels are one
-//!   [`Recorder::independent`] group: no barrier among them (they write disjoint columns).
+//!   invocations, not once per lane), one invocation per point; writes F features per row, and the last level the
+//!   padding columns. The levels are one [`Recorder::independent`] group: no barrier among them (they write
+//!   disjoint columns).
 //! - `hashgrid_bwd`: gradient to the parameters, fp32 `atomicAdd` into the gradient array, one dispatch per level
 //!   as the forward, also one independent group (each level adds into its own range). With texel reads (CPU
 //!   devices) its `_prefetch` variant first gathers the point's 8 corner entries of the gradient table as texels
