@@ -18,6 +18,11 @@ mkdir -p "$pkg/lib" "$pkg/layers"
 command -v python3 >/dev/null || { echo "package-tests: needs python3 (apt-get install python3)" >&2; exit 1; }
 features=()
 [ -n "${MSNERF_FEATURES:-}" ] && features=(--features "$MSNERF_FEATURES")
+if [[ "${MSNERF_FEATURES:-}" == *shaderc-from-source* ]]; then
+  for c in cmake ninja python3 g++; do
+    command -v "$c" >/dev/null || { echo "package-tests: shaderc-from-source needs $c: apt-get install -y cmake ninja-build python3 g++" >&2; exit 1; }
+  done
+fi
 cargo build --release "${features[@]}"
 # One line per test executable: path, target name, target kind (lib and bin unit tests get fixed names).
 cargo test --release "${features[@]}" --no-run --message-format=json 2>/dev/null | python3 -c '

@@ -21,8 +21,10 @@
 //!   texel fetch is a branch-free gather. Levels that straddle chunks keep the device-address read.
 //! - `_levels` variants of the forward and the input gradient: one dispatch for all the grid's levels (the forward
 //!   z over levels, as tcnn's blockIdx.y; the input gradient one invocation per point walking the levels), the
-//!   level table read from a buffer. The default on GPUs, where one level's dispatch fills less than a wave and
-//!   the input gradient's levels each waited on a barrier; see [`default_one_dispatch`].
+//!   level table read from a buffer. The default on GPUs for passes of at most [`GPU_ONE_DISPATCH_MAX_POINTS`]
+//!   points, where one level's dispatch fills little of the chip and the input gradient's levels each waited on a
+//!   barrier; larger passes keep the per-level kernels, which know each level at compile time; see
+//!   [`default_one_dispatch`].
 //!
 //! Coarse-to-fine ([`HashGrid::set_active_levels`], `field.coarse_to_fine`): every kernel multiplies level l's
 //! features, or their gradients, by clamp(active - l, 0, 1), a push constant (1 by default).
@@ -235,9 +237,10 @@ pub struct HashGrid {
     /// The forward and the input gradient read each level's table as a texel buffer where the level lies in one
     /// chunk (the `_texel` kernel variants); see [`default_texel_reads`].
     texel_reads: bool,
-    /// The forward and the input gradient record one dispatch for all levels (the `_levels` kernel variants) instead
-    /// of one per level; see [`default_one_dispatch`]. Takes precedence over `texel_reads`.
-    one_dispatch: bool,
+    /// The forward and the input gradient of at most this many points record one dispatch for all levels (the
+    /// `_levels` kernel variants) instead of one per level (0: never); see [`default_one_dispatch`]. Takes
+    /// precedence over `texel_reads`.
+    one_dispatch_max: usize,
     /// Coarse-to-fine (`field.coarse_to_fine`): level l's features are multiplied by clamp(active - l, 0, 1) in
     /// the forward and its gradients alike; `n_levels` (every weight 1) unless set.
     active: std::cell::Cell<f32>,
@@ -316,16 +319,27 @@ pub fn default_texel_reads(ctx: &crate::gpu::Context) -> GpuResult<bool> {
     }
 }
 
-/// Whether the forward and the input gradient record one dispatch for all of a grid's levels:
-/// `MSNERF_HASH_ONE_DISPATCH` (`1` or `0`) when set, else on GPUs. There one level's points fill less than a wave
-/// of the chip and the input gradient's levels each waited on a barrier; on lavapipe the per-level kernels keep
+/// Points per pass up to which a GPU records a grid's forward and input gradient as one dispatch for all levels:
+/// 2^20, 4,096 rays of 256 samples. Measured on an H100 (docs/benchmarks.md, 2026-11-28): one dispatch was faster
+/// at 196,608 points per level (nerfacto's field grid at 4,096 rays: forward 0.40 against 0.45 ms per step for the
+/// three grids, input gradient 0.14 against 0.23; Table 1 in 4,096-ray passes: input gradient 2.13 against 3.17)
+/// and slower from 1.57 million (Table 1 at 32,768 rays in one pass: forward 6.61 against 5.89 ms, input gradient
+/// 2.36 against 2.20). A large pass fills the chip level by level, and the per-level kernels know at compile time
+/// whether a level is hashed and take its parameters from push constants.
+pub const GPU_ONE_DISPATCH_MAX_POINTS: usize = 1 << 20;
+
+/// The most points per pass for which the forward and the input gradient record one dispatch for all of a grid's
+/// levels (0: never; `usize::MAX`: always): `MSNERF_HASH_ONE_DISPATCH=1` always, `=0` never; else
+/// [`GPU_ONE_DISPATCH_MAX_POINTS`] on GPUs, where one level's points of a small pass fill little of the chip and
+/// the input gradient's levels each waited on a barrier, and never on CPU devices, where the per-level kernels keep
 /// their texel reads and their level parameters in push constants (read once per dispatch, not once per lane).
 /// A value other than 0 or 1 is an error naming the variable.
-pub fn default_one_dispatch(ctx: &crate::gpu::Context) -> GpuResult<bool> {
+pub fn default_one_dispatch(ctx: &crate::gpu::Context) -> GpuResult<usize> {
     match crate::util::env::settings().hash_one_dispatch.as_deref() {
-        None => Ok(!ctx.caps().is_cpu),
-        Some("0") => Ok(false),
-        Some("1") => Ok(true),
+        None if ctx.caps().is_cpu => Ok(0),
+        None => Ok(GPU_ONE_DISPATCH_MAX_POINTS),
+        Some("0") => Ok(0),
+        Some("1") => Ok(usize::MAX),
         Some(v) => {
             Err(GpuError::Config { what: "MSNERF_HASH_ONE_DISPATCH".into(), msg: format!("{v:?} is not 0 or 1") })
         }
@@ -362,7 +376,7 @@ impl HashGrid {
             },
             bwd_run: run,
             texel_reads: default_texel_reads(ctx)?,
-            one_dispatch: default_one_dispatch(ctx)?,
+            one_dispatch_max: default_one_dispatch(ctx)?,
             active: std::cell::Cell::new(config.n_levels as f32),
         })
     }
@@ -387,7 +401,7 @@ impl HashGrid {
     /// The chunk holding a level's table as a texel buffer for the per-level kernels, when this grid reads texels,
     /// the level lies in one chunk and the device can bind that chunk so. The one-dispatch forward and input
     /// gradient return before asking; the parameter gradient (per level on CPU devices) asks whatever
-    /// `one_dispatch` says, for its prefetch.
+    /// the pass size says, for its prefetch.
     fn table_texels(&self, array: &LargeArray<f32>, chunked: bool, chunk: usize) -> GpuResult<Option<Binding>> {
         if !self.texel_reads || chunked {
             return Ok(None);
@@ -411,14 +425,26 @@ impl HashGrid {
         self.texel_reads = on;
     }
 
-    /// Chooses between one dispatch for all levels and one per level (tests and benchmarks compare both).
+    /// Chooses between one dispatch for all levels at every size and one per level (tests and benchmarks compare
+    /// both).
     pub fn set_one_dispatch(&mut self, on: bool) {
-        self.one_dispatch = on;
+        self.one_dispatch_max = if on { usize::MAX } else { 0 };
     }
 
-    /// Whether the forward and the input gradient record one dispatch for all levels.
-    pub fn one_dispatch(&self) -> bool {
-        self.one_dispatch
+    /// Sets the most points per pass recorded as one dispatch for all levels (0: never).
+    pub fn set_one_dispatch_max_points(&mut self, max: usize) {
+        self.one_dispatch_max = max;
+    }
+
+    /// The most points per pass the forward and the input gradient record as one dispatch for all levels (0:
+    /// never; `usize::MAX`: always).
+    pub fn one_dispatch_max_points(&self) -> usize {
+        self.one_dispatch_max
+    }
+
+    /// Whether a pass of `n` points records one dispatch for all levels.
+    pub fn one_dispatch_for(&self, n: usize) -> bool {
+        n <= self.one_dispatch_max
     }
 
     /// Workgroups for `n` invocations (folded into x and y) of every level (z).
@@ -453,7 +479,7 @@ impl HashGrid {
             return Ok(());
         }
         let c = &self.config;
-        if self.one_dispatch {
+        if self.one_dispatch_for(n) {
             let (base, offset, chunked) = grid_base(params, param_offset, c.n_params())?;
             let spec = [
                 ("F", c.features_per_level),
@@ -568,7 +594,7 @@ impl HashGrid {
             return Ok(());
         }
         let dy = RowSlice { buf: dy, stride: dy_stride, col: dy_col };
-        if self.one_dispatch {
+        if self.one_dispatch_for(n) {
             let c = &self.config;
             let (base, offset, chunked) = grid_base(params, param_offset, c.n_params())?;
             let spec = [

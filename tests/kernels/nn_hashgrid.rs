@@ -162,18 +162,60 @@ fn forward_matches_twin_with_padding_in_one_dispatch() {
     check_forward_with_padding(Reads::OneDispatch, None);
 }
 
-/// `MSNERF_HASH_ONE_DISPATCH` overrides the default (one dispatch on GPUs, per level on CPU devices).
+/// `MSNERF_HASH_ONE_DISPATCH` overrides the default (on GPUs one dispatch for passes of up to 2^20 points, per
+/// level on CPU devices).
 #[test]
 fn one_dispatch_default_follows_the_device_kind() {
     let g = gpu();
     let want = match std::env::var("MSNERF_HASH_ONE_DISPATCH").as_deref() {
-        Ok("1") => true,
-        Ok("0") => false,
+        Ok("1") => usize::MAX,
+        Ok("0") => 0,
         Ok(v) => panic!("MSNERF_HASH_ONE_DISPATCH={v} is not 0 or 1"),
-        Err(_) => !g.caps().is_cpu,
+        Err(_) if g.caps().is_cpu => 0,
+        Err(_) => 1 << 20,
     };
+    assert_eq!(hashgrid::GPU_ONE_DISPATCH_MAX_POINTS, 1 << 20);
     assert_eq!(hashgrid::default_one_dispatch(&g).expect("default"), want);
-    assert_eq!(HashGrid::new(&g, &small()).expect("grid").one_dispatch(), want);
+    assert_eq!(HashGrid::new(&g, &small()).expect("grid").one_dispatch_max_points(), want);
+}
+
+/// The size rule (GPUs by default): a forward or input gradient of at most the grid's limit records one dispatch
+/// for all levels, one point more records one per level, and both encode as the twin does.
+#[test]
+fn one_dispatch_follows_the_pass_size() {
+    let g = gpu();
+    let cfg = small();
+    let mut s = setup(&g, &cfg, 8, 17);
+    s.grid.set_texel_reads(false);
+    let max = 500;
+    s.grid.set_one_dispatch_max_points(max);
+    let params = ParamSlice { array: &s.params, offset: s.offset };
+    let pts = points(&cfg, max + 1, 18, 0.0);
+    let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
+    let width = 12;
+    let dy_host = random_params((max + 1) * width, 19, 1.0);
+    let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
+    let dp = GpuBuffer::from_slice(&g, "dp", MemoryCategory::Activations, &vec![0.0f32; 3 * (max + 1)]).expect("dp");
+    let levels = cfg.levels();
+    for (n, dispatches) in [(max, 1), (max + 1, cfg.n_levels as usize)] {
+        assert_eq!(s.grid.one_dispatch_for(n), dispatches == 1, "{n} points");
+        let out =
+            GpuBuffer::from_slice(&g, "out", MemoryCategory::Activations, &vec![-9.0f32; n * width]).expect("out");
+        let mut rec = g.recorder_timed("fwd", true).expect("recorder");
+        let slot = OutputSlot { stride: width, col: 0, pad_to: width, pad_value: 0.0 };
+        s.grid.forward(&mut rec, params, &pos, n, &out, slot).expect("fwd");
+        submit_counting(rec, "hashgrid_fwd", dispatches, &format!("forward of {n} points"));
+        let want: Vec<f32> = pts[..n].iter().flat_map(|p| twin::forward(&levels, 2, &s.host, *p)).collect();
+        assert_all_close_f32(&g.download(&out).expect("download"), &want, &format!("forward of {n} points"));
+        let mut rec = g.recorder_timed("bwd input", true).expect("recorder");
+        let dys = RowSlice { buf: &dy, stride: width, col: 0 };
+        s.grid.backward_input(&mut rec, params, &pos, n, dys, &dp).expect("bwd input");
+        submit_counting(rec, "hashgrid_bwd_input", dispatches, &format!("input gradient of {n} points"));
+    }
+    s.grid.set_one_dispatch(true);
+    assert!(s.grid.one_dispatch_for(usize::MAX), "on: every size");
+    s.grid.set_one_dispatch(false);
+    assert!(!s.grid.one_dispatch_for(1), "off: no size");
 }
 
 /// Coarse-to-fine (`field.coarse_to_fine`): with 2.5 of the 6 levels active, levels 0-1 keep weight 1, level 2
