@@ -5,6 +5,7 @@
 use msnerf::gpu::{Context, ContextDesc, Validation};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use std::io::Write;
 
 /// A context for one test. Validation is on whenever the layer is installed (required under `make test`,
 /// which sets MSNERF_REQUIRE_VALIDATION=1); dropping it asserts that the layer reported nothing.
@@ -27,26 +28,51 @@ struct DeviceLock;
 struct DeviceOwner {
     thread: Option<std::thread::ThreadId>,
     depth: usize,
+    /// The holder's test name (its thread's name) and since when it holds the device, for the waiters' note.
+    name: String,
+    since: Option<std::time::Instant>,
 }
 
-static DEVICE_OWNER: std::sync::Mutex<DeviceOwner> = std::sync::Mutex::new(DeviceOwner { thread: None, depth: 0 });
+static DEVICE_OWNER: std::sync::Mutex<DeviceOwner> =
+    std::sync::Mutex::new(DeviceOwner { thread: None, depth: 0, name: String::new(), since: None });
 static DEVICE_FREED: std::sync::Condvar = std::sync::Condvar::new();
+
+/// A waiter says once which test has held the device this long: with the device lock, one stuck test holds up the
+/// rest, and the harness's "running for over 60 seconds" lines name every waiter alike (an H100, 2026-11-28).
+const HOLDER_NOTE_AFTER: std::time::Duration = std::time::Duration::from_secs(90);
 
 impl DeviceLock {
     fn acquire() -> DeviceLock {
-        let me = std::thread::current().id();
+        let current = std::thread::current();
+        let me = current.id();
         let mut o = DEVICE_OWNER.lock().unwrap_or_else(|p| p.into_inner());
+        let mut noted: Option<std::thread::ThreadId> = None;
         loop {
             match o.thread {
                 None => {
-                    *o = DeviceOwner { thread: Some(me), depth: 1 };
+                    let name = current.name().unwrap_or("a test").to_owned();
+                    *o = DeviceOwner { thread: Some(me), depth: 1, name, since: Some(std::time::Instant::now()) };
                     return DeviceLock;
                 }
                 Some(t) if t == me => {
                     o.depth += 1;
                     return DeviceLock;
                 }
-                Some(_) => o = DEVICE_FREED.wait(o).unwrap_or_else(|p| p.into_inner()),
+                Some(t) => {
+                    let held = o.since.map_or(std::time::Duration::ZERO, |s| s.elapsed());
+                    if held >= HOLDER_NOTE_AFTER && noted != Some(t) {
+                        // Straight to the stream: the harness captures eprintln! of tests that pass or hang.
+                        let _ = writeln!(
+                            std::io::stderr(),
+                            "note: {} waits for the device, which {} has held for {} s",
+                            current.name().unwrap_or("a test"),
+                            o.name,
+                            held.as_secs()
+                        );
+                        noted = Some(t);
+                    }
+                    o = DEVICE_FREED.wait_timeout(o, HOLDER_NOTE_AFTER / 3).unwrap_or_else(|p| p.into_inner()).0;
+                }
             }
         }
     }
@@ -58,6 +84,7 @@ impl Drop for DeviceLock {
         o.depth -= 1;
         if o.depth == 0 {
             o.thread = None;
+            o.since = None;
             DEVICE_FREED.notify_all();
         }
     }
