@@ -19,9 +19,11 @@ command -v python3 >/dev/null || { echo "package-tests: needs python3 (apt-get i
 features=()
 [ -n "${MSNERF_FEATURES:-}" ] && features=(--features "$MSNERF_FEATURES")
 if [[ "${MSNERF_FEATURES:-}" == *shaderc-from-source* ]]; then
-  for c in cmake ninja python3 g++; do
-    command -v "$c" >/dev/null || { echo "package-tests: shaderc-from-source needs $c: apt-get install -y cmake ninja-build python3 g++" >&2; exit 1; }
+  # shaderc-sys needs cmake and a C++ compiler ($CXX or c++); it uses ninja when present (faster), make otherwise.
+  for c in cmake "${CXX:-c++}"; do
+    command -v "$c" >/dev/null || { echo "package-tests: shaderc-from-source needs $c: apt-get install -y cmake g++ ninja-build" >&2; exit 1; }
   done
+  command -v ninja >/dev/null || echo "package-tests: note: ninja not found; shaderc builds with make (slower; apt-get install ninja-build)" >&2
 fi
 cargo build --release "${features[@]}"
 # One line per test executable: path, target name, target kind (lib and bin unit tests get fixed names).

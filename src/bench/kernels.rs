@@ -164,7 +164,7 @@ pub fn bench_hash(
     let bwd_rays = time_ms(repeats, || run_recorded(ctx, &|rec| grid.backward_params(rec, g, &rays, points, dys)))?;
     let mut paired = HashGrid::with_backward_run(ctx, cfg, 1)?;
     paired.set_texel_reads(true);
-    paired.set_one_dispatch(false); // texels are read by the per-level kernels (one dispatch is the GPU default)
+    paired.set_one_dispatch(false); // texels are read by the per-level kernels (GPUs: one dispatch up to 2^20 points)
     let texel_levels = paired.texel_levels(p)?;
     let dp = zeros(ctx, "bench dp", points * 3)?;
     let mut ratio = |which: usize| -> GpuResult<Option<f64>> {

@@ -648,7 +648,29 @@ impl Pipeline {
     /// first camera), so that all pipelines are created and compiled before a training clock starts: lavapipe
     /// compiles each pipeline with LLVM at its first dispatch (a second or more for the unrolled MLP tiles).
     /// Parameters and optimiser state are untouched; the gradients it leaves are zeroed at the start of every step.
+    /// Where the hash grids choose their kernels by the pass size (GPUs: one dispatch for all levels up to
+    /// [`crate::nn::hashgrid::GPU_ONE_DISPATCH_MAX_POINTS`] points, one per level above), the one ray runs both ways.
     pub fn warm_up(&mut self) -> GpuResult<()> {
+        let max = self.model.field.grid.one_dispatch_max_points();
+        let both_ways = max > 0 && max < usize::MAX;
+        self.warm_up_once()?;
+        if both_ways {
+            self.set_grids_one_dispatch_max(0);
+            let res = self.warm_up_once();
+            self.set_grids_one_dispatch_max(max);
+            res?;
+        }
+        Ok(())
+    }
+
+    fn set_grids_one_dispatch_max(&mut self, max: usize) {
+        let m = &mut self.model;
+        for f in std::iter::once(&mut m.field).chain(m.proposals.iter_mut()) {
+            f.grid.set_one_dispatch_max_points(max);
+        }
+    }
+
+    fn warm_up_once(&mut self) -> GpuResult<()> {
         let pixels = [0u32, 0, 0];
         self.render(&pixels)?;
         self.flush()?;

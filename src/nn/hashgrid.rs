@@ -320,12 +320,14 @@ pub fn default_texel_reads(ctx: &crate::gpu::Context) -> GpuResult<bool> {
 }
 
 /// Points per pass up to which a GPU records a grid's forward and input gradient as one dispatch for all levels:
-/// 2^20, 4,096 rays of 256 samples. Measured on an H100 (docs/benchmarks.md, 2026-11-28): one dispatch was faster
-/// at 196,608 points per level (nerfacto's field grid at 4,096 rays: forward 0.40 against 0.45 ms per step for the
-/// three grids, input gradient 0.14 against 0.23; Table 1 in 4,096-ray passes: input gradient 2.13 against 3.17)
-/// and slower from 1.57 million (Table 1 at 32,768 rays in one pass: forward 6.61 against 5.89 ms, input gradient
-/// 2.36 against 2.20). A large pass fills the chip level by level, and the per-level kernels know at compile time
-/// whether a level is hashed and take its parameters from push constants.
+/// 2^20, 4,096 rays of 256 samples. On an H100 (docs/benchmarks.md, 2026-11-28), one dispatch was faster for every
+/// grid of nerfacto at 4,096 rays (196,608 to 1,048,576 points: forward 0.40 against 0.45 ms per step, input
+/// gradient 0.14 against 0.23) and for the input gradient of 196,608 points (Table 1 in 4,096-ray passes: 2.13
+/// against 3.17), and slower for every grid of Table 1 at 32,768 rays in one pass (1.57 to 16.8 million points:
+/// forward 6.61 against 5.89 ms, input gradient 2.36 against 2.20). The limit lies between those measured sizes;
+/// passes between 1 and 1.57 million points were not measured alone. A large pass fills the chip level by level,
+/// and the per-level kernels know at compile time whether a level is hashed and take its parameters from push
+/// constants.
 pub const GPU_ONE_DISPATCH_MAX_POINTS: usize = 1 << 20;
 
 /// The most points per pass for which the forward and the input gradient record one dispatch for all of a grid's
@@ -400,8 +402,8 @@ impl HashGrid {
 
     /// The chunk holding a level's table as a texel buffer for the per-level kernels, when this grid reads texels,
     /// the level lies in one chunk and the device can bind that chunk so. The one-dispatch forward and input
-    /// gradient return before asking; the parameter gradient (per level on CPU devices) asks whatever
-    /// the pass size says, for its prefetch.
+    /// gradient return before asking; the parameter gradient (per level on CPU devices) asks whenever it runs per
+    /// level, for its prefetch.
     fn table_texels(&self, array: &LargeArray<f32>, chunked: bool, chunk: usize) -> GpuResult<Option<Binding>> {
         if !self.texel_reads || chunked {
             return Ok(None);

@@ -14,7 +14,7 @@
 //! | `MSNERF_MLP_TILING` | MLP kernel family and block sizes (benchmarks; `nn::mlp::MlpTiling`) |
 //! | `MSNERF_HASH_BWD_RUN` | points per hash-grid backward invocation (default 8 on GPUs, 1 on CPU devices) |
 //! | `MSNERF_HASH_TEXEL` | hash tables read as texel buffers: `1` on, `0` off (default: on CPU devices) |
-//! | `MSNERF_HASH_ONE_DISPATCH` | hash-grid forward and input gradient in one dispatch for all levels: `1` on, `0` off (default: on GPUs) |
+//! | `MSNERF_HASH_ONE_DISPATCH` | hash-grid forward and input gradient in one dispatch for all levels: `1` always, `0` never (default: on GPUs for passes of up to 2^20 points) |
 //! | `MSNERF_RAY_LANES` | per-ray kernels over 32 lanes per ray: `1` on, `0` off (default: on GPUs) |
 
 use std::sync::OnceLock;

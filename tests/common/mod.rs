@@ -28,17 +28,19 @@ struct DeviceLock;
 struct DeviceOwner {
     thread: Option<std::thread::ThreadId>,
     depth: usize,
-    /// The holder's test name (its thread's name) and since when it holds the device, for the waiters' note.
+    /// The holder's test name (its thread's name), since when it holds the device, and whether a waiter has said so.
     name: String,
     since: Option<std::time::Instant>,
+    noted: bool,
 }
 
 static DEVICE_OWNER: std::sync::Mutex<DeviceOwner> =
-    std::sync::Mutex::new(DeviceOwner { thread: None, depth: 0, name: String::new(), since: None });
+    std::sync::Mutex::new(DeviceOwner { thread: None, depth: 0, name: String::new(), since: None, noted: false });
 static DEVICE_FREED: std::sync::Condvar = std::sync::Condvar::new();
 
-/// A waiter says once which test has held the device this long: with the device lock, one stuck test holds up the
-/// rest, and the harness's "running for over 60 seconds" lines name every waiter alike (an H100, 2026-11-28).
+/// Once a test has held the device this long, one waiter says which test it is: with the device lock, one stuck test
+/// holds up the rest, and the harness's "running for over 60 seconds" lines name every waiter alike (an H100,
+/// 2026-11-28).
 const HOLDER_NOTE_AFTER: std::time::Duration = std::time::Duration::from_secs(90);
 
 impl DeviceLock {
@@ -46,32 +48,38 @@ impl DeviceLock {
         let current = std::thread::current();
         let me = current.id();
         let mut o = DEVICE_OWNER.lock().unwrap_or_else(|p| p.into_inner());
-        let mut noted: Option<std::thread::ThreadId> = None;
         loop {
             match o.thread {
                 None => {
                     let name = current.name().unwrap_or("a test").to_owned();
-                    *o = DeviceOwner { thread: Some(me), depth: 1, name, since: Some(std::time::Instant::now()) };
+                    let since = Some(std::time::Instant::now());
+                    *o = DeviceOwner { thread: Some(me), depth: 1, name, since, noted: false };
                     return DeviceLock;
                 }
                 Some(t) if t == me => {
                     o.depth += 1;
                     return DeviceLock;
                 }
-                Some(t) => {
+                Some(_) => {
                     let held = o.since.map_or(std::time::Duration::ZERO, |s| s.elapsed());
-                    if held >= HOLDER_NOTE_AFTER && noted != Some(t) {
-                        // Straight to the stream: the harness captures eprintln! of tests that pass or hang.
-                        let _ = writeln!(
-                            std::io::stderr(),
-                            "note: {} waits for the device, which {} has held for {} s",
+                    if held >= HOLDER_NOTE_AFTER && !o.noted {
+                        o.noted = true;
+                        let note = format!(
+                            "note: {} waits for the device, which {} has held for {} s\n",
                             current.name().unwrap_or("a test"),
                             o.name,
                             held.as_secs()
                         );
-                        noted = Some(t);
+                        // Written without the lock held, straight to the stream: the harness captures eprintln! of
+                        // tests that pass or hang.
+                        drop(o);
+                        let _ = std::io::stderr().write_all(note.as_bytes());
+                        o = DEVICE_OWNER.lock().unwrap_or_else(|p| p.into_inner());
+                        continue;
                     }
-                    o = DEVICE_FREED.wait_timeout(o, HOLDER_NOTE_AFTER / 3).unwrap_or_else(|p| p.into_inner()).0;
+                    let wait = if o.noted { HOLDER_NOTE_AFTER } else { HOLDER_NOTE_AFTER.saturating_sub(held) };
+                    let wait = wait.max(std::time::Duration::from_millis(10));
+                    o = DEVICE_FREED.wait_timeout(o, wait).unwrap_or_else(|p| p.into_inner()).0;
                 }
             }
         }

@@ -329,7 +329,7 @@ fn descriptor_pool_fallback_gives_the_same_results() {
     };
     let mut grid = HashGrid::new(&g, &cfg).expect("grid");
     grid.set_texel_reads(true);
-    grid.set_one_dispatch(false); // the per-level kernels bind the texel views (one dispatch is the GPU default)
+    grid.set_one_dispatch(false); // the per-level kernels bind the texel views (GPUs: one dispatch up to 2^20 points)
     let host: Vec<f32> = (0..cfg.n_params()).map(|i| ((i * 37 % 101) as f32 - 50.0) / 50.0).collect();
     let params =
         msnerf::gpu::LargeArray::<f32>::new(&g, "params", cfg.n_params(), MemoryCategory::Parameters).expect("params");

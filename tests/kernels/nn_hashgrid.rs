@@ -180,7 +180,9 @@ fn one_dispatch_default_follows_the_device_kind() {
 }
 
 /// The size rule (GPUs by default): a forward or input gradient of at most the grid's limit records one dispatch
-/// for all levels, one point more records one per level, and both encode as the twin does.
+/// for all levels, one point more records one per level, and both sizes encode and differentiate as the twin does.
+/// The paths share their dispatch names, so the count tells them apart: the test needs timestamps (both target
+/// devices have them).
 #[test]
 fn one_dispatch_follows_the_pass_size() {
     let g = gpu();
@@ -190,13 +192,19 @@ fn one_dispatch_follows_the_pass_size() {
     let max = 500;
     s.grid.set_one_dispatch_max_points(max);
     let params = ParamSlice { array: &s.params, offset: s.offset };
-    let pts = points(&cfg, max + 1, 18, 0.0);
+    let pts = points(&cfg, max + 1, 18, 1e-3);
     let pos = GpuBuffer::from_slice(&g, "pos", MemoryCategory::Activations, &flat(&pts)).expect("pos");
     let width = 12;
     let dy_host = random_params((max + 1) * width, 19, 1.0);
     let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
-    let dp = GpuBuffer::from_slice(&g, "dp", MemoryCategory::Activations, &vec![0.0f32; 3 * (max + 1)]).expect("dp");
     let levels = cfg.levels();
+    let host64: Vec<f64> = s.host.iter().map(|&v| v as f64).collect();
+    let count = |rec: msnerf::gpu::Recorder, kernel: &str| {
+        let report = rec.submit_and_wait().expect("submit");
+        assert!(!report.dispatches.is_empty(), "{}: no timestamps to count {kernel} by", g.caps().name);
+        report.dispatches.iter().filter(|d| d.name == kernel).count()
+    };
+    let mut first_dp: Option<Vec<f32>> = None;
     for (n, dispatches) in [(max, 1), (max + 1, cfg.n_levels as usize)] {
         assert_eq!(s.grid.one_dispatch_for(n), dispatches == 1, "{n} points");
         let out =
@@ -204,13 +212,31 @@ fn one_dispatch_follows_the_pass_size() {
         let mut rec = g.recorder_timed("fwd", true).expect("recorder");
         let slot = OutputSlot { stride: width, col: 0, pad_to: width, pad_value: 0.0 };
         s.grid.forward(&mut rec, params, &pos, n, &out, slot).expect("fwd");
-        submit_counting(rec, "hashgrid_fwd", dispatches, &format!("forward of {n} points"));
+        assert_eq!(count(rec, "hashgrid_fwd"), dispatches, "forward of {n} points");
         let want: Vec<f32> = pts[..n].iter().flat_map(|p| twin::forward(&levels, 2, &s.host, *p)).collect();
         assert_all_close_f32(&g.download(&out).expect("download"), &want, &format!("forward of {n} points"));
+        let dp = GpuBuffer::from_slice(&g, "dp", MemoryCategory::Activations, &vec![f32::NAN; 3 * n]).expect("dp");
         let mut rec = g.recorder_timed("bwd input", true).expect("recorder");
         let dys = RowSlice { buf: &dy, stride: width, col: 0 };
         s.grid.backward_input(&mut rec, params, &pos, n, dys, &dp).expect("bwd input");
-        submit_counting(rec, "hashgrid_bwd_input", dispatches, &format!("input gradient of {n} points"));
+        assert_eq!(count(rec, "hashgrid_bwd_input"), dispatches, "input gradient of {n} points");
+        let got = g.download(&dp).expect("download");
+        // The kernels scale fp32 positions by up to 96 cells (the finest level): a rounding of 1e-5 of a cell in
+        // one axis's interpolation weight moves dp by about 1e-3 here, so the f64 twin gets 5e-3; the two paths,
+        // which sum the levels in the same order, get the fp32 tolerance against each other.
+        for (i, p) in pts[..n].iter().enumerate() {
+            let p64 = [p[0] as f64, p[1] as f64, p[2] as f64];
+            let d64: Vec<f64> = dy_host[i * width..(i + 1) * width].iter().map(|&v| v as f64).collect();
+            let want = twin::backward_input(&levels, 2, &host64, p64, &d64);
+            for d in 0..3 {
+                let (a, b) = (got[3 * i + d] as f64, want[d]);
+                assert!(common::close(a, b, 5e-3, 1e-3), "{n} points: dp[{i}][{d}] {a} vs {b}");
+            }
+        }
+        match &first_dp {
+            None => first_dp = Some(got),
+            Some(one) => assert_all_close_f32(&got[..3 * max], one, "input gradient per level against one dispatch"),
+        }
     }
     s.grid.set_one_dispatch(true);
     assert!(s.grid.one_dispatch_for(usize::MAX), "on: every size");

@@ -67,12 +67,24 @@ fn check_step_with(update: bool, seed: u64, tweak: impl Fn(&mut ModelConfig)) ->
 /// `rig_cameras` makes them), every other ray comes from one and observes one band (NaN targets for the others),
 /// and its pose correction and appearance are its frame's (`Batch::cameras`).
 fn check_step_full(update: bool, seed: u64, rig: bool, tweak: impl Fn(&mut ModelConfig)) -> f64 {
+    check_step_model(update, seed, rig, tweak, |_| {})
+}
+
+/// `check_step_full` with `model_tweak` applied to the model once it is built.
+fn check_step_model(
+    update: bool,
+    seed: u64,
+    rig: bool,
+    tweak: impl Fn(&mut ModelConfig),
+    model_tweak: impl Fn(&mut Model),
+) -> f64 {
     let g = gpu();
     let mut cfg = small_config();
     tweak(&mut cfg);
     let bands = 6;
     let (cams, poses) = cameras();
-    let model = Model::new(&g, &cfg, bands, cams.len()).expect("model");
+    let mut model = Model::new(&g, &cfg, bands, cams.len()).expect("model");
+    model_tweak(&mut model);
     // Larger hash values than the U(-1e-4, 1e-4) init, so densities and gradients are not negligible; the NeRF
     // field gets sharper densities than the proposals, so both proposal levels see an interlevel loss.
     let mut r = rng(seed);
@@ -253,6 +265,28 @@ fn whole_step_matches_reference_through_a_random_background_warm_up() {
         (after - last).abs() <= 1e-5 * last,
         "step 50 after a 50-step warm-up trains with last_sample: {after} {last}"
     );
+}
+
+/// GPUs choose a hash grid's kernels by the pass size (one dispatch for all levels up to a limit, one per level
+/// above). With the limit at the field grid's points in the batch's short second pass (17 of 37 rays; passes of 20),
+/// one step runs both: the warm-up must build both kinds of pipeline (`check_step_model` counts them), and the step
+/// still matches the f64 reference.
+#[test]
+fn whole_step_matches_reference_with_hash_grids_chosen_by_pass_size() {
+    for update in [true, false] {
+        check_step_model(
+            update,
+            31,
+            false,
+            |_| {},
+            |m: &mut Model| {
+                let max = 17 * m.cfg.sampling.num_nerf_samples;
+                for f in std::iter::once(&mut m.field).chain(m.proposals.iter_mut()) {
+                    f.grid.set_one_dispatch_max_points(max);
+                }
+            },
+        );
+    }
 }
 
 #[test]
