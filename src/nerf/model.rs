@@ -192,6 +192,13 @@ impl ModelShapes {
 }
 
 impl Model {
+    /// Sets every hash grid's limit for one dispatch for all levels ([`HashGrid::set_one_dispatch_max_points`]).
+    pub fn set_hash_one_dispatch_max(&mut self, max: usize) {
+        for f in std::iter::once(&mut self.field).chain(self.proposals.iter_mut()) {
+            f.grid.set_one_dispatch_max_points(max);
+        }
+    }
+
     /// Colour MLP input width before padding: SH (degree 4, [`SH_DIM`](crate::nn::sh::SH_DIM) = 16) + geometric
     /// features + appearance.
     pub fn colour_inputs(cfg: &ModelConfig) -> usize {

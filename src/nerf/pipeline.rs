@@ -655,19 +655,12 @@ impl Pipeline {
         let both_ways = max > 0 && max < usize::MAX;
         self.warm_up_once()?;
         if both_ways {
-            self.set_grids_one_dispatch_max(0);
+            self.model.set_hash_one_dispatch_max(0);
             let res = self.warm_up_once();
-            self.set_grids_one_dispatch_max(max);
+            self.model.set_hash_one_dispatch_max(max);
             res?;
         }
         Ok(())
-    }
-
-    fn set_grids_one_dispatch_max(&mut self, max: usize) {
-        let m = &mut self.model;
-        for f in std::iter::once(&mut m.field).chain(m.proposals.iter_mut()) {
-            f.grid.set_one_dispatch_max_points(max);
-        }
     }
 
     fn warm_up_once(&mut self) -> GpuResult<()> {

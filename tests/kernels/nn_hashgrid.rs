@@ -140,11 +140,15 @@ impl Reads {
 /// Submits `rec` with timestamps and checks that it ran `want` dispatches of `kernel` (where the queue has
 /// timestamps; lavapipe's has).
 fn submit_counting(rec: msnerf::gpu::Recorder, kernel: &str, want: usize, what: &str) {
-    let report = rec.submit_and_wait().expect("submit");
-    if !report.dispatches.is_empty() {
-        let n = report.dispatches.iter().filter(|d| d.name == kernel).count();
+    if let Some(n) = submit_and_count(rec, kernel) {
         assert_eq!(n, want, "{what}: {kernel} dispatches");
     }
+}
+
+/// Submits `rec` with timestamps and returns how many dispatches of `kernel` it ran (None without timestamps).
+fn submit_and_count(rec: msnerf::gpu::Recorder, kernel: &str) -> Option<usize> {
+    let report = rec.submit_and_wait().expect("submit");
+    (!report.dispatches.is_empty()).then(|| report.dispatches.iter().filter(|d| d.name == kernel).count())
 }
 
 #[test]
@@ -199,10 +203,8 @@ fn one_dispatch_follows_the_pass_size() {
     let dy = GpuBuffer::from_slice(&g, "dy", MemoryCategory::Activations, &dy_host).expect("dy");
     let levels = cfg.levels();
     let host64: Vec<f64> = s.host.iter().map(|&v| v as f64).collect();
-    let count = |rec: msnerf::gpu::Recorder, kernel: &str| {
-        let report = rec.submit_and_wait().expect("submit");
-        assert!(!report.dispatches.is_empty(), "{}: no timestamps to count {kernel} by", g.caps().name);
-        report.dispatches.iter().filter(|d| d.name == kernel).count()
+    let count = |rec, kernel: &str| {
+        submit_and_count(rec, kernel).unwrap_or_else(|| panic!("{}: no timestamps to count {kernel} by", g.caps().name))
     };
     let mut first_dp: Option<Vec<f32>> = None;
     for (n, dispatches) in [(max, 1), (max + 1, cfg.n_levels as usize)] {

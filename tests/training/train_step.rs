@@ -279,12 +279,7 @@ fn whole_step_matches_reference_with_hash_grids_chosen_by_pass_size() {
             31,
             false,
             |_| {},
-            |m: &mut Model| {
-                let max = 17 * m.cfg.sampling.num_nerf_samples;
-                for f in std::iter::once(&mut m.field).chain(m.proposals.iter_mut()) {
-                    f.grid.set_one_dispatch_max_points(max);
-                }
-            },
+            |m: &mut Model| m.set_hash_one_dispatch_max(17 * m.cfg.sampling.num_nerf_samples),
         );
     }
 }
