@@ -19,7 +19,7 @@ pub struct CompareCloudArgs {
     #[arg(long = "ref")]
     pub reference: PathBuf,
     /// Distance threshold for precision/recall/F-score and for reflectance pairs, in the clouds' unit
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 0.1)]
     pub threshold: f64,
     /// Thresholds (clouds' unit, comma-separated, positive) for the fractions of predicted points (accuracy side)
     /// and of reference points (completeness side) closer than each to the other cloud
@@ -38,7 +38,7 @@ pub struct CompareCloudArgs {
     #[arg(long, default_value_t = 6)]
     pub local_k: usize,
     /// Largest centre-wavelength difference (nm) for pairing bands
-    #[arg(long, default_value_t = 25.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 25.0)]
     pub band_tolerance: f64,
     /// Print JSON instead of a table
     #[arg(long)]
@@ -55,6 +55,9 @@ pub fn run(args: &CompareCloudArgs) -> anyhow::Result<()> {
         standard: AccuracyStandard::parse(&args.standard)?,
         model: DistanceModel::parse(&args.local_model, args.local_k)?,
     };
+    if let Some(out) = &args.output {
+        crate::util::atomic::check_not_an_input(out, &[("--pred", &args.pred), ("--ref", &args.reference)])?;
+    }
     let pred = read_cloud(&args.pred)?;
     let reference = read_cloud(&args.reference)?;
     let opts = CompareOptions { threshold: args.threshold, band_tolerance_nm: args.band_tolerance };

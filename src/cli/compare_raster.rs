@@ -24,7 +24,7 @@ pub struct CompareRasterArgs {
     #[arg(long, default_value = "0.1,0.25,0.5,1.0")]
     pub within: String,
     /// Peak value for PSNR (1 for reflectance); no PSNR without it
-    #[arg(long)]
+    #[arg(long, value_parser = super::finite_f64)]
     pub peak: Option<f64>,
     /// Print JSON instead of a table
     #[arg(long)]
@@ -38,6 +38,11 @@ pub fn run(args: &CompareRasterArgs) -> anyhow::Result<()> {
     let within = parse_within(&args.within)?;
     if let Some(p) = args.peak {
         anyhow::ensure!(p.is_finite() && p > 0.0, "--peak must be > 0, got {p}");
+    }
+    if let Some(out) = &args.output {
+        let mut inputs = vec![("--pred", args.pred.as_path()), ("--ref", args.reference.as_path())];
+        inputs.extend(args.classes.as_deref().map(|c| ("--classes", c)));
+        crate::util::atomic::check_not_an_input(out, &inputs)?;
     }
     let pred = read_geotiff(&args.pred)?;
     let reference = read_geotiff(&args.reference)?;

@@ -29,7 +29,7 @@ pub struct DemoArgs {
     #[arg(long, default_value = "demo-output")]
     pub out: PathBuf,
     /// Seconds of training
-    #[arg(long, default_value_t = 90.0)]
+    #[arg(long, value_parser = super::positive_f64, default_value_t = 90.0)]
     pub time_budget: f64,
     /// Held-out views to evaluate (the demo keeps this small; `msnerf eval` evaluates them all)
     #[arg(long, default_value_t = 6)]

@@ -52,6 +52,12 @@ pub fn parse_split(s: &str) -> anyhow::Result<Split> {
 
 pub fn run(cli: &Cli, a: &EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
+    if let Some(out) = &a.output {
+        let run_files = ["config.yaml", "dataset.json", "checkpoints/latest.msnp", "checkpoints/latest.json"]
+            .map(|f| a.run.join(f));
+        let inputs: Vec<(&str, &std::path::Path)> = run_files.iter().map(|p| ("run's", p.as_path())).collect();
+        crate::util::atomic::check_not_an_input(out, &inputs)?;
+    }
     let ctx = Context::new(&cli.context_desc())?;
     let lpips = a.lpips_weights.as_deref().map(Lpips::load).transpose().map_err(anyhow::Error::msg)?;
     let mut run = LoadedRun::load(&ctx, &a.run)?;

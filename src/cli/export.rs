@@ -43,12 +43,12 @@ pub struct PointcloudArgs {
     #[arg(long, default_value_t = 200_000)]
     pub rays: usize,
     /// Keep rays whose accumulation (opacity) is at least this
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, value_parser = super::finite_f32, default_value_t = 0.5)]
     pub min_accumulation: f32,
     /// Statistical outlier removal: neighbours and standard-deviation ratio (0 neighbours turns it off)
     #[arg(long, default_value_t = 20)]
     pub outlier_neighbours: usize,
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 10.0)]
     pub outlier_std_ratio: f64,
     /// Axis-aligned crop box in world units: minx,miny,minz,maxx,maxy,maxz
     #[arg(long, value_delimiter = ',', num_args = 6)]
@@ -63,7 +63,7 @@ pub struct PointcloudArgs {
     pub normals: bool,
     /// Drop rays whose weights' interquartile depth spread exceeds this many cells of the field's finest grid level
     /// (0 turns the filter off)
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 8.0)]
     pub max_spread_cells: f64,
     /// Multi-view consistency: other training views checked per point (0 turns the check off; needs --no-refine,
     /// since the refinement correlates against the agreeing views)
@@ -73,11 +73,11 @@ pub struct PointcloudArgs {
     #[arg(long, default_value_t = 2)]
     pub min_agree: usize,
     /// Multi-view consistency: largest depth disagreement, in pixel footprints of the checking view
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 2.0)]
     pub agree_tolerance: f64,
     /// Thin to one point per cube of this edge (world units, e.g. metres): the most consistent, then the least
     /// spread point of each cell
-    #[arg(long)]
+    #[arg(long, value_parser = super::finite_f64)]
     pub gsd: Option<f64>,
     /// The export before issue 18 (accumulation threshold only): no spread filter, no consistency check, no
     /// scene-box crop
@@ -99,10 +99,22 @@ pub struct PointcloudArgs {
     pub partial: bool,
 }
 
+/// Largest `--rays`: each ray keeps about 100 bytes until filtering, so 2^28 rays need some 27 GB.
+pub const MAX_EXPORT_RAYS: usize = 1 << 28;
+
 impl PointcloudArgs {
     /// The library options these flags ask for; errors name the flag.
     pub fn export_options(&self) -> anyhow::Result<ExportOptions> {
-        anyhow::ensure!(self.rays > 0, "--rays must be > 0");
+        anyhow::ensure!(
+            self.rays > 0 && self.rays <= MAX_EXPORT_RAYS,
+            "--rays must be 1..={MAX_EXPORT_RAYS}, got {}",
+            self.rays
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.min_accumulation),
+            "--min-accumulation is an opacity in [0, 1], got {}",
+            self.min_accumulation
+        );
         let (max_spread_cells, consistency) =
             careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
         if let Some(g) = self.gsd {
@@ -156,6 +168,10 @@ pub fn careful_filters(
 /// Filters a cloud as the flags ask.
 pub fn filter(mut cloud: PointCloud, a: &PointcloudArgs) -> anyhow::Result<PointCloud> {
     if let Some(b) = &a.crop {
+        anyhow::ensure!(
+            b.len() == 6 && b.iter().all(|v| v.is_finite()) && (0..3).all(|k| b[k] < b[k + 3]),
+            "--crop needs minx,miny,minz,maxx,maxy,maxz with each min below its max, got {b:?}"
+        );
         let inside = |p: &[f64; 3]| (0..3).all(|k| p[k] >= b[k] && p[k] <= b[k + 3]);
         cloud = pointcloud::filter::crop(&cloud, inside)?.0;
     }

@@ -25,7 +25,7 @@ pub struct SurveyArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Cell size in world units (metres in a projected CRS)
-    #[arg(long)]
+    #[arg(long, value_parser = super::finite_f64)]
     pub gsd: Option<f64>,
     /// Area in world units: xmin,ymin,xmax,ymax (default: the ground the training cameras saw); snapped outward to
     /// whole cells
@@ -39,13 +39,13 @@ pub struct SurveyArgs {
     #[arg(long, default_value_t = 200_000_000)]
     pub max_cells: usize,
     /// World z the vertical rays start from (default: the training cameras' median height)
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, value_parser = super::finite_f64, allow_hyphen_values = true)]
     pub top: Option<f64>,
     /// Minimum accumulation (opacity) of a cell's ray (at least 0.5)
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, value_parser = super::finite_f32, default_value_t = 0.5)]
     pub min_accumulation: f32,
     /// DSM: nodata where the ray's weights spread over more than this many finest-grid cells (0: off)
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 8.0)]
     pub max_spread_cells: f64,
     /// DSM: training views that check each cell's surface point (0: no check; needs --no-refine)
     #[arg(long, default_value_t = 6)]
@@ -54,7 +54,7 @@ pub struct SurveyArgs {
     #[arg(long, default_value_t = 2)]
     pub min_agree: usize,
     /// DSM: largest depth disagreement of a checking view, in its pixel footprints
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 2.0)]
     pub agree_tolerance: f64,
     /// DSM: keep surfaces outside the scene box (the aerial normalisation's unit cube), which are otherwise nodata
     #[arg(long)]

@@ -114,3 +114,46 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::TrainBlocks(a) => partition::run_train_blocks(a),
     }
 }
+
+/// Clap value parser for a real-valued flag: a finite number (`nan` and `inf` are refused with the flag's name).
+pub fn finite_f64(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("{s:?} is not a number ({e})"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s:?} is not a finite number"))
+    }
+}
+
+/// [`finite_f64`] for an f32 flag.
+pub fn finite_f32(s: &str) -> Result<f32, String> {
+    finite_f64(s).map(|v| v as f32)
+}
+
+/// Clap value parser for a positive real-valued flag (a time or memory budget): finite and above 0.
+pub fn positive_f64(s: &str) -> Result<f64, String> {
+    let v = finite_f64(s)?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not positive"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn real_flags_refuse_nan_inf_and_non_positive_budgets() {
+        assert_eq!(finite_f64("-2.5"), Ok(-2.5));
+        assert_eq!(positive_f64("30"), Ok(30.0));
+        for bad in ["nan", "NaN", "inf", "-inf", "1e400", "x", ""] {
+            assert!(finite_f64(bad).is_err(), "{bad}");
+            assert!(positive_f64(bad).is_err(), "{bad}");
+        }
+        for bad in ["0", "-1", "-0.0"] {
+            assert!(positive_f64(bad).is_err(), "{bad}");
+        }
+    }
+}

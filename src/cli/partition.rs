@@ -14,11 +14,11 @@ pub struct PartitionArgs {
     #[arg(long)]
     pub blocks: String,
     /// Each block grown on every side by this fraction of its size, in [0, 1)
-    #[arg(long, default_value_t = 0.15)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 0.15)]
     pub overlap: f64,
     /// Ground height in the levelled frame: world z for a dataset with a `crs`, otherwise the height along the
     /// cameras' mean up; default: where the cameras' optical axes meet (a nadir grid flight needs it given)
-    #[arg(long)]
+    #[arg(long, value_parser = super::finite_f64)]
     pub ground_z: Option<f64>,
     /// Output folder: blocks.json and one dataset per block (must not exist unless --overwrite)
     #[arg(long)]
@@ -43,7 +43,7 @@ pub struct PartitionArgs {
     #[arg(long, default_value_t = 4)]
     pub slurm_cpus: usize,
     /// Host memory for each task's image cache, in GiB (`msnerf train --host-budget-gib`)
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, value_parser = super::positive_f64, default_value_t = 8.0)]
     pub host_budget_gib: f64,
     /// Arguments for every block's `msnerf train` in the Slurm script (after `--`)
     #[arg(last = true)]

@@ -16,11 +16,11 @@ pub struct RefineArgs {
     #[arg(long, default_value_t = RefineOptions::default().range)]
     pub refine_range: usize,
     /// Photometric refinement: smallest mean normalised cross-correlation that supports a point
-    #[arg(long, default_value_t = RefineOptions::default().min_ncc)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = RefineOptions::default().min_ncc)]
     pub refine_min_ncc: f64,
     /// Photometric refinement: smallest mean normalised cross-correlation that moves a point; a supported point
     /// below it keeps the field's position (a plane patch does not fit a tree crown's dome)
-    #[arg(long, default_value_t = RefineOptions::default().move_ncc)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = RefineOptions::default().move_ncc)]
     pub refine_move_ncc: f64,
 }
 

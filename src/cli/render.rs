@@ -42,7 +42,7 @@ pub struct RenderArgs {
     /// Preview stretch: `reflectance` (fixed 0-0.5 visible, 0-0.8 NIR) or `percentile` (2-98 %)
     #[arg(long, default_value = "reflectance")]
     pub stretch: String,
-    /// At most this many views in the contact sheet
+    /// At most this many views in the contact sheet (0: no contact sheet)
     #[arg(long, default_value_t = 8)]
     pub sheet_views: usize,
     #[command(flatten)]
@@ -64,13 +64,13 @@ pub struct OrbitArgs {
     #[arg(long)]
     pub orbit_views: Option<usize>,
     /// Orbit radius in world units [default: the training cameras' mean horizontal distance from their look-at centre]
-    #[arg(long)]
+    #[arg(long, value_parser = super::finite_f64)]
     pub orbit_radius: Option<f64>,
     /// Orbit height above the look-at centre in world units [default: the training cameras' mean height]
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, value_parser = super::finite_f64, allow_hyphen_values = true)]
     pub orbit_height: Option<f64>,
     /// Camera pitch in degrees, negative looking down [default: looking at the centre]
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, value_parser = super::finite_f64, allow_hyphen_values = true)]
     pub orbit_pitch_deg: Option<f64>,
 }
 
@@ -216,6 +216,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(!a.partial, "--partial: {} is a run folder, not a `msnerf partition` folder", a.run.display());
     let mut run = LoadedRun::load(&ctx, &a.run)?;
+    check_index_bands(&run.ds, a)?;
     // Every view is known (and a camera path fully checked) before the output folder is touched.
     let views = parse_views(&run.ds, &run.transform, a)?;
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
@@ -240,7 +241,22 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
     write_sheet(&sheet, n, a)
 }
 
+/// Each `--indices` entry has the bands it needs in this run (before anything is rendered or written).
+fn check_index_bands(ds: &crate::data::Dataset, a: &RenderArgs) -> anyhow::Result<()> {
+    let bands = ds.bands.iter().map(|b| crate::output::image::band(&b.name, b.center_nm, b.fwhm_nm)).collect();
+    let probe = crate::output::SpectralImage { width: 0, height: 0, bands, data: Vec::new() };
+    for name in &a.indices {
+        crate::output::raster::indices::index_bands(&probe, VegetationIndex::parse(name)?, 25.0)
+            .map_err(|e| anyhow::anyhow!("--indices {name}: {e}"))?;
+    }
+    Ok(())
+}
+
 fn write_sheet(sheet: &[(String, Rgb8)], n: usize, a: &RenderArgs) -> anyhow::Result<()> {
+    if a.sheet_views == 0 {
+        println!("outputs in {} (no contact sheet: --sheet-views 0)", a.out.display());
+        return Ok(());
+    }
     let per_view = sheet.len() / n.min(a.sheet_views).max(1);
     let tiles: Vec<Tile> = sheet.iter().map(|(l, i)| Tile { image: i, label: Some(l.as_str()) }).collect();
     contact_sheet(&tiles, per_view.max(1), 4, [32, 32, 32])?.write_png(&a.out.join("contact_sheet.png"))?;

@@ -28,7 +28,7 @@ pub struct SfmArgs {
     #[arg(long, default_value_t = 20)]
     pub overlap: usize,
     /// SIFT peak threshold (COLMAP's default 0.0067 finds too few features in small aerial views; docs/poses.md)
-    #[arg(long, default_value_t = 0.002)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 0.002)]
     pub peak_threshold: f64,
     /// Let bundle adjustment refine the dataset's focal length and distortion
     #[arg(long)]
@@ -40,7 +40,7 @@ pub struct SfmArgs {
     #[arg(long)]
     pub no_georef: bool,
     /// GPS noise floor for the robust geo-registration, metres
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 1.0)]
     pub gps_error: f64,
     /// Threads for COLMAP (default: all cores)
     #[arg(long)]

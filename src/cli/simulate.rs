@@ -45,7 +45,7 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0)]
     pub sparse_points: usize,
     /// Position noise of the simulated SfM points (standard deviation, metres)
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = 0.0)]
     pub sparse_noise: f64,
     /// Shortest track of a simulated SfM point (views that see it)
     #[arg(long, default_value_t = 3)]

@@ -32,7 +32,7 @@ pub struct SweepArgs {
     #[arg(long)]
     pub no_train: bool,
     /// Host memory for each cell's training-image cache, in GiB
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, value_parser = super::positive_f64, default_value_t = 8.0)]
     pub host_budget_gib: f64,
     /// Less output
     #[arg(long)]

@@ -35,7 +35,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub seed: Option<u64>,
     /// Stop after this many seconds of training (the best held-out PSNR is reported)
-    #[arg(long)]
+    #[arg(long, value_parser = super::positive_f64)]
     pub time_budget: Option<f64>,
     /// Train on these bands only: 0-based indices into the dataset's bands, comma-separated (e.g. 0,1,2)
     #[arg(long, value_delimiter = ',')]
@@ -44,7 +44,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub eval_every: Option<u64>,
     /// Host memory for the training-image cache, in GiB
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, value_parser = super::positive_f64, default_value_t = 8.0)]
     pub host_budget_gib: f64,
     /// Resample the resident training images every N steps when they do not all fit (paper §6.1)
     #[arg(long, default_value_t = 500)]

@@ -66,6 +66,14 @@ pub enum DataError {
     /// Float pixels that are NaN or infinite (pass `mask_non_finite` to mask them out instead).
     #[error("{}: {}{count} NaN/Inf pixel values", path.display(), fr(frame))]
     NonFinite { path: PathBuf, frame: Option<FrameRef>, count: u64 },
+    /// Finite pixel values beyond ±[`super::raster::MAX_MODEL_VALUE`] (a nodata marker, a unit mistake).
+    #[error(
+        "{}: {}{count} pixel values beyond ±1e6 (up to {extreme:e}): a nodata value or a unit mistake; calibrated \
+         reflectance lies near [0, 1]. Mask such pixels out (`mask_path`) or scale the data",
+        path.display(),
+        fr(frame)
+    )]
+    OutOfRange { path: PathBuf, frame: Option<FrameRef>, count: u64, extreme: f64 },
     /// No frame ends up in the train split.
     #[error("{}: key `{key}`: the train split is empty", path.display())]
     EmptyTrainSplit { path: PathBuf, key: String },
@@ -95,6 +103,7 @@ impl DataError {
             | DataError::BandCount { path, .. }
             | DataError::ImageSize { path, .. }
             | DataError::NonFinite { path, .. }
+            | DataError::OutOfRange { path, .. }
             | DataError::EmptyTrainSplit { path, .. }
             | DataError::DuplicateFileName { path, .. } => Some(path),
             DataError::Many(v) => v.first().and_then(|e| e.path()),
@@ -131,6 +140,7 @@ impl DataError {
             | DataError::BandCount { frame, .. }
             | DataError::ImageSize { frame, .. }
             | DataError::NonFinite { frame, .. }
+            | DataError::OutOfRange { frame, .. }
             | DataError::DuplicateFileName { frame, .. } => {
                 if frame.is_none() {
                     *frame = Some(f.clone());

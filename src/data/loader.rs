@@ -13,7 +13,7 @@ use super::camera::Camera;
 use super::error::{DataError, FrameRef};
 use super::pose::{from_dmat4, normalize_poses, rigid_inverse, to_dmat4, Mat4, PoseTransform};
 use super::raster::Alpha;
-use super::raster::{BandScale, Raster, SampleType, Samples};
+use super::raster::{BandScale, Raster, SampleType, Samples, MAX_MODEL_VALUE};
 use super::reader::{read_image_file, AlphaChannel, DecodedImage};
 use super::split::{assign_splits, normalize_name, Split, SplitMethod};
 use super::transforms::parse_transforms;
@@ -461,6 +461,27 @@ impl Dataset {
 
     /// The pose normalisation over all frames (nerfstudio normalises before splitting), as
     /// `options.normalization` asks; `aerial` on a layout that is not aerial falls back to `poses`, with a warning.
+    /// Refuses a dataset whose used cameras all have one centre (a rig import without GPS writes such placeholder
+    /// poses until SfM replaces them): normalisation would divide by zero or by rounding noise. Training checks
+    /// this; tools that run before SfM (`dataset register`, `sfm`) do not need poses.
+    pub fn check_distinct_centres(&self) -> Result<(), DataError> {
+        let used = || self.frames.iter().filter(|f| f.split != Split::Unused);
+        match super::outliers::coincident_centres(used()) {
+            None => Ok(()),
+            Some((reach, magnitude)) => Err(DataError::InvalidValue {
+                path: self.transforms_path.clone(),
+                key: "transform_matrix".into(),
+                frame: None,
+                reason: format!(
+                    "all {} cameras have one centre (they lie within {reach:.1e} of each other at coordinates up to \
+                     {magnitude:.1e}): the scene's scale is undefined. Placeholder poses? Import poses from SfM \
+                     (`msnerf import poses`) or run it (`msnerf sfm`) first",
+                    used().count()
+                ),
+            }),
+        }
+    }
+
     pub fn pose_transform(&self) -> PoseTransform {
         self.transform_cache.get_or_init(|| self.compute_pose_transform()).0
     }
@@ -581,19 +602,42 @@ impl Dataset {
         if let Some(mp) = &f.mask {
             raster.mask = Some(self.read_mask(mp, f)?);
         }
+        if self.sample_type.is_integer() {
+            // Integer data's model values are bounded by its scaling: a degenerate `pixel_scale` or `black_level`
+            // is refused by name, whatever the pixels hold.
+            for (b, sc) in raster.scaling.iter().enumerate() {
+                let e = sc.extreme(self.sample_type.default_scale());
+                if !plausible(e) {
+                    return Err(DataError::InvalidValue {
+                        path: self.transforms_path.clone(),
+                        key: "pixel_scale".into(),
+                        frame: Some(frame_of(f)),
+                        reason: format!(
+                            "band {b} (`{}`): stored values map to {e:e} ((value - black_level {:e}) / \
+                             pixel_scale {:e}), beyond ±1e6: check pixel_scale and black_level",
+                            self.file_bands()[b].name,
+                            sc.black,
+                            sc.scale
+                        ),
+                    });
+                }
+            }
+        }
         let bad = raster.samples.count_non_finite();
-        if bad > 0 {
+        let (beyond, extreme) = raster.samples.count_beyond(MAX_MODEL_VALUE);
+        if bad > 0 || beyond > 0 {
             if !self.options.mask_non_finite {
-                return Err(DataError::NonFinite {
-                    path: self.image_path(i).to_path_buf(),
-                    frame: Some(frame_of(f)),
-                    count: bad,
+                let (path, frame) = (self.image_path(i).to_path_buf(), Some(frame_of(f)));
+                return Err(if bad > 0 {
+                    DataError::NonFinite { path, frame, count: bad }
+                } else {
+                    DataError::OutOfRange { path, frame, count: beyond, extreme }
                 });
             }
             let px = (self.width * self.height) as usize;
             let mut m = raster.mask.take().unwrap_or_else(|| vec![1; px]);
             for (p, mv) in m.iter_mut().enumerate() {
-                if (0..nb).any(|b| !raster.samples.raw(p * nb + b).is_finite()) {
+                if (0..nb).any(|b| !plausible(raster.samples.raw(p * nb + b))) {
                     *mv = 0;
                 }
             }
@@ -806,6 +850,11 @@ impl Dataset {
         let px = (self.width * self.height) as usize;
         Ok(Some((0..px).map(|q| (r.samples.raw(q * r.bands) * s) as f32).collect()))
     }
+}
+
+/// A model value that is finite and within ±[`MAX_MODEL_VALUE`].
+fn plausible(v: f64) -> bool {
+    v.abs() <= MAX_MODEL_VALUE
 }
 
 /// The file's alpha channel, when it has one besides at least one colour channel.

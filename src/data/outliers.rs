@@ -46,3 +46,21 @@ pub fn outlier_cameras(frames: &[Frame]) -> Vec<Outlier> {
         .map(|(frame, &distance)| Outlier { frame, distance, spread })
         .collect()
 }
+
+/// Camera centres closer to each other than this, relative to their coordinates' magnitude (at least 1), count as
+/// one point: f32 poses resolve about 1e-7 of it, so only copies of one pose (or its rounding) fall below.
+pub const COINCIDENT_RELATIVE: f64 = 1e-9;
+
+/// Where two or more frames all have one camera centre: the largest distance of any centre from the first one and
+/// the largest coordinate magnitude. Normalisation divides by that distance, so the scene's scale is undefined.
+pub fn coincident_centres<'a>(frames: impl IntoIterator<Item = &'a Frame>) -> Option<(f64, f64)> {
+    let mut centres = frames.into_iter().map(|f| [f.c2w[0][3], f.c2w[1][3], f.c2w[2][3]]);
+    let first = centres.next()?;
+    let (mut n, mut reach, mut magnitude) = (1, 0.0f64, first.iter().fold(1.0f64, |m, v| m.max(v.abs())));
+    for c in centres {
+        n += 1;
+        reach = reach.max((c[0] - first[0]).hypot(c[1] - first[1]).hypot(c[2] - first[2]));
+        magnitude = c.iter().fold(magnitude, |m, v| m.max(v.abs()));
+    }
+    (n >= 2 && reach <= COINCIDENT_RELATIVE * magnitude).then_some((reach, magnitude))
+}

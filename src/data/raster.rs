@@ -117,6 +117,20 @@ impl Samples {
     }
 
     /// Number of NaN/Inf values (always 0 for integers).
+    /// Finite float samples beyond ±`limit`, and the one farthest out (0 for integer types, whose bound is their
+    /// scaling's).
+    pub fn count_beyond(&self, limit: f64) -> (u64, f64) {
+        let scan = |it: &mut dyn Iterator<Item = f64>| {
+            it.filter(|x| x.is_finite() && x.abs() > limit)
+                .fold((0u64, 0.0f64), |(n, e), x| (n + 1, if x.abs() > e.abs() { x } else { e }))
+        };
+        match self {
+            Samples::F16(v) => scan(&mut v.iter().map(|x| x.to_f64())),
+            Samples::F32(v) => scan(&mut v.iter().map(|&x| x as f64)),
+            _ => (0, 0.0),
+        }
+    }
+
     pub fn count_non_finite(&self) -> u64 {
         match self {
             Samples::F16(v) => v.iter().filter(|x| !x.is_finite()).count() as u64,
@@ -135,7 +149,22 @@ pub struct BandScale {
 
 impl BandScale {
     pub const IDENTITY: BandScale = BandScale { black: 0.0, scale: 1.0 };
+
+    /// The model value farthest from 0 that stored values in `0..=max_raw` map to.
+    pub fn extreme(&self, max_raw: f64) -> f64 {
+        let (lo, hi) = ((0.0 - self.black) / self.scale, (max_raw - self.black) / self.scale);
+        if lo.abs() > hi.abs() || lo.is_nan() {
+            lo
+        } else {
+            hi
+        }
+    }
 }
+
+/// Largest plausible |model value| of a pixel. Calibrated reflectance lies near [0, 1] and integer data is scaled
+/// into it; values beyond this are a nodata marker (GDAL's float nodata is -3.4e38), a unit mistake or a degenerate
+/// `pixel_scale`, and their squares would overflow the loss's float sums.
+pub const MAX_MODEL_VALUE: f64 = 1e6;
 
 /// An image's alpha channel and what it is composited over (nerfstudio's `blend_background`): a band's model
 /// value v becomes `v·α + bg·(1 − α)` (straight alpha) or `v + bg·(1 − α)` (associated, i.e. premultiplied,

@@ -129,6 +129,9 @@ impl Ctx<'_> {
 }
 
 const INTRINSIC_KEYS: [&str; 6] = ["fl_x", "fl_y", "cx", "cy", "w", "h"];
+/// Plausible focal lengths, in multiples of the image's larger side: fields of view between 179.9° and 6e-5°.
+pub const MIN_FOCAL_PER_PIXEL: f64 = 1e-3;
+pub const MAX_FOCAL_PER_PIXEL: f64 = 1e6;
 
 /// Parses the file at `path` (paths in it are resolved against its folder).
 pub fn parse_transforms(path: &Path) -> Result<RawTransforms, DataError> {
@@ -341,6 +344,22 @@ fn parse_frame(
                 frame: Some(fr.clone()),
                 value: vals[k],
             });
+        } else if vals[k] > 0.0 && vals[4] >= 1.0 && vals[5] >= 1.0 {
+            // Positive but degenerate: a field of view of almost 180° or almost 0° (rays that overflow or that are
+            // all parallel) is a unit or typing mistake.
+            let size = vals[4].max(vals[5]);
+            if !(size * MIN_FOCAL_PER_PIXEL..=size * MAX_FOCAL_PER_PIXEL).contains(&vals[k]) {
+                let fov = (size / (2.0 * vals[k])).atan().to_degrees() * 2.0;
+                cx.invalid(
+                    key,
+                    Some(&fr),
+                    format!(
+                        "focal length {:e} pixels for a {}x{} image (field of view {fov:.4}°) is implausible: it \
+                         must lie between {MIN_FOCAL_PER_PIXEL} and {MAX_FOCAL_PER_PIXEL:e} times the image's larger side",
+                        vals[k], vals[4], vals[5]
+                    ),
+                );
+            }
         }
     }
     for (k, key) in [(4, "w"), (5, "h")] {

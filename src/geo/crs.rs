@@ -131,21 +131,26 @@ impl Crs {
         if depth_ok != Some(0) {
             return Err(CrsError::invalid(t, "WKT brackets do not balance"));
         }
-        let upper = t.to_ascii_uppercase();
-        let kind =
-            if upper.starts_with("GEOGCS[") || upper.starts_with("GEOGCRS[") || upper.starts_with("GEOGRAPHICCRS[") {
-                CrsKind::Geographic
-            } else if upper.starts_with("GEOCCS[")
-                || ((upper.starts_with("GEODCRS[") || upper.starts_with("GEODETICCRS["))
-                    && upper.contains("CS[CARTESIAN"))
-            {
-                CrsKind::Geocentric
-            } else if upper.starts_with("GEODCRS[") || upper.starts_with("GEODETICCRS[") {
-                CrsKind::Geographic
-            } else {
-                CrsKind::Projected
-            };
+        let root = wkt::parse(t).map_err(|reason| CrsError::invalid(t, reason))?;
+        let kind = wkt_kind(&root).map_err(|reason| CrsError::invalid(t, reason))?;
         let epsg = top_level_epsg(t);
+        // The EPSG code at the top must be a CRS of the kind the WKT describes (a PROJCS carrying 4326 would pass
+        // the geographic refusal and project nothing).
+        if let Some(code) = epsg {
+            if let Ok(known) = Self::from_epsg(code) {
+                if known.kind != kind {
+                    return Err(CrsError::invalid(
+                        t,
+                        format!(
+                            "the WKT describes a {} CRS but its EPSG code {code} is {} ({})",
+                            kind.name(),
+                            known.kind.name(),
+                            known.name
+                        ),
+                    ));
+                }
+            }
+        }
         let proj4 = epsg
             .and_then(|c| u16::try_from(c).ok())
             .and_then(crs_definitions::from_code)
@@ -204,6 +209,181 @@ fn odm_utm(upper: &str) -> Option<u32> {
 }
 
 /// The first quoted string of a WKT (the CRS's name).
+/// What a WKT CRS's coordinates are, from its tree: a CRS needs a name and its parts (a projected CRS its base
+/// geographic CRS and its projection); a compound CRS is what its horizontal part is; a vertical CRS alone, or a
+/// compound without a horizontal part, has no horizontal coordinates.
+fn wkt_kind(node: &wkt::Node) -> Result<CrsKind, String> {
+    let k = node.keyword.to_ascii_uppercase();
+    let named = matches!(node.items.first(), Some(wkt::Item::Text(n)) if !n.trim().is_empty());
+    if !named {
+        return Err(format!("{k}[...] has no name (its first item must be a quoted name)"));
+    }
+    let has = |keys: &[&str]| node.children().any(|c| keys.iter().any(|k| c.keyword.eq_ignore_ascii_case(k)));
+    match k.as_str() {
+        "PROJCS" | "PROJCRS" | "PROJECTEDCRS" => {
+            if !has(&["GEOGCS", "BASEGEOGCRS", "BASEGEODCRS"]) {
+                return Err(format!("{k}[...] has no base geographic CRS (GEOGCS or BASEGEOGCRS)"));
+            }
+            if !has(&["PROJECTION", "CONVERSION"]) {
+                return Err(format!("{k}[...] has no projection (PROJECTION or CONVERSION)"));
+            }
+            Ok(CrsKind::Projected)
+        }
+        "GEOGCS" | "GEOGCRS" | "GEOGRAPHICCRS" => Ok(CrsKind::Geographic),
+        "GEOCCS" => Ok(CrsKind::Geocentric),
+        "GEODCRS" | "GEODETICCRS" => Ok(
+            if node.children().any(|c| {
+                c.keyword.eq_ignore_ascii_case("CS")
+                    && matches!(c.items.first(), Some(wkt::Item::Word(w)) if w.eq_ignore_ascii_case("cartesian"))
+            }) {
+                CrsKind::Geocentric
+            } else {
+                CrsKind::Geographic
+            },
+        ),
+        "COMPD_CS" | "COMPOUNDCRS" => {
+            for c in node.children() {
+                let ck = c.keyword.to_ascii_uppercase();
+                if !matches!(ck.as_str(), "VERT_CS" | "VERTCRS" | "VERTICALCRS" | "AUTHORITY" | "ID" | "USAGE")
+                    && wkt_kind(c).is_ok()
+                {
+                    return wkt_kind(c);
+                }
+            }
+            Err(format!("{k}[...] has no horizontal CRS (PROJCS, GEOGCS, ...)"))
+        }
+        "BOUNDCRS" => match node.children().find(|c| c.keyword.eq_ignore_ascii_case("SOURCECRS")) {
+            Some(src) => src.children().next().map_or_else(|| Err("BOUNDCRS[SOURCECRS[]] is empty".into()), wkt_kind),
+            None => Err("BOUNDCRS[...] has no SOURCECRS".into()),
+        },
+        "VERT_CS" | "VERTCRS" | "VERTICALCRS" => {
+            Err(format!("{k}[...] is a vertical CRS alone: it has no horizontal coordinates"))
+        }
+        _ => Err(format!("{k}[...] is not a CRS root msnerf reads")),
+    }
+}
+
+/// Just enough of OGC WKT (1 and 2) to see its structure: `KEYWORD[item, ...]`, each item a quoted text, a bare
+/// word or number, or a nested node. Brackets may be `[]` or `()`.
+mod wkt {
+    pub enum Item {
+        Text(String),
+        Word(String),
+        Node(Node),
+    }
+
+    pub struct Node {
+        pub keyword: String,
+        pub items: Vec<Item>,
+    }
+
+    impl Node {
+        pub fn children(&self) -> impl Iterator<Item = &Node> {
+            self.items.iter().filter_map(|i| match i {
+                Item::Node(n) => Some(n),
+                _ => None,
+            })
+        }
+    }
+
+    pub fn parse(text: &str) -> Result<Node, String> {
+        let chars: Vec<char> = text.chars().collect();
+        let mut pos = 0;
+        let node = node(&chars, &mut pos)?;
+        skip_ws(&chars, &mut pos);
+        if pos != chars.len() {
+            return Err(format!("unexpected text after the WKT's closing bracket, at character {pos}"));
+        }
+        Ok(node)
+    }
+
+    fn skip_ws(c: &[char], pos: &mut usize) {
+        while *pos < c.len() && c[*pos].is_whitespace() {
+            *pos += 1;
+        }
+    }
+
+    fn word(c: &[char], pos: &mut usize) -> String {
+        let start = *pos;
+        while *pos < c.len() && !matches!(c[*pos], '[' | ']' | '(' | ')' | ',' | '"') && !c[*pos].is_whitespace() {
+            *pos += 1;
+        }
+        c[start..*pos].iter().collect()
+    }
+
+    fn node(c: &[char], pos: &mut usize) -> Result<Node, String> {
+        skip_ws(c, pos);
+        let keyword = word(c, pos);
+        if keyword.is_empty() {
+            return Err(format!("expected a WKT keyword at character {pos}"));
+        }
+        skip_ws(c, pos);
+        let close = match c.get(*pos) {
+            Some('[') => ']',
+            Some('(') => ')',
+            _ => return Err(format!("expected `[` after {keyword} at character {pos}")),
+        };
+        *pos += 1;
+        let mut items = Vec::new();
+        loop {
+            skip_ws(c, pos);
+            match c.get(*pos) {
+                Some(&ch) if ch == close && items.is_empty() => {
+                    *pos += 1;
+                    return Ok(Node { keyword, items });
+                }
+                Some('"') => {
+                    *pos += 1;
+                    let mut t = String::new();
+                    loop {
+                        match c.get(*pos) {
+                            // WKT escapes a quote inside text by doubling it.
+                            Some('"') if c.get(*pos + 1) == Some(&'"') => {
+                                t.push('"');
+                                *pos += 2;
+                            }
+                            Some('"') => {
+                                *pos += 1;
+                                break;
+                            }
+                            Some(&ch) => {
+                                t.push(ch);
+                                *pos += 1;
+                            }
+                            None => return Err("unterminated quoted text".into()),
+                        }
+                    }
+                    items.push(Item::Text(t));
+                }
+                Some(_) => {
+                    let save = *pos;
+                    let w = word(c, pos);
+                    skip_ws(c, pos);
+                    if matches!(c.get(*pos), Some('[') | Some('(')) {
+                        *pos = save;
+                        items.push(Item::Node(node(c, pos)?));
+                    } else if w.is_empty() {
+                        return Err(format!("unexpected `{}` at character {pos}", c[*pos]));
+                    } else {
+                        items.push(Item::Word(w));
+                    }
+                }
+                None => return Err(format!("{keyword}[...] is not closed")),
+            }
+            skip_ws(c, pos);
+            match c.get(*pos) {
+                Some(',') => *pos += 1,
+                Some(&ch) if ch == close => {
+                    *pos += 1;
+                    return Ok(Node { keyword, items });
+                }
+                Some(&ch) => return Err(format!("expected `,` or `{close}` at character {pos}, found `{ch}`")),
+                None => return Err(format!("{keyword}[...] is not closed")),
+            }
+        }
+    }
+}
+
 fn wkt_name(wkt: &str) -> String {
     wkt.split('"').nth(1).unwrap_or("unnamed").to_string()
 }

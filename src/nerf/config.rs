@@ -569,6 +569,51 @@ impl ModelConfig {
                 )));
             }
         }
+        if !(f.average_init_density.is_finite() && f.average_init_density > 0.0) {
+            return Err(ConfigError::key(format!(
+                "field.average_init_density must be a number > 0, got {}",
+                f.average_init_density
+            )));
+        }
+        let l = &self.loss;
+        for (key, v) in [("loss.interlevel_mult", l.interlevel_mult), ("loss.distortion_mult", l.distortion_mult)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ConfigError::key(format!("{key} must be a number >= 0, got {v}")));
+            }
+        }
+        if let Some(w) = &l.band_weights {
+            if let Some((i, v)) = w.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= 0.0)) {
+                return Err(ConfigError::key(format!("loss.band_weights[{i}] must be a number >= 0, got {v}")));
+            }
+            if !w.iter().any(|v| *v > 0.0) {
+                return Err(ConfigError::key("loss.band_weights: at least one band needs a weight > 0"));
+            }
+        }
+        for (name, g) in [("fields", &self.optimizer.fields), ("proposals", &self.optimizer.proposals)] {
+            if !(g.lr.is_finite() && g.lr > 0.0 && g.lr_final.is_finite() && g.lr_final >= 0.0) {
+                return Err(ConfigError::key(format!(
+                    "optimizer.{name}: lr must be > 0 and lr_final >= 0, got {} and {}",
+                    g.lr, g.lr_final
+                )));
+            }
+            if !(g.eps.is_finite() && g.eps > 0.0) {
+                return Err(ConfigError::key(format!("optimizer.{name}.eps must be > 0, got {}", g.eps)));
+            }
+        }
+        // The MLPs' shapes as the model builds them (one band: the band count comes with the dataset).
+        let shapes = super::model::ModelShapes::new(self, 1, 1);
+        for (i, m) in shapes.proposal_mlps.iter().enumerate() {
+            m.validate().map_err(|e| ConfigError::key(format!("proposals[{i}] (hidden_dim, num_layers): {e}")))?;
+        }
+        shapes
+            .field_mlp
+            .validate()
+            .map_err(|e| ConfigError::key(format!("field (density MLP: hidden_dim, num_layers, geo_feat_dim): {e}")))?;
+        shapes.colour_mlp.validate().map_err(|e| {
+            ConfigError::key(format!(
+                "field (colour MLP: hidden_dim_color, num_layers_color, appearance_embed_dim, direction inputs): {e}"
+            ))
+        })?;
         let co = &self.camera_optimizer;
         if !(co.lr >= 0.0 && co.lr_final >= 0.0 && co.trans_l2_penalty >= 0.0 && co.rot_l2_penalty >= 0.0) {
             return Err(ConfigError::key("camera_optimizer: lr, lr_final and the penalties must be >= 0"));
@@ -578,6 +623,12 @@ impl ModelConfig {
             return Err(ConfigError::key(
                 "trainer: rays_per_batch, rays_per_chunk and eval_rays_per_chunk must be > 0",
             ));
+        }
+        if t.steps_per_eval == 0 || t.steps_per_save == 0 {
+            return Err(ConfigError::key(format!(
+                "trainer.steps_per_eval and trainer.steps_per_save must be >= 1, got {} and {}",
+                t.steps_per_eval, t.steps_per_save
+            )));
         }
         if !(1..=3).contains(&t.steps_in_flight) {
             return Err(ConfigError::key(format!(

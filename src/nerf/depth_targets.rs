@@ -66,6 +66,20 @@ impl DepthTargets {
             DepthSource::DepthMaps => out.dense(ds, frames)?,
             DepthSource::SparsePoints => out.sparse(ds, frames)?,
         }
+        // A depth map without one valid pixel (all 0 = no depth, NaN or negative) adds nothing: that frame is left
+        // out of depth supervision by name, the others keep theirs.
+        let mut empty: Vec<usize> = out.frames.iter().filter(|(_, d)| d.pixels.is_empty()).map(|(&f, _)| f).collect();
+        empty.sort_unstable();
+        for f in empty {
+            out.frames.remove(&f);
+            let frame = &ds.frames[f];
+            let file = frame.depth.as_ref().map_or(String::new(), |p| format!(" ({})", p.display()));
+            log::warn!(
+                "frame `{}`: its depth map{file} has no valid pixel (every value 0, negative or not finite): the \
+                 frame trains without depth supervision",
+                frame.name
+            );
+        }
         out.counts = out.frames.iter().map(|(&f, d)| (f, d.pixels.len())).collect();
         if out.total() == 0 {
             return Err(NerfError::invalid(

@@ -43,6 +43,12 @@ pub enum NerfError {
         checkpoints.display()
     )]
     NonFinite { step: u64, buffer: String, count: u32, checkpoints: PathBuf },
+    /// Every step of a run (fewer than the guard's limit in a row) produced NaN/Inf: nothing was trained.
+    #[error(
+        "every one of the run's {steps} steps produced NaN/Inf (first in: {buffer}) and was skipped: nothing was \
+         trained; check the dataset's pixel values and intrinsics"
+    )]
+    NothingTrained { steps: u64, buffer: String },
 }
 
 pub type NerfResult<T> = Result<T, NerfError>;

@@ -48,6 +48,56 @@ fn trained_step(path: &Path) -> NerfResult<u64> {
     v["step"].as_u64().ok_or_else(|| NerfError::key(path, "step", "missing or not a step count"))
 }
 
+/// Refuses a dataset that is not the one the run trained on, by what the run's `dataset.json` recorded: the band
+/// names in order, the image size and the training and held-out frames. A dataset re-imported with other bands,
+/// or `dataset.json` pointed at another flight, would otherwise render the model's bands under the wrong names.
+pub fn check_run_dataset(info_path: &Path, info: &serde_json::Value, ds: &crate::data::Dataset) -> NerfResult<()> {
+    let names: Vec<&str> = ds.bands.iter().map(|b| b.name.as_str()).collect();
+    if let Some(recorded) = info["bands"].as_array() {
+        let was: Vec<&str> = recorded.iter().map(|b| b["name"].as_str().unwrap_or("?")).collect();
+        if was != names {
+            return Err(NerfError::key(
+                info_path,
+                "bands",
+                format!(
+                    "the run trained on bands [{}], the dataset at `data` now has [{}]: not the dataset of this run",
+                    was.join(", "),
+                    names.join(", ")
+                ),
+            ));
+        }
+    }
+    for (key, now) in [("width", ds.width as u64), ("height", ds.height as u64)] {
+        if let Some(was) = info[key].as_u64().filter(|&w| w != now) {
+            return Err(NerfError::key(
+                info_path,
+                key,
+                format!(
+                    "the run trained on images of {key} {was}, the dataset's have {now}: not the dataset of this run"
+                ),
+            ));
+        }
+    }
+    for (key, split) in [("train_frames", crate::data::Split::Train), ("eval_frames", crate::data::Split::Eval)] {
+        let now = ds.split_indices(split);
+        if let Ok(was) = serde_json::from_value::<Vec<usize>>(info[key].clone()) {
+            if was != now {
+                return Err(NerfError::key(
+                    info_path,
+                    key,
+                    format!(
+                        "the run's {} frames differ from the dataset's {} now (frames added, removed or re-split): \
+                         not the dataset of this run",
+                        was.len(),
+                        now.len()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 impl LoadedRun {
     /// Loads `dir`; errors name the file that is missing or malformed.
     pub fn load(ctx: &Context, dir: &Path) -> NerfResult<Self> {
@@ -69,6 +119,7 @@ impl LoadedRun {
         let band_indices: Option<Vec<usize>> = serde_json::from_value(info["band_indices"].clone())
             .map_err(|e| NerfError::key(&info_path, "band_indices", e))?;
         let mut ds = load_run_dataset(Path::new(data), band_indices.as_deref(), &cfg.sampling)?;
+        check_run_dataset(&info_path, &info, &ds)?;
         ds.options.alpha_background = crate::data::AlphaBackground::for_rendering(&cfg.rendering, false);
         let checkpoint = dir.join("checkpoints/latest.msnp");
         let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len())?;

@@ -118,6 +118,14 @@ pub fn write_products(
     if let Some(p) = &outputs.ortho {
         check_path(p, "--out (ortho)")?;
     }
+    if let (Some(d), Some(o)) = (&outputs.dsm, &outputs.ortho) {
+        if d == o {
+            return Err(SurveyError::Invalid {
+                what: "--ortho / --dsm".into(),
+                reason: format!("the DSM and the ortho would both be written to {}", d.display()),
+            });
+        }
+    }
     if outputs.dsm.is_none() && outputs.ortho.is_none() {
         return Err(SurveyError::Invalid {
             what: "outputs".into(),

@@ -236,6 +236,7 @@ pub fn load_run_dataset(
         ..Default::default()
     };
     let mut ds = load_dataset(data, &opts)?;
+    ds.check_distinct_centres()?;
     if !sampling.rig_cameras {
         ds.rig = None;
     }
@@ -268,19 +269,6 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
         );
     }
     let run = &opts.out;
-    std::fs::create_dir_all(run).map_err(|e| NerfError::file(run, e))?;
-    write_atomic_str(
-        &run.join("config.yaml"),
-        serde_yaml::to_string(cfg).expect("a model config serialises").as_bytes(),
-    )?;
-    write_atomic_str(&run.join("dataparser_transforms.json"), ds.pose_transform().to_json().as_bytes())?;
-    let ds_info = serde_json::json!({
-        "data": opts.data, "bands": ds.bands, "band_indices": opts.bands, "width": ds.width, "height": ds.height,
-        "train_frames": train_frames, "eval_frames": ds.split_indices(Split::Eval),
-        "dropped_outliers": ds.dropped_outliers,
-    });
-    write_atomic_str(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
-
     let model = Model::new(ctx, cfg, bands, ds.frames.len())?;
     let mut pipe = Pipeline::new(ctx, model, &camera_table(&ds)).map_err(NerfError::gpu("building the pipeline"))?;
     pipe.n_train_cameras = train_frames.len();
@@ -288,6 +276,12 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let mut state =
         TrainerState { step: 0, schedule: ProposalSchedule::default(), best_eval_psnr: None, elapsed_s: 0.0 };
     if opts.resume {
+        // The run resumes on the dataset it trained on, or not at all.
+        let info_path = run.join("dataset.json");
+        if let Ok(text) = std::fs::read_to_string(&info_path) {
+            let info: serde_json::Value = serde_json::from_str(&text).map_err(|e| NerfError::file(&info_path, e))?;
+            super::run::check_run_dataset(&info_path, &info, &ds)?;
+        }
         let (p, s) = ckpt_paths(run);
         let text = std::fs::read_to_string(&s).map_err(|e| NerfError::file(&s, format!("{e} (nothing to resume)")))?;
         state = serde_json::from_str(&text).map_err(|e| NerfError::file(&s, e))?;
@@ -311,6 +305,20 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
         Some(d) => Some(super::depth_targets::DepthTargets::build(&ds, &train_frames, d, near_far)?),
         None => None,
     };
+    // The run folder is written only once everything above has been checked: a refused run leaves none behind.
+    std::fs::create_dir_all(run).map_err(|e| NerfError::file(run, e))?;
+    write_atomic_str(
+        &run.join("config.yaml"),
+        serde_yaml::to_string(cfg).expect("a model config serialises").as_bytes(),
+    )?;
+    write_atomic_str(&run.join("dataparser_transforms.json"), ds.pose_transform().to_json().as_bytes())?;
+    let ds_info = serde_json::json!({
+        "data": opts.data, "bands": ds.bands, "band_indices": opts.bands, "width": ds.width, "height": ds.height,
+        "train_frames": train_frames, "eval_frames": ds.split_indices(Split::Eval),
+        "dropped_outliers": ds.dropped_outliers,
+    });
+    write_atomic_str(&run.join("dataset.json"), serde_json::to_string_pretty(&ds_info).expect("json").as_bytes())?;
+
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.trainer.seed.wrapping_add(state.step.wrapping_mul(0x9e37_79b9)));
     let metrics_path = run.join("metrics.jsonl");
     let metrics = std::fs::OpenOptions::new()
@@ -402,6 +410,10 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let done = pipe.flush().map_err(NerfError::gpu(format!("step {}", submitted.saturating_sub(1))))?;
     step_ms_total += t0.elapsed().as_secs_f64() * 1e3;
     steps.take(done, &mut state)?;
+    if steps.completed > 0 && steps.good == 0 {
+        let buffer = steps.first_poisoned.take().unwrap_or_default();
+        return Err(NerfError::NothingTrained { steps: steps.completed, buffer });
+    }
     state.schedule = pipe.schedule;
     if let Some(b) = &steps.bar {
         b.finish_and_clear();
@@ -452,6 +464,9 @@ struct StepLog {
     rays_per_batch: usize,
     max_steps: u64,
     poisoned_in_a_row: u32,
+    /// Steps that were not skipped, and the buffer named by the first skipped one (a run that trained nothing fails).
+    good: u64,
+    first_poisoned: Option<String>,
     last: StepStats,
     completed: u64,
     rays_done: u64,
@@ -478,6 +493,8 @@ impl StepLog {
             rays_per_batch,
             max_steps,
             poisoned_in_a_row: 0,
+            good: 0,
+            first_poisoned: None,
             last: StepStats::default(),
             completed: 0,
             rays_done: 0,
@@ -511,6 +528,7 @@ impl StepLog {
             if stats.skipped {
                 self.poisoned_in_a_row += 1;
                 let what = stats.poisoned.clone().unwrap_or_default();
+                self.first_poisoned.get_or_insert_with(|| what.clone());
                 self.log(serde_json::json!({"step": stats.step, "skipped": true, "poisoned_buffer": what}))?;
                 if self.poisoned_in_a_row >= MAX_POISONED_STEPS {
                     return Err(NerfError::NonFinite {
@@ -523,6 +541,7 @@ impl StepLog {
                 continue;
             }
             self.poisoned_in_a_row = 0;
+            self.good += 1;
             let rays_per_s = self.rays_per_batch as f64 / (ms.max(1e-9) / 1e3);
             if stats.step % 10 == 0 || state.step == self.max_steps {
                 self.log(serde_json::json!({

@@ -60,6 +60,10 @@ pub struct HashLevel {
     pub pad: [u32; 3],
 }
 
+/// Largest grid resolution per axis: a level's cell count (res^3) must stay inside the u64 sums and the kernels'
+/// 32-bit cell coordinates; 2^20 is 256x nerfacto's 4096.
+pub const MAX_RESOLUTION: u32 = 1 << 20;
+
 impl HashGridConfig {
     /// nerfstudio's growth factor b = exp((ln N_max - ln N_min) / (L - 1)).
     pub fn per_level_scale(&self) -> f64 {
@@ -83,6 +87,12 @@ impl HashGridConfig {
             return Err(SettingError::new(
                 "log2_hashmap_size",
                 format!("must be 8..=24, got {}", self.log2_hashmap_size),
+            ));
+        }
+        if self.max_resolution > MAX_RESOLUTION {
+            return Err(SettingError::new(
+                "max_resolution",
+                format!("must be at most {MAX_RESOLUTION} (2^20 cells per axis), got {}", self.max_resolution),
             ));
         }
         if self.base_resolution < 2 || self.max_resolution < self.base_resolution {

@@ -235,6 +235,16 @@ pub fn apply_poses_to(
         Some(c) => obj.insert("crs".into(), json!(c.key())).and(None),
         None => obj.remove("crs").map(|v| v.as_str().map(str::to_string).unwrap_or_else(|| v.to_string())),
     };
+    if n_pts > 0 {
+        obj.insert("sparse_points_path".into(), json!("sparse_points.json"));
+    }
+    // What is written must load: the dataset's own parser checks the new poses and intrinsics (a NaN becomes a
+    // JSON null, a focal length may be negative or degenerate) and names the frame and key, before anything is
+    // written.
+    crate::data::transforms::parse_value(&tpath, &root).map_err(|e| PoseError::Dataset {
+        path: source.to_path_buf(),
+        reason: format!("the imported poses are not usable, nothing was written: {e}"),
+    })?;
     // Backup, then the new files.
     let mut backup = dir.join("transforms.before-poses.json");
     let mut k = 1;
@@ -244,7 +254,6 @@ pub fn apply_poses_to(
     }
     std::fs::copy(&tpath, &backup).map_err(PoseError::io(&backup))?;
     if n_pts > 0 {
-        obj.insert("sparse_points_path".into(), json!("sparse_points.json"));
         write_atomic(&dir.join("sparse_points.json"), &serde_json::to_string(&json!({"points": pts})).expect("json"))?;
     }
     write_atomic(&tpath, &serde_json::to_string_pretty(&root).expect("json"))?;

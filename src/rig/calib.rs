@@ -221,6 +221,9 @@ pub fn interpret(meta: FileMeta) -> Result<BandFile, RigError> {
     }
 
     let lens = lens(vendor, &meta)?.or_else(|| exif_lens(&meta));
+    if let Some(l) = &lens {
+        check_lens(l, vendor, &meta)?;
+    }
     let rig_relatives = x.numbers(NS_CAMERA, "RigRelatives").filter(|v| v.len() == 3).map(|v| [v[0], v[1], v[2]]);
     let rig_translations = match x.numbers(NS_CAMERA, "RigTranslations") {
         None => None,
@@ -274,6 +277,36 @@ fn exif_lens(meta: &FileMeta) -> Option<Lens> {
     let f = meta.focal_length_mm? * meta.focal_plane_x_res_per_mm?;
     let (cx, cy) = ((meta.width as f64 - 1.0) / 2.0, (meta.height as f64 - 1.0) / 2.0);
     Some(Lens { fx: f, fy: f, cx, cy, k1: 0.0, k2: 0.0, k3: 0.0, p1: 0.0, p2: 0.0 })
+}
+
+/// A lens whose numbers would make a camera of no use (a focal length that is not positive or gives a field of
+/// view of almost 180° or 0°, a principal point that is not a number): refused, naming the file and the tag.
+fn check_lens(l: &Lens, vendor: Vendor, meta: &FileMeta) -> Result<(), RigError> {
+    use crate::data::transforms::{MAX_FOCAL_PER_PIXEL, MIN_FOCAL_PER_PIXEL};
+    let tag = match vendor {
+        Vendor::Dji => "drone-dji:DewarpData",
+        _ if meta.xmp.number(NS_CAMERA, "PerspectiveFocalLength").is_some() => "Camera:PerspectiveFocalLength",
+        _ => "FocalLength (EXIF)",
+    };
+    let size = meta.width.max(meta.height) as f64;
+    for f in [l.fx, l.fy] {
+        if !(size * MIN_FOCAL_PER_PIXEL..=size * MAX_FOCAL_PER_PIXEL).contains(&f) {
+            return Err(RigError::bad(
+                &meta.path,
+                tag,
+                format!(
+                    "focal length {f:e} pixels for a {}x{} image is implausible (it must lie between \
+                     {MIN_FOCAL_PER_PIXEL} and {MAX_FOCAL_PER_PIXEL:e} times the image's larger side)",
+                    meta.width, meta.height
+                ),
+            ));
+        }
+    }
+    let all = [l.cx, l.cy, l.k1, l.k2, l.k3, l.p1, l.p2];
+    if !all.iter().all(|v| v.is_finite()) {
+        return Err(RigError::bad(&meta.path, tag, format!("the lens model holds a value that is not finite: {l:?}")));
+    }
+    Ok(())
 }
 
 fn lens(vendor: Vendor, meta: &FileMeta) -> Result<Option<Lens>, RigError> {

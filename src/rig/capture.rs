@@ -74,12 +74,14 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
     let mut skipped = Vec::new();
     let mut band_files: Vec<BandFile> = Vec::new();
     let mut first_error: Option<RigError> = None;
+    let mut unreadable: Vec<&PathBuf> = Vec::new();
     for f in files {
         match read_meta(f).and_then(interpret) {
             Ok(b) => band_files.push(b),
             Err(e) => {
                 skipped.push(Skipped { capture: None, what: f.display().to_string(), reason: e.to_string() });
                 first_error.get_or_insert(e);
+                unreadable.push(f);
             }
         }
     }
@@ -118,6 +120,14 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
             skipped.push(Skipped { capture: Some(key.clone()), what, reason: format!("band {n} appears twice") });
             continue;
         }
+        // A band file of this capture that could not be read (MicaSense names: IMG_0001_1.tif .. IMG_0001_5.tif)
+        // takes the capture with it, even where no other capture shows which band it held.
+        let prefixes: Vec<_> = files.iter().filter_map(|b| band_file_prefix(&b.meta.path)).collect();
+        if let Some(u) = unreadable.iter().find(|u| band_file_prefix(u).is_some_and(|p| prefixes.contains(&p))) {
+            let reason = format!("its band file {} could not be read", u.display());
+            skipped.push(Skipped { capture: Some(key.clone()), what, reason });
+            continue;
+        }
         let missing: Vec<&String> = band_names.iter().filter(|n| !names.contains(&n.as_str())).collect();
         if !missing.is_empty() {
             let m: Vec<&str> = missing.iter().map(|s| s.as_str()).collect();
@@ -148,4 +158,13 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
     }
     captures.sort_by(|a, b| a.bands[0].meta.path.cmp(&b.bands[0].meta.path));
     Ok(Scan { captures, band_names, skipped })
+}
+
+/// A band file's folder and name without its band suffix (`IMG_0001_3.tif` -> `IMG_0001`): the suffix is the last
+/// `_` part of the stem, one or two letters or digits, as MicaSense and Sentera name their band files.
+fn band_file_prefix(p: &Path) -> Option<(PathBuf, String)> {
+    let stem = p.file_stem()?.to_str()?;
+    let (prefix, suffix) = stem.rsplit_once('_')?;
+    let band_like = (1..=2).contains(&suffix.len()) && suffix.chars().all(|c| c.is_ascii_alphanumeric());
+    (band_like && !prefix.is_empty()).then(|| (p.parent().unwrap_or(Path::new("")).to_path_buf(), prefix.to_owned()))
 }

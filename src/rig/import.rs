@@ -449,6 +449,11 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         transforms["rig_cameras"] = super::rig_model::rig_cameras_json(first, ref_idx, opts.undistort);
     }
     let tpath = staging.path.join("transforms.json");
+    // What is written must load: the dataset's own parser checks it (intrinsics, poses, bands) first.
+    crate::data::transforms::parse_value(&tpath, &transforms).map_err(|e| RigError::Output {
+        path: opts.out.join("transforms.json"),
+        reason: format!("the dataset would not load, nothing was written: {e}"),
+    })?;
     let text = serde_json::to_string_pretty(&transforms).expect("json");
     std::fs::write(&tpath, text).map_err(RigError::io(&tpath))?;
 

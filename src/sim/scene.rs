@@ -358,6 +358,12 @@ impl SceneDesc {
                 if bands[..i].iter().any(|o| o.name.eq_ignore_ascii_case(&b.name)) {
                     return bad(format!("bands[{i}].name"), "duplicate band name");
                 }
+                if !(100.0..=20_000.0).contains(&b.center_nm) {
+                    return bad(format!("bands[{i}].center_nm"), "must be a wavelength in 100..=20000 nm");
+                }
+                if b.fwhm_nm.is_some_and(|w| w > 1000.0) {
+                    return bad(format!("bands[{i}].fwhm_nm"), "must be at most 1000 nm");
+                }
                 match (&b.fwhm_nm, &b.response) {
                     (Some(_), Some(_)) => {
                         return bad(format!("bands[{i}].response"), "give either `fwhm_nm` or `response`")

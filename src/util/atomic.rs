@@ -76,3 +76,36 @@ pub fn write_with(path: &Path, f: impl FnOnce(&mut BufWriter<File>) -> std::io::
     drop(file);
     atomic.commit()
 }
+
+/// Refuses to write `output` over one of the command's inputs (`(flag, path)` pairs): an atomic write would
+/// replace the input itself. Paths are compared after resolving links and `..`; an output that does not exist yet
+/// is no input.
+pub fn check_not_an_input(output: &Path, inputs: &[(&str, &Path)]) -> std::result::Result<(), WriteError> {
+    let Ok(out) = output.canonicalize() else { return Ok(()) };
+    for (flag, input) in inputs {
+        if input.canonicalize().is_ok_and(|i| i == out) {
+            return Err(WriteError::new(output, format!("is the {flag} input: choose another output path")));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod input_tests {
+    use super::check_not_an_input;
+
+    #[test]
+    fn an_output_that_is_an_input_is_refused_by_flag() {
+        let dir = std::env::temp_dir().join(format!("msnerf-atomic-inputs-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub")).unwrap();
+        let input = dir.join("ref.ply");
+        std::fs::write(&input, b"x").unwrap();
+        let same = dir.join("sub/../ref.ply");
+        let e = check_not_an_input(&same, &[("--pred", &dir.join("pred.ply")), ("--ref", &input)]).unwrap_err();
+        assert!(e.to_string().contains("is the --ref input"), "{e}");
+        check_not_an_input(&dir.join("report.json"), &[("--ref", &input)]).expect("a new file is no input");
+        std::fs::write(dir.join("other.json"), b"{}").unwrap();
+        check_not_an_input(&dir.join("other.json"), &[("--ref", &input)]).expect("another existing file");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -257,3 +257,134 @@ fn rig_cameras_are_read_and_bad_ones_named() {
         assert_names(&e, parts);
     }
 }
+
+/// GDAL's float nodata value (-3.4e38) or a value that large: refused by name, with the count and the extreme, not
+/// trained into a loss whose squares overflow (every step would be skipped).
+#[test]
+fn implausibly_large_float_pixels_are_refused() {
+    let td = dataset(|j| j["frames"][1]["file_path"] = json!("f.tif"));
+    let mut bytes = tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::F32));
+    bytes[8..12].copy_from_slice(&f32::MIN.to_le_bytes());
+    bytes[12..16].copy_from_slice(&2.0e6f32.to_le_bytes());
+    bytes[16..20].copy_from_slice(&9.9e5f32.to_le_bytes()); // inside ±1e6: kept
+    std::fs::write(td.path().join("f.tif"), bytes).unwrap();
+    std::fs::write(td.path().join("a.tif"), tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::F32))).unwrap();
+    std::fs::write(td.path().join("c.tif"), tiff_bytes(&TiffSpec::new(8, 6, 2, Kind::F32))).unwrap();
+    let rep = check_dataset(td.path(), 1 << 20);
+    assert_eq!(rep.problems.len(), 1, "{rep}");
+    assert!(matches!(rep.problems[0], DataError::OutOfRange { count: 2, .. }), "{rep}");
+    assert_names(&rep.problems[0], &["f.tif", "frame 1", "2 pixel values beyond", "-3.40282346"]);
+    // Asked to mask bad values, the loader masks these pixels instead.
+    let opts = LoadOptions { mask_non_finite: true, ..Default::default() };
+    let ds = load_dataset(td.path(), &opts).unwrap();
+    let f = ds.frames.iter().position(|f| f.name == "f.tif").expect("f.tif");
+    let r = ds.read_frame(f).unwrap();
+    let mask = r.mask.as_ref().expect("mask");
+    assert_eq!(mask.iter().filter(|&&m| m == 0).count(), 1, "the pixel holding both values is masked, no other");
+}
+
+/// Integer data whose scaling maps it beyond ±1e6 (a pixel_scale of 1e-300): the key is named, per band.
+#[test]
+fn degenerate_pixel_scale_is_refused() {
+    for (edit, band) in [
+        ((|j: &mut serde_json::Value| j["pixel_scale"] = json!(1e-300)) as fn(&mut serde_json::Value), "band 0"),
+        (|j| j["bands"][1]["pixel_scale"] = json!(1e-3), "band 1"),
+        (|j| j["black_level"] = json!(1e12), "band 0"),
+    ] {
+        let td = dataset(edit);
+        let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
+        let e = ds.read_frame(0).unwrap_err();
+        assert!(matches!(e, DataError::InvalidValue { .. }), "{e}");
+        assert_names(&e, &["transforms.json", "pixel_scale", "frame 0", band, "beyond ±1e6"]);
+    }
+    // 12-bit data scaled by 4095 stays well inside.
+    let td = dataset(|j| j["pixel_scale"] = json!(4095.0));
+    let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
+    ds.read_frame(0).expect("a plausible pixel_scale loads");
+}
+
+/// Positive but degenerate focal lengths (a field of view of almost 180° or 0°): refused naming the key and the
+/// frame, for frames and for rig cameras.
+#[test]
+fn degenerate_focal_lengths_are_refused() {
+    for (v, fov) in [(1e-300, "180.0000°"), (1e-3, "179.9"), (1e8, "0.0000°")] {
+        let td = dataset(|j| j["frames"][2]["fl_x"] = json!(v));
+        let e = load_err(&td);
+        assert_names(&e, &["transforms.json", "fl_x", "frame 2 (c.tif)", "implausible", fov]);
+    }
+    // Just inside the bounds (8 px wide: 0.008 to 8e6 pixels) it loads.
+    for v in [0.0081, 7.9e6] {
+        let td = dataset(|j| j["frames"][2]["fl_x"] = json!(v));
+        load_dataset(td.path(), &LoadOptions::default()).unwrap_or_else(|e| panic!("fl_x {v}: {e}"));
+    }
+    let rig = |fl: f64| {
+        let id = json!([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
+        let cams: Vec<serde_json::Value> = [100.0, fl]
+            .iter()
+            .enumerate()
+            .map(|(b, f)| json!({"band": format!("b{b}"), "fl_x": f, "fl_y": 100.0, "cx": 4.0, "cy": 3.0, "rig_from_band": id}))
+            .collect();
+        json!({ "cameras": cams })
+    };
+    let td = dataset(|j| j["rig_cameras"] = rig(100.0));
+    load_dataset(td.path(), &LoadOptions::default()).expect("a plausible rig loads");
+    let td = dataset(|j| j["rig_cameras"] = rig(1e-300));
+    let e = load_err(&td);
+    assert_names(&e, &["transforms.json", "rig_cameras.cameras[1].fl_x", "implausible"]);
+}
+
+/// Every camera at one pose: normalisation would divide by zero (or by rounding noise), so training refuses the
+/// dataset (`check_distinct_centres`, called by the trainer's loader); centres apart pass.
+#[test]
+fn coincident_camera_centres_are_refused() {
+    let td = dataset(|j| {
+        for f in j["frames"].as_array_mut().unwrap() {
+            f["transform_matrix"][0][3] = json!(500000.25);
+            f["transform_matrix"][1][3] = json!(4000000.5);
+        }
+    });
+    // Tools that run before SfM still read it (a rig import without GPS writes such placeholder poses).
+    let ds = load_dataset(td.path(), &LoadOptions::default()).expect("placeholder poses load");
+    let e = ds.check_distinct_centres().unwrap_err();
+    assert_names(&e, &["transforms.json", "transform_matrix", "all 3 cameras have one centre", "msnerf sfm"]);
+    let td = dataset(|j| {
+        for (i, f) in j["frames"].as_array_mut().unwrap().iter_mut().enumerate() {
+            f["transform_matrix"][0][3] = json!(500000.25 + i as f64 * 0.5);
+            f["transform_matrix"][1][3] = json!(4000000.5);
+        }
+    });
+    let ds = load_dataset(td.path(), &LoadOptions::default()).expect("dataset");
+    ds.check_distinct_centres().expect("centres half a metre apart at UTM coordinates are distinct");
+}
+
+/// A run's `dataset.json` against the dataset its `data` path holds now: the same dataset passes; other band
+/// names, another image size or other frames are refused naming the key (eval, render and export would otherwise
+/// show the model's bands under the wrong names; `train --resume` would go on with another flight).
+#[test]
+fn a_run_refuses_a_dataset_that_is_not_its_own() {
+    use msnerf::data::Split;
+    use msnerf::nerf::run::check_run_dataset;
+    let td = dataset(|_| {});
+    let ds = load_dataset(td.path(), &LoadOptions::default()).unwrap();
+    let info = json!({"data": td.path(), "bands": ds.bands, "width": ds.width, "height": ds.height,
+        "train_frames": ds.split_indices(Split::Train), "eval_frames": ds.split_indices(Split::Eval)});
+    let p = td.path().join("run/dataset.json");
+    check_run_dataset(&p, &info, &ds).expect("its own dataset");
+    type Edit = fn(&mut serde_json::Value);
+    let cases: Vec<(Edit, &[&str])> = vec![
+        (|i| i["bands"][1]["name"] = json!("nir"), &["dataset.json", "bands", "[b0, nir]", "[b0, b1]"]),
+        (|i| i["bands"].as_array_mut().unwrap().truncate(1), &["bands", "[b0]"]),
+        (|i| i["width"] = json!(16), &["width 16", "have 8"]),
+        (|i| i["train_frames"] = json!([0]), &["train_frames", "1 frames", "2 now"]),
+        (|i| i["eval_frames"] = json!([0, 2]), &["eval_frames"]),
+    ];
+    for (edit, parts) in cases {
+        let mut i = info.clone();
+        edit(&mut i);
+        let e = check_run_dataset(&p, &i, &ds).unwrap_err().to_string();
+        for part in parts {
+            assert!(e.contains(part), "`{e}` does not name `{part}`");
+        }
+        assert!(e.contains("not the dataset of this run"), "{e}");
+    }
+}

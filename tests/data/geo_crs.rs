@@ -39,9 +39,31 @@ fn crs_spellings_parse_to_one_crs() {
         ("WGS84 UTM 61N", "not an EPSG code"),
         ("PROJCS[\"x\",GEOGCS[", "brackets"),
         ("", "empty"),
+        // WKT whose structure is not a usable CRS: no name, no parts, a vertical CRS alone, a compound without a
+        // horizontal part, and a projected CRS carrying a geographic EPSG code (it would pass the geographic
+        // refusal and project nothing).
+        ("PROJCS[]", "has no name"),
+        ("PROJCS[\"a\",UNIT[\"metre\",1]]", "no base geographic CRS"),
+        ("VERT_CS[\"x\"]", "vertical CRS alone"),
+        ("COMPD_CS[\"x\",VERT_CS[\"h\",VERT_DATUM[\"d\",2005]]]", "no horizontal CRS"),
+        ("PROJCS[\"a\",AUTHORITY[\"EPSG\",\"4326\"]]", "no base geographic CRS"),
+        ("GEOGCS[\"x\"] trailing", "after the WKT's closing bracket"),
     ] {
         let e = Crs::parse(bad).unwrap_err().to_string();
         assert!(e.contains(says), "{bad:?}: {e}");
+    }
+    let mut projected_4326 = gdalsrsinfo("wkt1", "EPSG:32650");
+    let at = projected_4326.rfind("AUTHORITY[\"EPSG\",\"32650\"]").expect("GDAL's top-level authority");
+    projected_4326.replace_range(at.., "AUTHORITY[\"EPSG\",\"4326\"]]");
+    let e = Crs::parse(&projected_4326).unwrap_err().to_string();
+    assert!(e.contains("describes a projected CRS but its EPSG code 4326 is geographic"), "{e}");
+    // GDAL's compound CRSs (UTM or geographic + EGM96 height): the kind of their horizontal part.
+    for (def, kind) in [("EPSG:32650+5773", CrsKind::Projected), ("EPSG:4326+5773", CrsKind::Geographic)] {
+        for fmt in ["wkt1", "wkt2"] {
+            let wkt = gdalsrsinfo(fmt, def);
+            let c = Crs::parse(&wkt).unwrap_or_else(|e| panic!("{def} {fmt}: {e}"));
+            assert_eq!(c.kind, kind, "{def} {fmt}: {wkt}");
+        }
     }
 }
 

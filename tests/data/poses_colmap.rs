@@ -243,6 +243,38 @@ fn radial_cameras_become_opencv_and_bad_models_are_named() {
     assert!(e.contains(&format!("{}x{}", t.size.0 * 2, t.size.1)) && e.contains(stem(&t.names[0])), "{e}");
     assert_eq!(std::fs::read_to_string(d2.join("transforms.json")).unwrap(), before, "nothing written on error");
 
+    // Numbers the reader accepts but that make no camera: a negative focal length, a NaN translation. The import
+    // checks the dataset it would write with the dataset's own parser: the model, the frame and the key are named,
+    // and nothing is written (no new transforms.json, no backup).
+    let [fx, fy, cx, cy] = t.cam;
+    for (name, key) in [("negative-focal", "fl_x"), ("nan-translation", "transform_matrix")] {
+        let m = tmp.path().join(name);
+        write_text(&m, &t, &[], "PINHOLE");
+        if key == "fl_x" {
+            let cams = format!("1 PINHOLE {} {} {} {fy} {cx} {cy}\n", t.size.0, t.size.1, -fx);
+            std::fs::write(m.join("cameras.txt"), cams).unwrap();
+        } else {
+            let text = std::fs::read_to_string(m.join("images.txt")).unwrap();
+            let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
+            let mut first: Vec<String> = lines[1].split(' ').map(str::to_owned).collect();
+            first[5] = "nan".into();
+            lines[1] = first.join(" ");
+            std::fs::write(m.join("images.txt"), lines.join("\n") + "\n").unwrap();
+        }
+        let d = tmp.path().join(format!("d-{name}"));
+        unposed_copy(&data, &d);
+        let before = std::fs::read_to_string(d.join("transforms.json")).unwrap();
+        let points_before = std::fs::read(d.join("sparse_points.json")).ok();
+        let e = apply_poses(&pm(&read_model(&m).unwrap(), &m), &m, &d).unwrap_err().to_string();
+        assert!(
+            e.contains(name) && e.contains("nothing was written") && e.contains(key) && e.contains("frame "),
+            "{e}"
+        );
+        assert_eq!(std::fs::read_to_string(d.join("transforms.json")).unwrap(), before, "{name}: nothing written");
+        assert!(!d.join("transforms.before-poses.json").exists(), "{name}: no backup of an import that did not happen");
+        assert_eq!(std::fs::read(d.join("sparse_points.json")).ok(), points_before, "{name}: points untouched");
+    }
+
     // An unknown camera model, a wrong parameter count, a truncated binary file: file and record named.
     let m = tmp.path().join("fov");
     write_text(&m, &t, &[], "PINHOLE");

@@ -438,6 +438,39 @@ fn bad_input_is_named_and_nothing_partial_is_left() {
     );
     std::fs::remove_dir_all(&out).unwrap();
 
+    // A band file whose lens model is no camera (a negative focal length): named with its tag, and its capture
+    // goes with it even where no other capture shows which band is missing (before, a one-capture flight was
+    // written with that band dropped). With no flight capture left the import fails, nothing written.
+    let one = t.path().join("one");
+    std::fs::create_dir_all(&one).unwrap();
+    write_capture(&one, 0, true, &|_, _| {});
+    write_capture(&one, 1, false, &|_, _| {});
+    let bad = one.join("IMG_0001_3.tif");
+    let b = interpret(read_meta(&bad).unwrap()).unwrap();
+    let px: Vec<u16> = read_pixels(&b.meta).unwrap().iter().map(|v| *v as u16).collect();
+    let xmp = micasense_xmp(&MsXmp {
+        band: &b.band_name,
+        center: b.center_nm,
+        fwhm: 10.0,
+        capture: "CAPTURE0001",
+        a: A,
+        vignetting_center: VC,
+        vignetting_poly: VP,
+        focal_px: -385.0,
+        principal_mm: [0.795, 0.595],
+        distortion: [0.0; 5],
+        horizontal_irradiance: Some(1.0),
+        rig: None,
+    });
+    write_rig_tiff(&bad, W, H, &px, &xmp, &exif_for(1));
+    let mut o = opts(&one, &out);
+    o.panel_files = vec![one.join("IMG_0000_2.tif")];
+    let e = expect_err(import_rig(&o));
+    assert!(e.contains("no complete flight capture"), "{e}");
+    assert!(e.contains("IMG_0001_3.tif") && e.contains("Camera:PerspectiveFocalLength"), "{e}");
+    assert!(e.contains("CAPTURE0001") && e.contains("its band file") && e.contains("could not be read"), "{e}");
+    no_partial_output(t.path(), &out);
+
     // Saturated panel pixels: counted, excluded, warned.
     let sat_dir = t.path().join("sat");
     std::fs::create_dir_all(&sat_dir).unwrap();

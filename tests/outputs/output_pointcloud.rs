@@ -717,3 +717,20 @@ fn export_flags_are_checked_and_named() {
         assert!(!out.exists(), "nothing written");
     }
 }
+
+/// A LAS header whose point count the file cannot hold (a damaged or truncated file): refused by name before
+/// anything is allocated for it (before, 3 billion points asked for a 300 GB buffer and the process aborted).
+#[test]
+fn las_with_a_point_count_beyond_its_size_is_refused() {
+    let dir = scratch("las-count");
+    let path = dir.join("cloud.las");
+    write_las(&path, &utm_cloud(50, 3), &LasOptions::default()).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    // LAS 1.4 counts points twice: the legacy 32-bit field at byte 107 and the 64-bit one at byte 247.
+    assert_eq!(u64::from_le_bytes(bytes[247..255].try_into().unwrap()), 50, "the field this test patches");
+    bytes[107..111].copy_from_slice(&u32::MAX.to_le_bytes());
+    bytes[247..255].copy_from_slice(&u64::from(u32::MAX).to_le_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    let e = read_las(&path).unwrap_err().to_string();
+    assert!(e.contains("cloud.las") && e.contains("4294967295 points") && e.contains("more than the file"), "{e}");
+}

@@ -140,6 +140,9 @@ fn bad_scenes_name_the_file_and_key() {
         (format!("{good}effects:\n  sun: {{azimuth_deg: 0, elevation_deg: -5}}\n"), "effects.sun.elevation_deg"),
         (format!("{good}trees:\n  - {{position: [0, 0], trunk_height: 1, crown: [1, 0, 1], crown_material: leaves, trunk_material: bark}}\n"), "trees[0].crown"),
         (good.replace("name: panel\n", "name: panel\nbands: [{name: a, center_nm: 500}]\n"), "bands[0].fwhm_nm"),
+        // A NaN centre used to index a spectrum table at usize::MAX and panic.
+        (good.replace("name: panel\n", "name: panel\nbands: [{name: a, center_nm: .nan, fwhm_nm: 10}]\n"), "bands[0].center_nm"),
+        (good.replace("name: panel\n", "name: panel\nbands: [{name: a, center_nm: 500, fwhm_nm: 1e30}]\n"), "bands[0].fwhm_nm"),
     ];
     for (yaml, key) in cases {
         let e = err(&yaml);

@@ -158,4 +158,14 @@ fn five_poisoned_steps_in_a_row_stop_training_with_a_clear_error() {
     let skipped: Vec<&str> = log.lines().filter(|l| l.contains("\"skipped\":true")).collect();
     assert_eq!(skipped.len(), 5, "{log}");
     assert!(skipped.iter().all(|l| l.contains("\"poisoned_buffer\":\"nerf density\"")), "{log}");
+
+    // Fewer steps than the guard's limit, every one of them poisoned: the run fails instead of ending as trained.
+    let mut opts = opts;
+    opts.model.trainer.max_steps = 6;
+    let err = trainer::train(&g, &opts).expect_err("a run that trained nothing fails");
+    assert!(
+        matches!(&err, msnerf::nerf::NerfError::NothingTrained { steps: 3, buffer } if buffer.contains("nerf density")),
+        "a typed error naming the steps and the buffer: {err:?}"
+    );
+    assert!(err.to_string().contains("nothing was trained"), "{err}");
 }

@@ -10,8 +10,9 @@
 use crate::common;
 use common::{gpu, TempDir};
 use msnerf::data::sparse_points::read_sparse_points;
-use msnerf::data::{load_dataset, LoadOptions};
+use msnerf::data::{load_dataset, LoadOptions, Split};
 use msnerf::nerf::config::{DepthLoss, DepthSource, DepthSupervision, ModelConfig};
+use msnerf::nerf::depth_targets::DepthTargets;
 use msnerf::nerf::trainer::train;
 use msnerf::sim::sparse::SparseOptions;
 use msnerf::sim::{simulate, SceneDesc, SimOptions};
@@ -80,7 +81,7 @@ fn train_error(data: &Path, out: &Path, model: ModelConfig) -> String {
         Err(e) => e,
         Ok(_) => panic!("training {} was not refused", out.display()),
     };
-    assert!(!out.join("checkpoints").exists(), "nothing trained: {e}");
+    assert!(!out.exists(), "a refused run leaves no run folder behind: {e}");
     e.to_string()
 }
 
@@ -170,4 +171,44 @@ fn bad_depth_input_is_named() {
         let e = m.validate().expect_err("invalid").to_string();
         assert!(e.contains(key), "{key}: {e}");
     }
+}
+
+/// A depth map without one valid pixel (all 0, nerfstudio's "no depth"; or NaN, or negative) leaves its frame out
+/// of depth supervision (a warning names it) and the other frames keep every target; with every map empty the
+/// config key is named. Before, the plausibility check took the median of the empty frame's targets and panicked.
+#[test]
+fn a_depth_map_without_valid_pixels_leaves_its_frame_out() {
+    let tmp = TempDir::new("depth_supervision_empty");
+    let data = sparse_dataset(tmp.path());
+    let model = supervised(DepthSource::DepthMaps);
+    let cfg = model.loss.depth.expect("depth");
+    let near_far = (model.sampling.near as f64, model.sampling.far as f64);
+    let ds = load_dataset(&data, &LoadOptions::default()).expect("dataset");
+    let train_frames = ds.split_indices(Split::Train);
+    let all = DepthTargets::build(&ds, &train_frames, &cfg, near_far).expect("targets").total();
+    let (w, h) = (ds.width, ds.height);
+    let write_depth = |f: usize, v: f32| {
+        let path = ds.frames[f].depth.clone().expect("depth map");
+        let file = std::fs::File::create(&path).expect("create");
+        tiff::encoder::TiffEncoder::new(file)
+            .expect("tiff")
+            .write_image::<tiff::encoder::colortype::Gray32Float>(w, h, &vec![v; (w * h) as usize])
+            .expect("write");
+    };
+    for (k, bad) in [0.0f32, f32::NAN, -3.0].into_iter().enumerate() {
+        let f = train_frames[k];
+        let valid = ds.read_depth(f).expect("read").expect("map").iter().filter(|d| **d > 0.0).count();
+        assert!(valid > 0);
+        write_depth(f, bad);
+        let ds = load_dataset(&data, &LoadOptions::default()).expect("dataset");
+        let t = DepthTargets::build(&ds, &train_frames, &cfg, near_far).unwrap_or_else(|e| panic!("{bad}: {e}"));
+        assert!(t.total() < all && t.total() > 0, "{bad}: frame {f} left out ({} of {all})", t.total());
+        assert_eq!(t.column(f, h / 2, w / 2), [0.0, 1.0], "{bad}: no target in the emptied frame");
+    }
+    for &f in &train_frames {
+        write_depth(f, 0.0);
+    }
+    let ds = load_dataset(&data, &LoadOptions::default()).expect("dataset");
+    let e = DepthTargets::build(&ds, &train_frames, &cfg, near_far).err().expect("no target left").to_string();
+    assert!(e.contains("loss.depth.source") && e.contains("no training pixel has a depth target"), "{e}");
 }

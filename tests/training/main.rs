@@ -5,6 +5,7 @@
 mod common;
 
 mod bench_cli;
+mod config_errors;
 mod depth_supervision;
 mod plan_cli;
 mod plan_ledger;

@@ -383,6 +383,18 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasOptions) -> Result<(
 pub fn read_las(path: &Path) -> Result<PointCloud> {
     let mut reader = Reader::from_path(path).map_err(|e| OutputError::read(path, e))?;
     let header = reader.header().clone();
+    // The header's point count must fit in the file: a damaged count would otherwise allocate it up front.
+    let file_len = std::fs::metadata(path).map_err(|e| OutputError::read(path, e))?.len();
+    let record = header.point_format().len() as u64;
+    if !header.point_format().is_compressed && header.number_of_points().saturating_mul(record) > file_len {
+        return Err(OutputError::read(
+            path,
+            format!(
+                "the header counts {} points of {record} bytes, more than the file's {file_len} bytes hold",
+                header.number_of_points()
+            ),
+        ));
+    }
     let mut descriptors = Vec::new();
     let mut band_vlr: Option<BandVlr> = None;
     for vlr in header.all_vlrs() {
