@@ -65,7 +65,27 @@ pub struct TrainBlocksArgs {
     pub train_args: Vec<String>,
 }
 
+/// The arguments after `--` as `msnerf train` will parse them for each block (which adds its own `--data`, `--out`,
+/// `--quiet` and, when resuming, `--resume`): refused before anything runs or is written.
+fn check_train_args(train_args: &[String]) -> anyhow::Result<()> {
+    use clap::Parser;
+    for own in ["--data", "--out", "--quiet", "--resume"] {
+        if train_args.iter().any(|t| t == own || t.starts_with(&format!("{own}="))) {
+            anyhow::bail!("arguments after `--`: {own} is set for each block by msnerf itself");
+        }
+    }
+    let argv = ["msnerf", "train", "--data", "BLOCK", "--out", "RUN", "--quiet"].into_iter().map(String::from);
+    match super::Cli::try_parse_from(argv.chain(train_args.iter().cloned())) {
+        Ok(_) => Ok(()),
+        Err(e) => {
+            let first = e.to_string().lines().next().unwrap_or_default().trim_start_matches("error: ").to_string();
+            anyhow::bail!("arguments after `--` for `msnerf train`: {first}")
+        }
+    }
+}
+
 pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
+    check_train_args(&a.train_args)?;
     anyhow::ensure!(
         a.slurm || (a.slurm_time.is_none() && a.slurm_time_from.is_none()),
         "--slurm-time and --slurm-time-from need --slurm"
@@ -148,6 +168,7 @@ pub fn run_partition(a: &PartitionArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_train_blocks(a: &TrainBlocksArgs) -> anyhow::Result<()> {
+    check_train_args(&a.train_args)?;
     let o = TrainBlocksOptions {
         exe: std::env::current_exe()?,
         parallel: a.parallel,

@@ -466,6 +466,9 @@ impl ModelConfig {
     }
 
     pub fn parse(text: &str) -> Result<Self, ConfigError> {
+        if let Some(key) = crate::util::yaml::first_non_finite(text) {
+            return Err(ConfigError::key(format!("{key}: not a finite number")));
+        }
         let c: ModelConfig = serde_yaml::from_str(text).map_err(|e| ConfigError::key(e.to_string()))?;
         c.validate()?;
         Ok(c)

@@ -107,8 +107,8 @@ pub fn orbit_frame(poses: &[Mat4]) -> NerfResult<OrbitFrame> {
 
 /// The orbit's cameras (`orbit_000` ...), in the normalised frame.
 pub fn orbit_views(ds: &Dataset, transform: &PoseTransform, desc: &OrbitDesc) -> NerfResult<Vec<NovelView>> {
-    if desc.views == 0 {
-        return Err(NerfError::invalid("--orbit-views", "must be at least 1"));
+    if desc.views == 0 || desc.views > 100_000 {
+        return Err(NerfError::invalid("--orbit-views", format!("must be 1..=100000, got {}", desc.views)));
     }
     let check = |flag: &str, v: Option<f64>, ok: &dyn Fn(f64) -> bool, want: &str| match v {
         Some(x) if !x.is_finite() || !ok(x) => Err(NerfError::invalid(flag, format!("must be {want}, got {x}"))),

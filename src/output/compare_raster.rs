@@ -160,6 +160,17 @@ pub fn compare_rasters(
             }
         }
     }
+    if compared == 0 {
+        // No cell with values in both: the rasters do not overlap, or one is nodata where the other has data.
+        // Statistics over nothing would be NaN; say why instead.
+        return Err(OutputError::invalid(
+            "--ref",
+            format!(
+                "no cell to compare: {pred_cells} predicted cells with data, {ref_cells} reference cells with data \
+                 under the prediction's grid (do the rasters overlap, in one CRS?)"
+            ),
+        ));
+    }
     let band_name =
         |b: usize| p.descriptions.get(b).filter(|s| !s.is_empty()).cloned().unwrap_or(format!("band {}", b + 1));
     let bands = (0..nb).map(|b| errors(&band_name(b), &mut d[b], opts)).collect();

@@ -123,6 +123,9 @@ fn group_counts(groups: &[CameraGroupDesc], views: Option<usize>) -> Result<Vec<
 
 /// All views of the scene, in order, local frame.
 pub fn scene_poses(d: &SceneDesc, views: Option<usize>) -> Result<Vec<Mat4>, String> {
+    if let Some(v) = views.filter(|&v| v > super::scene::MAX_VIEWS) {
+        return Err(format!("{v} views: at most {}", super::scene::MAX_VIEWS));
+    }
     let counts = group_counts(&d.cameras, views)?;
     let mut out = Vec::new();
     for (g, &(n, m)) in d.cameras.iter().zip(&counts) {

@@ -83,6 +83,9 @@ pub struct BandRangeDesc {
     pub fwhm_nm: f64,
 }
 
+/// Most views a scene or `--views` may ask for (each is an image of every band written to disk).
+pub const MAX_VIEWS: usize = 100_000;
+
 /// Intrinsics and output size; the defaults are the MS600Pro (HFOV 49.6°, 4:3 pinhole) at 256x192.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -315,6 +318,9 @@ impl SceneDesc {
 
     /// Parses and checks YAML text; `file` names the source in errors.
     pub fn from_yaml(text: &str, file: &str) -> Result<SceneDesc, SimError> {
+        if let Some(key) = crate::util::yaml::first_non_finite(text) {
+            return Err(SimError::Scene { file: file.to_string(), key, reason: "not a finite number".into() });
+        }
         // serde_yaml's message already names the key path (e.g. `cameras[0].orbit: unknown field ...`).
         let desc: SceneDesc = serde_yaml::from_str(text).map_err(|e| SimError::Scene {
             file: file.to_string(),
@@ -493,8 +499,8 @@ impl SceneDesc {
                 return bad(k, "give exactly one of `orbit`, `grid`, `poses`");
             }
             if let Some(o) = &c.orbit {
-                if o.count == 0 || !(o.radius >= 0.0) || !(o.height > 0.0) {
-                    return bad(format!("{k}.orbit"), "needs count > 0, radius >= 0, height > 0");
+                if o.count == 0 || o.count > MAX_VIEWS || !(o.radius >= 0.0) || !(o.height > 0.0) {
+                    return bad(format!("{k}.orbit"), "needs 0 < count <= 100000, radius >= 0, height > 0");
                 }
                 if !(o.tilt_deg > -90.0 - 1e-9 && o.tilt_deg < 90.0) {
                     return bad(format!("{k}.orbit.tilt_deg"), "must be in [-90, 90)");

@@ -211,6 +211,13 @@ impl Grid {
                 })
                 .collect::<Result<_, _>>()?,
         };
+        // The grid's size before building it: a handful of long axes multiply into billions of cells.
+        let per_base = axes.iter().try_fold(1usize, |n, (_, v)| n.checked_mul(v.len().max(1)));
+        let total = per_base.and_then(|n| n.checked_mul(explicit.len()));
+        if total.is_none_or(|n| n > MAX_CELLS) {
+            let n = total.map_or("more than 2^64".to_string(), |n| n.to_string());
+            return Err(SweepError::grid(format!("{n} cells: a sweep holds at most {MAX_CELLS}")));
+        }
         let mut cells = Vec::new();
         for base in &explicit {
             for combo in cartesian(&axes) {
@@ -300,6 +307,9 @@ fn resolve_model_path(name: &str, dir: &Path) -> String {
 }
 
 /// Every combination of one value per axis, the first axis varying slowest.
+/// Most cells a sweep grid may hold (each is a training run).
+pub const MAX_CELLS: usize = 10_000;
+
 fn cartesian(axes: &[(String, Vec<Value>)]) -> Vec<Vec<(String, Value)>> {
     let mut out = vec![vec![]];
     for (k, vals) in axes {

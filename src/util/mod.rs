@@ -6,3 +6,4 @@ pub mod mem;
 pub mod staging;
 pub mod stats;
 pub mod tiff;
+pub mod yaml;

@@ -143,6 +143,8 @@ fn bad_scenes_name_the_file_and_key() {
         // A NaN centre used to index a spectrum table at usize::MAX and panic.
         (good.replace("name: panel\n", "name: panel\nbands: [{name: a, center_nm: .nan, fwhm_nm: 10}]\n"), "bands[0].center_nm"),
         (good.replace("name: panel\n", "name: panel\nbands: [{name: a, center_nm: 500, fwhm_nm: 1e30}]\n"), "bands[0].fwhm_nm"),
+        (good.replace("name: panel\n", "name: panel\nbands: [{name: a, center_nm: 500, fwhm_nm: .inf}]\n"), "bands[0].fwhm_nm"),
+        (format!("{good}  - {{orbit: {{center: [0, 0], radius: 5, height: 50, count: 100000000}}}}\n"), "cameras[1].orbit"),
     ];
     for (yaml, key) in cases {
         let e = err(&yaml);

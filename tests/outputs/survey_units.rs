@@ -185,4 +185,9 @@ fn raster_comparison_matches_the_definitions() {
     .unwrap();
     let err = compare_rasters(&pr, &read_geotiff(&other).unwrap(), None, &opts).unwrap_err().to_string();
     assert!(err.contains("2 bands"), "{err}");
+    // Rasters that do not overlap: refused, saying so, instead of NaN statistics and exit 0.
+    let far = tmp.path().join("far.tif");
+    write(&far, rw, rh, [rorigin[0] + 1.0e5, rorigin[1]], 0.5, "height", reference.clone());
+    let err = compare_rasters(&pr, &read_geotiff(&far).unwrap(), None, &opts).unwrap_err().to_string();
+    assert!(err.contains("no cell to compare") && err.contains("0 reference cells"), "{err}");
 }

@@ -621,6 +621,20 @@ fn slurm_time_limit_comes_from_the_train_benchmark() {
     assert!(text.contains("Slurm time limit 00:16:00"), "{text}");
     let script = std::fs::read_to_string(out.join("slurm.sh")).expect("slurm.sh");
     assert!(script.contains("#SBATCH --time=00:16:00"), "{script}");
+
+    // Training arguments msnerf train would refuse, or that each block's command sets itself: refused before
+    // anything is written (before, a bad flag went into slurm.sh, and a second --quiet failed every block).
+    for (extra, says) in [("--bogus-flag", "--bogus-flag"), ("--quiet", "--quiet is set for each block")] {
+        let out2 = t.path().join(format!("blocks{extra}"));
+        let o2 = out2.to_str().unwrap();
+        let r = std::process::Command::new(bin)
+            .args(["partition", d, "--blocks", "2x1", "--out", o2, "--slurm", "--", "--model", "tiny", extra])
+            .output()
+            .expect("run msnerf");
+        let text = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success() && text.contains("arguments after `--`") && text.contains(says), "{text}");
+        assert!(!out2.exists(), "{extra}: nothing written");
+    }
 }
 
 /// A dataset with sparse points (SfM tracks) partitions into blocks that load and train with depth supervision:

@@ -134,6 +134,11 @@ fn grid_level_mistakes_are_errors_naming_the_key() {
     assert!(e.contains("cells 0 and 2 are the same configuration"), "{e}");
     let e = err_of("name: t\nmodel: tiny\nbudget: {steps: 0}\n");
     assert!(e.contains("budget.steps"), "{e}");
+    // Four axes of 100 values: 10^8 cells, refused before any is built (an audit's 4e9-cell grid ran out of memory).
+    let axis = |k: &str| format!("  {k}: [{}]\n", (1..=100).map(|v| v.to_string()).collect::<Vec<_>>().join(", "));
+    let axes: String = ["trainer.seed", "sampling.near", "sampling.far", "loss.interlevel_mult"].map(axis).concat();
+    let e = err_of(&format!("{HEAD}axes:\n{axes}"));
+    assert!(e.contains("100000000 cells") && e.contains("at most 10000"), "{e}");
 }
 
 #[test]
