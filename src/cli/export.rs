@@ -110,6 +110,12 @@ impl PointcloudArgs {
             "--rays must be 1..={MAX_EXPORT_RAYS}, got {}",
             self.rays
         );
+        if let Some(b) = &self.crop {
+            anyhow::ensure!(
+                b.len() == 6 && b.iter().all(|v| v.is_finite()) && (0..3).all(|k| b[k] < b[k + 3]),
+                "--crop needs minx,miny,minz,maxx,maxy,maxz with each min below its max, got {b:?}"
+            );
+        }
         anyhow::ensure!(
             (0.0..=1.0).contains(&self.min_accumulation),
             "--min-accumulation is an opacity in [0, 1], got {}",
@@ -168,10 +174,6 @@ pub fn careful_filters(
 /// Filters a cloud as the flags ask.
 pub fn filter(mut cloud: PointCloud, a: &PointcloudArgs) -> anyhow::Result<PointCloud> {
     if let Some(b) = &a.crop {
-        anyhow::ensure!(
-            b.len() == 6 && b.iter().all(|v| v.is_finite()) && (0..3).all(|k| b[k] < b[k + 3]),
-            "--crop needs minx,miny,minz,maxx,maxy,maxz with each min below its max, got {b:?}"
-        );
         let inside = |p: &[f64; 3]| (0..3).all(|k| p[k] >= b[k] && p[k] <= b[k + 3]);
         cloud = pointcloud::filter::crop(&cloud, inside)?.0;
     }

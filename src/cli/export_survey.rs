@@ -102,6 +102,11 @@ impl SurveyArgs {
         let (max_spread_cells, consistency) =
             careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
         anyhow::ensure!(self.block_rays > 0, "--block-rays must be > 0");
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.min_accumulation),
+            "--min-accumulation is an opacity in [0, 1], got {}",
+            self.min_accumulation
+        );
         if let Some(t) = self.top {
             anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
         }

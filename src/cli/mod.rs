@@ -127,7 +127,12 @@ pub fn finite_f64(s: &str) -> Result<f64, String> {
 
 /// [`finite_f64`] for an f32 flag.
 pub fn finite_f32(s: &str) -> Result<f32, String> {
-    finite_f64(s).map(|v| v as f32)
+    let v = finite_f64(s)? as f32;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s:?} is beyond the range of a 32-bit float"))
+    }
 }
 
 /// Clap value parser for a positive real-valued flag (a time or memory budget): finite and above 0.
@@ -155,5 +160,7 @@ mod tests {
         for bad in ["0", "-1", "-0.0"] {
             assert!(positive_f64(bad).is_err(), "{bad}");
         }
+        assert_eq!(finite_f32("0.5"), Ok(0.5));
+        assert!(finite_f32("1e39").is_err(), "finite as f64, infinite as f32");
     }
 }

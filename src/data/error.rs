@@ -68,8 +68,8 @@ pub enum DataError {
     NonFinite { path: PathBuf, frame: Option<FrameRef>, count: u64 },
     /// Finite pixel values beyond ±[`super::raster::MAX_MODEL_VALUE`] (a nodata marker, a unit mistake).
     #[error(
-        "{}: {}{count} pixel values beyond ±1e6 (up to {extreme:e}): a nodata value or a unit mistake; calibrated \
-         reflectance lies near [0, 1]. Mask such pixels out (`mask_path`) or scale the data",
+        "{}: {}{count} pixel values beyond ±1e6 (up to {extreme:e}) outside any mask: a nodata value or a unit \
+         mistake; calibrated reflectance lies near [0, 1]. Mask such pixels out (`mask_path`: 0 where nodata)",
         path.display(),
         fr(frame)
     )]

@@ -604,9 +604,14 @@ impl Dataset {
         }
         if self.sample_type.is_integer() {
             // Integer data's model values are bounded by its scaling: a degenerate `pixel_scale` or `black_level`
-            // is refused by name, whatever the pixels hold.
+            // is refused by name. The type's whole range is checked first; only where that bound fails (12-bit
+            // data in a 32-bit container) are the stored values themselves read.
+            let full = self.sample_type.default_scale();
             for (b, sc) in raster.scaling.iter().enumerate() {
-                let e = sc.extreme(self.sample_type.default_scale());
+                let mut e = sc.extreme(full);
+                if !plausible(e) {
+                    e = sc.extreme(raster.samples.max_raw());
+                }
                 if !plausible(e) {
                     return Err(DataError::InvalidValue {
                         path: self.transforms_path.clone(),
@@ -623,15 +628,15 @@ impl Dataset {
                 }
             }
         }
-        let bad = raster.samples.count_non_finite();
-        let (beyond, extreme) = raster.samples.count_beyond(MAX_MODEL_VALUE);
-        if bad > 0 || beyond > 0 {
+        // Pixels the mask already leaves out (`mask_path`) are not checked: a nodata border under a mask trains.
+        let check = raster.samples.value_check(nb, raster.mask.as_deref(), MAX_MODEL_VALUE as f32);
+        if check.non_finite > 0 || check.beyond > 0 {
             if !self.options.mask_non_finite {
                 let (path, frame) = (self.image_path(i).to_path_buf(), Some(frame_of(f)));
-                return Err(if bad > 0 {
-                    DataError::NonFinite { path, frame, count: bad }
+                return Err(if check.non_finite > 0 {
+                    DataError::NonFinite { path, frame, count: check.non_finite }
                 } else {
-                    DataError::OutOfRange { path, frame, count: beyond, extreme }
+                    DataError::OutOfRange { path, frame, count: check.beyond, extreme: check.extreme }
                 });
             }
             let px = (self.width * self.height) as usize;

@@ -116,28 +116,55 @@ impl Samples {
         true
     }
 
-    /// Number of NaN/Inf values (always 0 for integers).
-    /// Finite float samples beyond ±`limit`, and the one farthest out (0 for integer types, whose bound is their
-    /// scaling's).
-    pub fn count_beyond(&self, limit: f64) -> (u64, f64) {
-        let scan = |it: &mut dyn Iterator<Item = f64>| {
-            it.filter(|x| x.is_finite() && x.abs() > limit)
-                .fold((0u64, 0.0f64), |(n, e), x| (n + 1, if x.abs() > e.abs() { x } else { e }))
-        };
+    /// One pass over the float samples of the pixels `mask` keeps (all without a mask; `bands` samples per pixel):
+    /// how many are NaN/Inf, how many are finite but beyond ±`limit`, and the one farthest out. Integer samples
+    /// are bounded by their scaling (checked there): all zero.
+    pub fn value_check(&self, bands: usize, mask: Option<&[u8]>, limit: f32) -> ValueCheck {
+        fn scan<T: Copy>(v: &[T], bands: usize, mask: Option<&[u8]>, f: impl Fn(T) -> f32, limit: f32) -> ValueCheck {
+            let mut c = ValueCheck::default();
+            for (p, px) in v.chunks_exact(bands.max(1)).enumerate() {
+                if mask.is_some_and(|m| m[p] == 0) {
+                    continue;
+                }
+                for &x in px {
+                    let x = f(x);
+                    if !x.is_finite() {
+                        c.non_finite += 1;
+                    } else if x.abs() > limit {
+                        c.beyond += 1;
+                        if x.abs() as f64 > c.extreme.abs() {
+                            c.extreme = x as f64;
+                        }
+                    }
+                }
+            }
+            c
+        }
         match self {
-            Samples::F16(v) => scan(&mut v.iter().map(|x| x.to_f64())),
-            Samples::F32(v) => scan(&mut v.iter().map(|&x| x as f64)),
-            _ => (0, 0.0),
+            // fp16 tops out at 65504: nothing finite lies beyond the limit.
+            Samples::F16(v) => scan(v, bands, mask, |x| if x.is_finite() { 0.0 } else { f32::NAN }, limit),
+            Samples::F32(v) => scan(v, bands, mask, |x| x, limit),
+            _ => ValueCheck::default(),
         }
     }
 
-    pub fn count_non_finite(&self) -> u64 {
+    /// The largest stored value (integer types; 0 for floats).
+    pub fn max_raw(&self) -> f64 {
         match self {
-            Samples::F16(v) => v.iter().filter(|x| !x.is_finite()).count() as u64,
-            Samples::F32(v) => v.iter().filter(|x| !x.is_finite()).count() as u64,
-            _ => 0,
+            Samples::U8(v) => v.iter().copied().max().unwrap_or(0) as f64,
+            Samples::U16(v) => v.iter().copied().max().unwrap_or(0) as f64,
+            Samples::U32(v) => v.iter().copied().max().unwrap_or(0) as f64,
+            _ => 0.0,
         }
     }
+}
+
+/// What [`Samples::value_check`] found.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ValueCheck {
+    pub non_finite: u64,
+    pub beyond: u64,
+    pub extreme: f64,
 }
 
 /// Per-band mapping from stored values to model values: `(raw − black) / scale`.

@@ -291,6 +291,16 @@ mod wkt {
         let mut pos = 0;
         let node = node(&chars, &mut pos)?;
         skip_ws(&chars, &mut pos);
+        // ESRI writes a CRS with heights as two top-level elements, `PROJCS[...],VERTCS[...]`: the vertical part
+        // adds nothing horizontal and is read past.
+        if chars.get(pos) == Some(&',') {
+            let mut at = pos + 1;
+            let vertical = self::node(&chars, &mut at)?;
+            if vertical.keyword.eq_ignore_ascii_case("VERTCS") || vertical.keyword.eq_ignore_ascii_case("VERT_CS") {
+                pos = at;
+                skip_ws(&chars, &mut pos);
+            }
+        }
         if pos != chars.len() {
             return Err(format!("unexpected text after the WKT's closing bracket, at character {pos}"));
         }

@@ -45,8 +45,8 @@ pub enum NerfError {
     NonFinite { step: u64, buffer: String, count: u32, checkpoints: PathBuf },
     /// Every step of a run (fewer than the guard's limit in a row) produced NaN/Inf: nothing was trained.
     #[error(
-        "every one of the run's {steps} steps produced NaN/Inf (first in: {buffer}) and was skipped: nothing was \
-         trained; check the dataset's pixel values and intrinsics"
+        "every one of this session's {steps} steps produced NaN/Inf (first in: {buffer}) and was skipped: \
+         nothing was trained; check the dataset's pixel values and intrinsics"
     )]
     NothingTrained { steps: u64, buffer: String },
 }

@@ -60,7 +60,8 @@ pub fn check_run_dataset(info_path: &Path, info: &serde_json::Value, ds: &crate:
                 info_path,
                 "bands",
                 format!(
-                    "the run trained on bands [{}], the dataset at `data` now has [{}]: not the dataset of this run",
+                    "the run trained on bands [{}], the dataset at `data` now has [{}]: not the dataset of this run \
+                     (resuming a run trained with `--bands`? give the same `--bands` again)",
                     was.join(", "),
                     names.join(", ")
                 ),

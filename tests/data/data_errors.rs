@@ -281,6 +281,17 @@ fn implausibly_large_float_pixels_are_refused() {
     let r = ds.read_frame(f).unwrap();
     let mask = r.mask.as_ref().expect("mask");
     assert_eq!(mask.iter().filter(|&&m| m == 0).count(), 1, "the pixel holding both values is masked, no other");
+    // A nodata pixel under the frame's own mask (`mask_path`, 0 = left out) is not checked: the dataset loads.
+    let mut keep = vec![255u8; 8 * 6];
+    keep[0] = 0;
+    let file = std::fs::File::create(td.path().join("f_mask.tif")).unwrap();
+    tiff::encoder::TiffEncoder::new(file).unwrap().write_image::<tiff::encoder::colortype::Gray8>(8, 6, &keep).unwrap();
+    let tf = td.path().join("transforms.json");
+    let mut j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&tf).unwrap()).unwrap();
+    j["frames"][1]["mask_path"] = json!("f_mask.tif");
+    std::fs::write(&tf, j.to_string()).unwrap();
+    let rep = check_dataset(td.path(), 1 << 20);
+    assert!(rep.is_ok(), "masked nodata is no problem: {rep}");
 }
 
 /// Integer data whose scaling maps it beyond ±1e6 (a pixel_scale of 1e-300): the key is named, per band.

@@ -57,6 +57,13 @@ fn crs_spellings_parse_to_one_crs() {
     projected_4326.replace_range(at.., "AUTHORITY[\"EPSG\",\"4326\"]]");
     let e = Crs::parse(&projected_4326).unwrap_err().to_string();
     assert!(e.contains("describes a projected CRS but its EPSG code 4326 is geographic"), "{e}");
+    // ESRI's .prj form of a CRS with heights: two top-level elements, the second vertical.
+    let esri = format!(
+        "{},VERTCS[\"EGM96_Geoid\",VDATUM[\"EGM96_Geoid\"],UNIT[\"Meter\",1.0]]",
+        gdalsrsinfo("wkt_esri", "EPSG:32650")
+    );
+    let c = Crs::parse(&esri).unwrap_or_else(|e| panic!("{esri}: {e}"));
+    assert_eq!(c.kind, CrsKind::Projected);
     // GDAL's compound CRSs (UTM or geographic + EGM96 height): the kind of their horizontal part.
     for (def, kind) in [("EPSG:32650+5773", CrsKind::Projected), ("EPSG:4326+5773", CrsKind::Geographic)] {
         for fmt in ["wkt1", "wkt2"] {
