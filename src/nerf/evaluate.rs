@@ -40,9 +40,19 @@ pub fn ground_truth_of(
     frame: usize,
 ) -> Result<(SpectralImage, Option<Vec<bool>>), EvalError> {
     let r = ds.read_frame(frame)?;
-    let data: Vec<f32> = (0..r.bands).flat_map(|b| r.band_f32(b)).collect();
+    let mut data: Vec<f32> = (0..r.bands).flat_map(|b| r.band_f32(b)).collect();
+    let mask: Option<Vec<bool>> = r.mask.as_ref().map(|m| m.iter().map(|&v| v != 0).collect());
+    if let Some(m) = &mask {
+        // Masked-out pixels may hold nodata (NaN, -3.4e38: the loader checks only the pixels a mask keeps). The
+        // metrics skip them, but SSIM's window reaches across them: they become 0 so no neighbour's value is lost.
+        let px = m.len();
+        for (i, v) in data.iter_mut().enumerate() {
+            if !m[i % px] {
+                *v = 0.0;
+            }
+        }
+    }
     let img = SpectralImage::from_planar(r.width as usize, r.height as usize, ds.bands.clone(), data)?;
-    let mask = r.mask.as_ref().map(|m| m.iter().map(|&v| v != 0).collect());
     Ok((img, mask))
 }
 

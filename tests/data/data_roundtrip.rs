@@ -298,9 +298,23 @@ fn masks_depth_band_files_and_nan_masking() {
     let mut j = j;
     j["frames"].as_array_mut().unwrap().truncate(1);
     std::fs::write(td.path().join("transforms.json"), j.to_string()).unwrap();
+    // The NaN lies under the frame's mask (pixel 0): not checked, the frame loads. Outside the mask it is an error
+    // naming the file.
+    let ds0 = load_dataset(td.path(), &LoadOptions::default()).unwrap();
+    let r = ds0.read_frame(0).expect("masked NaN");
+    assert_eq!(r.mask.as_ref().unwrap()[0], 0);
+    // Evaluation's ground truth holds 0 there, so SSIM windows that reach across the pixel stay finite.
+    let (gt, mask) = msnerf::nerf::evaluate::ground_truth_of(&ds0, 0).expect("ground truth");
+    assert!(gt.data.iter().all(|v| v.is_finite()) && !mask.expect("mask")[0]);
+    std::fs::rename(td.path().join("m.png"), td.path().join("m-saved.png")).unwrap();
+    let mut j2 = j.clone();
+    j2["frames"][0].as_object_mut().unwrap().remove("mask_path");
+    std::fs::write(td.path().join("transforms.json"), j2.to_string()).unwrap();
     let e = load_dataset(td.path(), &LoadOptions::default()).unwrap().read_frame(0).unwrap_err();
     assert!(matches!(e, msnerf::data::DataError::NonFinite { count: 1, .. }), "{e}");
     assert!(e.to_string().contains("b0.tif"), "{e}");
+    std::fs::rename(td.path().join("m-saved.png"), td.path().join("m.png")).unwrap();
+    std::fs::write(td.path().join("transforms.json"), j.to_string()).unwrap();
     let ds = load_dataset(td.path(), &LoadOptions { mask_non_finite: true, ..Default::default() }).unwrap();
     let r = ds.read_frame(0).unwrap();
     let m = r.mask.as_ref().unwrap();
