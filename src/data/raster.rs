@@ -317,11 +317,16 @@ impl Raster {
         (0..n).map(|p| self.value(p, band)).collect()
     }
 
-    /// Per-band (min, max) of the model values over finite samples; `None` for a band with none.
+    /// Per-band (min, max) of the model values over the finite samples of the pixels the mask keeps; `None` for a
+    /// band with none.
     pub fn band_ranges(&self) -> Vec<Option<(f32, f32)>> {
         let mut r: Vec<Option<(f32, f32)>> = vec![None; self.bands];
         let n = self.width as usize * self.height as usize;
         for p in 0..n {
+            // What the mask leaves out (nodata borders) is not data.
+            if self.mask.as_ref().is_some_and(|m| m[p] == 0) {
+                continue;
+            }
             for (b, slot) in r.iter_mut().enumerate() {
                 let v = self.value(p, b);
                 if v.is_finite() {

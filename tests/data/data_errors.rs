@@ -292,6 +292,8 @@ fn implausibly_large_float_pixels_are_refused() {
     std::fs::write(&tf, j.to_string()).unwrap();
     let rep = check_dataset(td.path(), 1 << 20);
     assert!(rep.is_ok(), "masked nodata is no problem: {rep}");
+    let low = rep.bands[0].min.expect("band 0 range");
+    assert!(low > -1e6, "the reported range leaves the masked nodata out: {low}");
 }
 
 /// Integer data whose scaling maps it beyond ±1e6 (a pixel_scale of 1e-300): the key is named, per band.

@@ -195,7 +195,8 @@ fn novel_views_render_like_the_frames_they_reproduce_and_through_the_cli() {
         (vec!["--views", bad.to_str().expect("utf-8")], "bad_path.json: camera_path[1]: key `camera_to_world` missing"),
         (vec!["--views", "sideways"], "--views sideways: expected eval, train, all, orbit"),
         (vec!["--views", "eval", "--orbit-views", "3"], "need --views orbit"),
-        (vec!["--views", "orbit", "--orbit-views", "0"], "--orbit-views: must be at least 1"),
+        (vec!["--views", "orbit", "--orbit-views", "0"], "--orbit-views: must be 1..=100000, got 0"),
+        (vec!["--views", "orbit", "--orbit-views", "100001"], "--orbit-views: must be 1..=100000, got 100001"),
         (vec!["--views", "orbit", "--orbit-pitch-deg", "-95"], "--orbit-pitch-deg"),
     ] {
         let mut a = vec!["render", r, "--out", o];
