@@ -43,7 +43,7 @@ pub struct PointcloudArgs {
     #[arg(long, default_value_t = 200_000)]
     pub rays: usize,
     /// Keep rays whose accumulation (opacity) is at least this
-    #[arg(long, value_parser = super::finite_f32, default_value_t = 0.5)]
+    #[arg(long, value_parser = super::opacity_f32, default_value_t = 0.5)]
     pub min_accumulation: f32,
     /// Statistical outlier removal: neighbours and standard-deviation ratio (0 neighbours turns it off)
     #[arg(long, default_value_t = 20)]
@@ -116,11 +116,6 @@ impl PointcloudArgs {
                 "--crop needs minx,miny,minz,maxx,maxy,maxz with each min below its max, got {b:?}"
             );
         }
-        anyhow::ensure!(
-            (0.0..=1.0).contains(&self.min_accumulation),
-            "--min-accumulation is an opacity in [0, 1], got {}",
-            self.min_accumulation
-        );
         let (max_spread_cells, consistency) =
             careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
         if let Some(g) = self.gsd {

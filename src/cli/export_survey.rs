@@ -42,7 +42,7 @@ pub struct SurveyArgs {
     #[arg(long, value_parser = super::finite_f64, allow_hyphen_values = true)]
     pub top: Option<f64>,
     /// Minimum accumulation (opacity) of a cell's ray (at least 0.5)
-    #[arg(long, value_parser = super::finite_f32, default_value_t = 0.5)]
+    #[arg(long, value_parser = super::opacity_f32, default_value_t = 0.5)]
     pub min_accumulation: f32,
     /// DSM: nodata where the ray's weights spread over more than this many finest-grid cells (0: off)
     #[arg(long, value_parser = super::finite_f64, default_value_t = 8.0)]
@@ -102,11 +102,6 @@ impl SurveyArgs {
         let (max_spread_cells, consistency) =
             careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
         anyhow::ensure!(self.block_rays > 0, "--block-rays must be > 0");
-        anyhow::ensure!(
-            (0.0..=1.0).contains(&self.min_accumulation),
-            "--min-accumulation is an opacity in [0, 1], got {}",
-            self.min_accumulation
-        );
         if let Some(t) = self.top {
             anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
         }

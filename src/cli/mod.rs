@@ -135,6 +135,16 @@ pub fn finite_f32(s: &str) -> Result<f32, String> {
     }
 }
 
+/// Clap value parser for an opacity threshold (`--min-accumulation`): a number in [0, 1].
+pub fn opacity_f32(s: &str) -> Result<f32, String> {
+    let v = finite_f32(s)?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not an opacity in [0, 1]"))
+    }
+}
+
 /// Clap value parser for a positive real-valued flag (a time or memory budget): finite and above 0.
 pub fn positive_f64(s: &str) -> Result<f64, String> {
     let v = finite_f64(s)?;
@@ -162,5 +172,7 @@ mod tests {
         }
         assert_eq!(finite_f32("0.5"), Ok(0.5));
         assert!(finite_f32("1e39").is_err(), "finite as f64, infinite as f32");
+        assert_eq!(opacity_f32("1"), Ok(1.0));
+        assert!(opacity_f32("2").is_err() && opacity_f32("-0.1").is_err());
     }
 }

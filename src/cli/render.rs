@@ -243,10 +243,10 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
 
 /// Each `--indices` entry has the bands it needs in this run (before anything is rendered or written).
 fn check_index_bands(ds: &crate::data::Dataset, a: &RenderArgs) -> anyhow::Result<()> {
-    let bands = ds.bands.iter().map(|b| crate::output::image::band(&b.name, b.center_nm, b.fwhm_nm)).collect();
-    let probe = crate::output::SpectralImage { width: 0, height: 0, bands, data: Vec::new() };
+    use crate::output::raster::indices::{bands_for_index, DEFAULT_TOLERANCE_NM};
+    let bands: Vec<_> = ds.bands.iter().map(|b| crate::output::image::band(&b.name, b.center_nm, b.fwhm_nm)).collect();
     for name in &a.indices {
-        crate::output::raster::indices::index_bands(&probe, VegetationIndex::parse(name)?, 25.0)
+        bands_for_index(&bands, VegetationIndex::parse(name)?, DEFAULT_TOLERANCE_NM)
             .map_err(|e| anyhow::anyhow!("--indices {name}: {e}"))?;
     }
     Ok(())

@@ -459,8 +459,6 @@ impl Dataset {
         (0..self.frames.len()).filter(|&i| self.frames[i].split == split).collect()
     }
 
-    /// The pose normalisation over all frames (nerfstudio normalises before splitting), as
-    /// `options.normalization` asks; `aerial` on a layout that is not aerial falls back to `poses`, with a warning.
     /// Refuses a dataset whose used cameras all have one centre (a rig import without GPS writes such placeholder
     /// poses until SfM replaces them): normalisation would divide by zero or by rounding noise. Training checks
     /// this; tools that run before SfM (`dataset register`, `sfm`) do not need poses.
@@ -482,6 +480,8 @@ impl Dataset {
         }
     }
 
+    /// The pose normalisation over all frames (nerfstudio normalises before splitting), as
+    /// `options.normalization` asks; `aerial` on a layout that is not aerial falls back to `poses`, with a warning.
     pub fn pose_transform(&self) -> PoseTransform {
         self.transform_cache.get_or_init(|| self.compute_pose_transform()).0
     }

@@ -24,7 +24,7 @@ use serde_json::{Map, Value};
 
 use super::camera::{Camera, CameraModel, Distortion};
 use super::pose::Mat4;
-use super::transforms::{camera_model, rigid_matrix, Ctx, MAX_FOCAL_PER_PIXEL, MIN_FOCAL_PER_PIXEL};
+use super::transforms::{camera_model, implausible_focal, rigid_matrix, Ctx};
 
 /// One band's camera as written (band by name).
 #[derive(Debug, Clone, PartialEq)]
@@ -161,17 +161,9 @@ impl RawRig {
                 return Err((key, format!("band `{}` has two cameras", c.band)));
             }
             let camera = Camera { width, height, ..c.camera };
-            let size = width.max(height) as f64;
-            let (lo, hi) = (size * MIN_FOCAL_PER_PIXEL, size * MAX_FOCAL_PER_PIXEL);
             for (name, f) in [("fl_x", camera.fx), ("fl_y", camera.fy)] {
-                if !(lo..=hi).contains(&f) {
-                    return Err((
-                        format!("rig_cameras.cameras[{i}].{name}"),
-                        format!(
-                            "focal length {f:e} pixels for a {width}x{height} image is implausible: it must lie \
-                             between {MIN_FOCAL_PER_PIXEL} and {MAX_FOCAL_PER_PIXEL:e} times the image's larger side"
-                        ),
-                    ));
+                if let Some(why) = implausible_focal(f, width as f64, height as f64) {
+                    return Err((format!("rig_cameras.cameras[{i}].{name}"), why));
                 }
             }
             out[b] = Some(BandCamera { camera, rig_from_band: c.rig_from_band });

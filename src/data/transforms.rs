@@ -133,6 +133,21 @@ const INTRINSIC_KEYS: [&str; 6] = ["fl_x", "fl_y", "cx", "cy", "w", "h"];
 pub const MIN_FOCAL_PER_PIXEL: f64 = 1e-3;
 pub const MAX_FOCAL_PER_PIXEL: f64 = 1e6;
 
+/// Why a positive focal length `f` (pixels) makes no usable camera for a `width` x `height` image: outside
+/// [`MIN_FOCAL_PER_PIXEL`]..=[`MAX_FOCAL_PER_PIXEL`] times the larger side (rays that overflow, or all parallel: a
+/// unit or typing mistake). `None` when it is plausible.
+pub fn implausible_focal(f: f64, width: f64, height: f64) -> Option<String> {
+    let size = width.max(height);
+    if (size * MIN_FOCAL_PER_PIXEL..=size * MAX_FOCAL_PER_PIXEL).contains(&f) {
+        return None;
+    }
+    let fov = (size / (2.0 * f)).atan().to_degrees() * 2.0;
+    Some(format!(
+        "focal length {f:e} pixels for a {width}x{height} image (field of view {fov:.4}°) is implausible: it must lie \
+         between {MIN_FOCAL_PER_PIXEL} and {MAX_FOCAL_PER_PIXEL:e} times the image's larger side"
+    ))
+}
+
 /// Parses the file at `path` (paths in it are resolved against its folder).
 pub fn parse_transforms(path: &Path) -> Result<RawTransforms, DataError> {
     let root: Value = read_json(path, "transforms.json")?;
@@ -345,20 +360,8 @@ fn parse_frame(
                 value: vals[k],
             });
         } else if vals[k] > 0.0 && vals[4] >= 1.0 && vals[5] >= 1.0 {
-            // Positive but degenerate: a field of view of almost 180° or almost 0° (rays that overflow or that are
-            // all parallel) is a unit or typing mistake.
-            let size = vals[4].max(vals[5]);
-            if !(size * MIN_FOCAL_PER_PIXEL..=size * MAX_FOCAL_PER_PIXEL).contains(&vals[k]) {
-                let fov = (size / (2.0 * vals[k])).atan().to_degrees() * 2.0;
-                cx.invalid(
-                    key,
-                    Some(&fr),
-                    format!(
-                        "focal length {:e} pixels for a {}x{} image (field of view {fov:.4}°) is implausible: it \
-                         must lie between {MIN_FOCAL_PER_PIXEL} and {MAX_FOCAL_PER_PIXEL:e} times the image's larger side",
-                        vals[k], vals[4], vals[5]
-                    ),
-                );
+            if let Some(why) = implausible_focal(vals[k], vals[4], vals[5]) {
+                cx.invalid(key, Some(&fr), why);
             }
         }
     }

@@ -17,7 +17,7 @@ use super::survey::{
 use crate::output::image::{band, band_description};
 use crate::output::raster::cog::{CogOptions, CogPreview, CogWriter};
 use crate::output::raster::hillshade::{hillshade, Sun};
-use crate::output::raster::indices::{index_bands, VegetationIndex, DEFAULT_TOLERANCE_NM};
+use crate::output::raster::indices::{bands_for_index, VegetationIndex, DEFAULT_TOLERANCE_NM};
 use crate::output::raster::preview::{self, Rgb8, Stretch};
 use crate::output::raster::{Colormap, GeoReference, GeoTiffOptions};
 use crate::output::SpectralImage;
@@ -133,13 +133,12 @@ pub fn write_products(
         });
     }
     let bands = source.bands.clone();
-    let probe = SpectralImage { width: 0, height: 0, bands: bands.clone(), data: Vec::new() };
     let mut index_inputs = Vec::new();
     for &ix in &outputs.indices {
         if outputs.ortho.is_none() {
             return Err(SurveyError::Invalid { what: "--indices".into(), reason: "indices need the ortho".into() });
         }
-        index_inputs.push((ix, index_bands(&probe, ix, DEFAULT_TOLERANCE_NM)?));
+        index_inputs.push((ix, bands_for_index(&bands, ix, DEFAULT_TOLERANCE_NM)?));
     }
     let mut opts = opts.clone();
     if outputs.dsm.is_none() {

@@ -282,24 +282,14 @@ fn exif_lens(meta: &FileMeta) -> Option<Lens> {
 /// A lens whose numbers would make a camera of no use (a focal length that is not positive or gives a field of
 /// view of almost 180° or 0°, a principal point that is not a number): refused, naming the file and the tag.
 fn check_lens(l: &Lens, vendor: Vendor, meta: &FileMeta) -> Result<(), RigError> {
-    use crate::data::transforms::{MAX_FOCAL_PER_PIXEL, MIN_FOCAL_PER_PIXEL};
     let tag = match vendor {
         Vendor::Dji => "drone-dji:DewarpData",
         _ if meta.xmp.number(NS_CAMERA, "PerspectiveFocalLength").is_some() => "Camera:PerspectiveFocalLength",
         _ => "FocalLength (EXIF)",
     };
-    let size = meta.width.max(meta.height) as f64;
     for f in [l.fx, l.fy] {
-        if !(size * MIN_FOCAL_PER_PIXEL..=size * MAX_FOCAL_PER_PIXEL).contains(&f) {
-            return Err(RigError::bad(
-                &meta.path,
-                tag,
-                format!(
-                    "focal length {f:e} pixels for a {}x{} image is implausible (it must lie between \
-                     {MIN_FOCAL_PER_PIXEL} and {MAX_FOCAL_PER_PIXEL:e} times the image's larger side)",
-                    meta.width, meta.height
-                ),
-            ));
+        if let Some(why) = crate::data::transforms::implausible_focal(f, meta.width as f64, meta.height as f64) {
+            return Err(RigError::bad(&meta.path, tag, why));
         }
     }
     let all = [l.cx, l.cy, l.k1, l.k2, l.k3, l.p1, l.p2];

@@ -111,7 +111,7 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
     band_names.sort_by(|a, b| a.1.total_cmp(&b.1));
     let band_names: Vec<String> = band_names.into_iter().map(|b| b.0).collect();
     let readable_suffixes: std::collections::BTreeSet<String> =
-        groups.values().flatten().filter_map(|b| band_file_suffix(&b.meta.path)).collect();
+        groups.values().flatten().filter_map(|b| band_file_parts(&b.meta.path).map(|(_, s)| s)).collect();
     let mut captures = Vec::new();
     for (key, mut files) in groups {
         files.sort_by(|a, b| a.center_nm.total_cmp(&b.center_nm));
@@ -126,11 +126,11 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
         // takes the capture with it, where the same band suffix reads in another capture (the panel's, say): the
         // band belongs to the rig, so the capture is incomplete. A suffix that never reads (a band msnerf does not
         // take, such as a thermal one) leaves the captures alone.
-        let prefixes: Vec<_> = files.iter().filter_map(|b| band_file_prefix(&b.meta.path)).collect();
-        let rig_band = |u: &Path| band_file_suffix(u).is_some_and(|s| readable_suffixes.contains(&s));
-        if let Some(u) =
-            unreadable.iter().find(|u| rig_band(u) && band_file_prefix(u).is_some_and(|p| prefixes.contains(&p)))
-        {
+        let captures_of: Vec<_> = files.iter().filter_map(|b| band_file_parts(&b.meta.path).map(|(c, _)| c)).collect();
+        let of_this_capture = |u: &Path| {
+            band_file_parts(u).is_some_and(|(c, s)| captures_of.contains(&c) && readable_suffixes.contains(&s))
+        };
+        if let Some(u) = unreadable.iter().find(|u| of_this_capture(u)) {
             let reason = format!("its band file {} could not be read", u.display());
             skipped.push(Skipped { capture: Some(key.clone()), what, reason });
             continue;
@@ -167,18 +167,13 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
     Ok(Scan { captures, band_names, skipped })
 }
 
-/// A band file's band suffix (`IMG_0001_3.tif` -> `3`), as [`band_file_prefix`] splits it.
-fn band_file_suffix(p: &Path) -> Option<String> {
-    band_file_prefix(p)?;
-    Some(p.file_stem()?.to_str()?.rsplit_once('_')?.1.to_owned())
-}
-
-/// A band file's folder and name without its band suffix (`IMG_0001_3.tif` -> `IMG_0001`): the suffix is the last
-/// `_` part of the stem, one to three letters or digits, as MicaSense (`_3`) and Parrot Sequoia (`_NIR`) name
-/// their band files.
-fn band_file_prefix(p: &Path) -> Option<(PathBuf, String)> {
+/// A band file's capture (its folder and name without the band suffix) and its band suffix: `IMG_0001_3.tif` ->
+/// ((folder, `IMG_0001`), `3`). The suffix is the last `_` part of the stem, one to three letters or digits, as
+/// MicaSense (`_3`) and Parrot Sequoia (`_NIR`) name their band files.
+fn band_file_parts(p: &Path) -> Option<((PathBuf, String), String)> {
     let stem = p.file_stem()?.to_str()?;
     let (prefix, suffix) = stem.rsplit_once('_')?;
     let band_like = (1..=3).contains(&suffix.len()) && suffix.chars().all(|c| c.is_ascii_alphanumeric());
-    (band_like && !prefix.is_empty()).then(|| (p.parent().unwrap_or(Path::new("")).to_path_buf(), prefix.to_owned()))
+    let folder = p.parent().unwrap_or(Path::new("")).to_path_buf();
+    (band_like && !prefix.is_empty()).then(|| ((folder, prefix.to_owned()), suffix.to_owned()))
 }

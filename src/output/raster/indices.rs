@@ -23,6 +23,7 @@ use std::path::Path;
 
 use super::geotiff::{write_geotiff, GeoReference, GeoTiffOptions};
 use crate::output::image::{band, nearest_band};
+use crate::output::Band;
 use crate::output::{OutputError, Result, SpectralImage};
 
 pub const DEFAULT_TOLERANCE_NM: f64 = 25.0;
@@ -127,14 +128,16 @@ impl VegetationIndex {
     }
 }
 
-/// The band index for each input of `index` (errors name the index and the wavelength).
+/// The band index for each input of `index` in `img` (errors name the index and the wavelength).
 pub fn index_bands(img: &SpectralImage, index: VegetationIndex, tol_nm: f64) -> Result<Vec<usize>> {
+    bands_for_index(&img.bands, index, tol_nm)
+}
+
+/// [`index_bands`] from a band list alone (flags are checked before anything is rendered).
+pub fn bands_for_index(bands: &[Band], index: VegetationIndex, tol_nm: f64) -> Result<Vec<usize>> {
     let what = format!("index {}", index.name());
-    let idx = index
-        .wavelengths()
-        .iter()
-        .map(|&nm| nearest_band(&img.bands, nm, tol_nm, &what))
-        .collect::<Result<Vec<usize>>>()?;
+    let idx =
+        index.wavelengths().iter().map(|&nm| nearest_band(bands, nm, tol_nm, &what)).collect::<Result<Vec<usize>>>()?;
     for i in 0..idx.len() {
         for j in i + 1..idx.len() {
             if idx[i] == idx[j] {
@@ -145,7 +148,7 @@ pub fn index_bands(img: &SpectralImage, index: VegetationIndex, tol_nm: f64) -> 
                         index.wavelengths()[i],
                         index.wavelengths()[j],
                         idx[i],
-                        img.bands[idx[i]].name
+                        bands[idx[i]].name
                     ),
                 ));
             }
