@@ -50,10 +50,56 @@ pub struct SimulateArgs {
     /// Shortest track of a simulated SfM point (views that see it)
     #[arg(long, default_value_t = 3)]
     pub sparse_min_views: usize,
+    /// Write the flight as this camera's card holds it (raw single-band TIFFs with the maker's EXIF and XMP, a
+    /// calibration-panel capture, GPS with noise), the truth beside it; --width/--height resize its sensor
+    #[arg(long, value_enum)]
+    pub raw_rig: Option<crate::sim::sensor::SensorKind>,
+    /// Raw rig: GPS noise per fix, metres (horizontal per axis, vertical)
+    #[arg(long, value_delimiter = ',', num_args = 2, value_parser = super::finite_f64, default_values_t = crate::sim::sensor::flight::DEFAULT_GPS_NOISE_M)]
+    pub gps_noise: Vec<f64>,
+    /// Raw rig: the flight's constant GPS datum shift, metres (east, north, up)
+    #[arg(long, value_delimiter = ',', num_args = 3, value_parser = super::finite_f64, default_values_t = crate::sim::sensor::flight::DEFAULT_GPS_SHIFT_M, allow_negative_numbers = true)]
+    pub gps_shift: Vec<f64>,
+    /// Raw rig: UTC time of the first capture (YYYY:MM:DD HH:MM:SS)
+    #[arg(long, default_value = crate::sim::sensor::flight::DEFAULT_START)]
+    pub start_time: String,
+    /// Raw rig: seconds between captures
+    #[arg(long, value_parser = super::positive_f64, default_value_t = 2.0)]
+    pub capture_interval: f64,
+    /// Raw rig: the firmware version the files carry (default: the camera's current one)
+    #[arg(long)]
+    pub firmware: Option<String>,
+    /// Raw rig: a second calibration-panel capture after the flight
+    #[arg(long)]
+    pub panel_after: bool,
 }
 
 pub fn run(_cli: &Cli, a: &SimulateArgs) -> anyhow::Result<()> {
     let scene = SceneDesc::load(&a.scene)?;
+    if let Some(sensor) = a.raw_rig {
+        anyhow::ensure!(
+            a.sparse_points == 0 && !a.band_files && a.format == PixelFormat::F32,
+            "--raw-rig writes the camera's own files: --sparse-points, --band-files and --format do not apply"
+        );
+        let opts = crate::sim::sensor::RawRigOptions {
+            sensor,
+            width: a.width,
+            height: a.height,
+            views: a.views,
+            seed: a.seed,
+            threads: a.threads,
+            overwrite: a.overwrite,
+            gps_noise_m: [a.gps_noise[0], a.gps_noise[1]],
+            gps_shift_m: [a.gps_shift[0], a.gps_shift[1], a.gps_shift[2]],
+            start: a.start_time.clone(),
+            interval_s: a.capture_interval,
+            firmware: a.firmware.clone(),
+            panel_after: a.panel_after,
+            points: a.points,
+        };
+        println!("{}", crate::sim::sensor::simulate_raw_rig(&scene, &opts, &a.out)?);
+        return Ok(());
+    }
     let opts = SimOptions {
         width: a.width,
         height: a.height,

@@ -56,6 +56,15 @@ impl Projector {
         finite(self, [p.0, p.1, p.2])
     }
 
+    /// The WGS84 latitude, longitude (degrees) and height of a projected position (the inverse of
+    /// [`Projector::from_geodetic`]).
+    pub fn to_geodetic(&self, p: [f64; 3]) -> Result<[f64; 3], CrsError> {
+        let mut q = (p[0], p[1], p[2]);
+        proj4rs::transform::transform(&self.target, &self.geodetic, &mut q)
+            .map_err(|e| self.fail(format!("easting {}, northing {}", p[0], p[1]), e))?;
+        finite(self, [q.1.to_degrees(), q.0.to_degrees(), q.2])
+    }
+
     /// Easting, northing, ellipsoidal height of an ECEF position (EPSG:4978 metres).
     pub fn from_ecef(&self, xyz: [f64; 3]) -> Result<[f64; 3], CrsError> {
         let mut p = (xyz[0], xyz[1], xyz[2]);

@@ -7,7 +7,7 @@
 //!   gain = ISO / 100, vignetting `Camera:VignettingCenter` + `VignettingPolynomial` dividing the signal,
 //!   intrinsics `Camera:PerspectiveFocalLength` (px, or mm when `PerspectiveFocalLengthUnits` says so or the
 //!   value is below 100) and `PrincipalPoint` (mm, times the focal-plane resolution), `PerspectiveDistortion`
-//!   (k1, k2, k3, p1, p2); irradiance `Camera:HorizontalIrradiance` (DLS2) or `Camera:Irradiance` (DLS1).
+//!   (k1, k2, k3, p1, p2); the light sensor's tags are read by [`super::dls`].
 //! - **DJI** P4 Multispectral / Mavic 3M (`drone-dji:` attributes): `CaptureUUID`, exposure `ExposureTime` in
 //!   microseconds, gain `SensorGain`, `SensorGainAdjustment` multiplying, vignetting `VignettingData` (k0..k5)
 //!   about `CalibratedOpticalCenterX/Y` *multiplying* the signal, intrinsics from `DewarpData`
@@ -92,8 +92,7 @@ pub struct BandFile {
     pub rig_translations: Option<[f64; 3]>,
     /// DJI: optical-centre offset to the reference band in pixels.
     pub relative_center: Option<[f64; 2]>,
-    /// Horizontal irradiance (DLS2 `HorizontalIrradiance` / DJI `Irradiance`) in the units the vendor writes. DLS1's
-    /// `Camera:Irradiance` is the sensor's spectral irradiance, not the horizontal one; it is not used.
+    /// DJI's sun-sensor `Irradiance` (its own units). MicaSense's light sensor is read by [`super::dls`].
     pub irradiance: Option<f64>,
 }
 
@@ -245,7 +244,7 @@ pub fn interpret(meta: FileMeta) -> Result<BandFile, RigError> {
     };
     let irradiance = match vendor {
         Vendor::Dji => x.number(NS_DJI, "Irradiance"),
-        _ => x.number(NS_CAMERA, "HorizontalIrradiance").filter(|v| *v > 0.0),
+        _ => None,
     };
     Ok(BandFile {
         vendor,

@@ -1,7 +1,8 @@
 //! Irradiance per band, the denominator of reflectance `rho = pi * L / E`:
 //! - from calibration-panel captures: the panel found in each band (or given as corners), saturated pixels
 //!   counted and excluded, `E = pi * mean(L_panel) / rho_panel`, averaged over the panel captures;
-//! - from the downwelling light sensor: DLS2 `Camera:HorizontalIrradiance` or DJI's `Irradiance`, per capture.
+//! - from the downwelling light sensor, per capture: DLS2 (`DLS:`/`Camera:` horizontal, direct and scattered
+//!   irradiance with MicaSense's scale and firmware rules), DLS1 (sun-angle corrected), or DJI's `Irradiance`.
 //!
 //! The panel report ([`PanelReport`]) keeps, per panel capture and band, the region, its radiance, the
 //! irradiance and the reflectance the panel gets back once calibrated (the check a user reads first).
@@ -106,24 +107,35 @@ pub fn calibrate_panels(
     Ok(PanelReport { captures, irradiance })
 }
 
-/// DLS irradiance per band of one capture: DLS2 horizontal irradiance, DJI `Irradiance`, or DLS1 spectral irradiance
-/// corrected for the sun's angle ([`super::dls`]).
+/// DLS irradiance per band of one capture (W/(m^2 nm) for MicaSense; DJI's own units): DJI's `Irradiance`, the DLS2
+/// horizontal irradiance, or the DLS1 spectral irradiance corrected for the sun's angle ([`super::dls`]).
 pub fn dls_irradiance(cap: &Capture) -> Result<Vec<f64>, RigError> {
-    cap.bands
-        .iter()
-        .map(|b| {
-            if let Some(e) = b.irradiance.filter(|e| *e > 0.0 && e.is_finite()) {
-                return Ok(e);
-            }
-            if b.meta.xmp.number("pix4d.com", "Irradiance").is_some() {
-                // DLS1: the spectral irradiance at the tilted sensor, corrected for the sun's angle.
-                return super::dls::dls1(b).map(|d| d.horizontal);
-            }
-            Err(RigError::missing(
+    cap.bands.iter().map(|b| band_dls(b).map(|(e, _)| e)).collect()
+}
+
+/// One band's light-sensor irradiance and where it came from (for the import report).
+pub fn band_dls(b: &super::calib::BandFile) -> Result<(f64, String), RigError> {
+    if b.vendor == super::calib::Vendor::Dji {
+        return match b.irradiance.filter(|e| *e > 0.0 && e.is_finite()) {
+            Some(e) => Ok((e, "drone-dji:Irradiance (the sun sensor's units)".into())),
+            None => Err(RigError::missing(
                 &b.meta.path,
-                "Camera:HorizontalIrradiance / drone-dji:Irradiance",
-                "--irradiance dls needs the light sensor's irradiance (use --panel otherwise)",
-            ))
-        })
-        .collect()
+                "drone-dji:Irradiance",
+                "--irradiance dls needs the sun sensor's irradiance (use --panel otherwise)",
+            )),
+        };
+    }
+    if let Some(d) = super::dls::dls2(b)? {
+        return Ok((d.horizontal, format!("DLS2 {} x {} ({})", d.source, d.scale, d.scale_source)));
+    }
+    let x = &b.meta.xmp;
+    if x.number("pix4d.com", "Irradiance").is_some() || x.number("micasense.com/DLS", "SpectralIrradiance").is_some() {
+        // DLS1: the spectral irradiance at the tilted sensor, corrected for the sun's angle.
+        return super::dls::dls1(b).map(|d| (d.horizontal, "DLS1 spectral irradiance, sun-angle corrected".into()));
+    }
+    Err(RigError::missing(
+        &b.meta.path,
+        "DLS:HorizontalIrradiance / Camera:Irradiance / drone-dji:Irradiance",
+        "--irradiance dls needs the light sensor's irradiance (use --panel otherwise)",
+    ))
 }

@@ -1,3 +1,17 @@
+//! The downwelling light sensors of MicaSense cameras, read as MicaSense's own library reads them
+//! (micasense/imageprocessing `metadata.py`, `image.py`):
+//!
+//! - **Scale** (`irradiance_scale_factor`): tag values times `Camera:IrradianceScaleToSIUnits` are W/(m^2 nm); a
+//!   file with a `HorizontalIrradiance` tag but no scale is a DLS2 file from firmware that left it out, scale 0.01;
+//!   otherwise (DLS1) 1.
+//! - **DLS2** ([`dls2`]): where the direct and scattered irradiance are both non-zero, the horizontal irradiance is
+//!   the `HorizontalIrradiance` tag when the firmware computed it right (`horizontal_irradiance_valid`: RedEdge and
+//!   RedEdge-M from 5.1.7, Altum from 1.2.3, RedEdge-P and Altum-PT always), else `direct sin(el) + scattered` with
+//!   the sun's elevation computed from the capture's time and place (`compute_horizontal_irradiance_dls2`). The
+//!   tags are read from both namespaces real files use, `DLS:` (micasense.com/DLS) and `Camera:` (Pix4D), as
+//!   MicaSense's library (through exiftool's flat `XMP:` names) and OpenDroneMap do.
+//! - **DLS1** ([`dls1`]): the spectral irradiance corrected for the sun's angle, below.
+//!
 //! DLS1 (MicaSense's first downwelling light sensor, RedEdge firmware 2.x): its `Camera:Irradiance` is the spectral
 //! irradiance on the tilted sensor, not the horizontal irradiance reflectance needs. MicaSense's library turns it
 //! into horizontal irradiance with the sun's position (micasense/imageprocessing `dls.py`, `image.py`); this is
@@ -177,14 +191,121 @@ pub struct Dls1 {
     pub horizontal: f64,
 }
 
+/// A light-sensor tag from either namespace real files use (`DLS:` first, then Pix4D's `Camera:`).
+fn dls_tag(b: &BandFile, tag: &str) -> Option<f64> {
+    b.meta.xmp.number(NS_DLS, tag).or_else(|| b.meta.xmp.number(NS_CAMERA, tag))
+}
+
+/// Tag units -> W/(m^2 nm) (MicaSense `irradiance_scale_factor`) and where the factor came from.
+pub fn irradiance_scale(b: &BandFile) -> Result<(f64, &'static str), RigError> {
+    if let Some(v) = dls_tag(b, "IrradianceScaleToSIUnits") {
+        if !(v > 0.0 && v.is_finite()) {
+            return Err(RigError::bad(
+                &b.meta.path,
+                "Camera:IrradianceScaleToSIUnits",
+                format!("{v}: not a positive scale"),
+            ));
+        }
+        return Ok((v, "Camera:IrradianceScaleToSIUnits"));
+    }
+    if dls_tag(b, "HorizontalIrradiance").is_some() {
+        return Ok((
+            0.01,
+            "0.01, assumed for DLS2 files without Camera:IrradianceScaleToSIUnits (as MicaSense's library does)",
+        ));
+    }
+    Ok((1.0, "1 (DLS1)"))
+}
+
+/// Whether the firmware of `model` at version `software` (EXIF Software, `v5.1.7`) wrote a trustworthy
+/// `HorizontalIrradiance` (MicaSense `horizontal_irradiance_valid`). Unknown versions of the models with the known
+/// bug are not trusted (the direct and scattered irradiance give the value either way).
+pub fn horizontal_irradiance_valid(model: Option<&str>, software: Option<&str>) -> bool {
+    let good = match model {
+        Some("RedEdge") | Some("RedEdge-M") => [5, 1, 7],
+        Some("Altum") => [1, 2, 3],
+        _ => return true,
+    };
+    let Some(v) = software else { return false };
+    let parts: Vec<Option<u64>> =
+        v.trim().trim_start_matches(['v', 'V']).split('.').map(|p| p.trim().parse().ok()).collect();
+    if parts.is_empty() || parts.iter().any(Option::is_none) {
+        return false;
+    }
+    let n: Vec<u64> = parts.into_iter().flatten().collect();
+    [0, 1, 2].map(|i| n.get(i).copied().unwrap_or(0)) >= good
+}
+
+/// What a DLS2 band file gave.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Dls2 {
+    /// W/(m^2 nm).
+    pub horizontal: f64,
+    pub direct: f64,
+    pub scattered: f64,
+    pub scale: f64,
+    pub scale_source: &'static str,
+    /// "HorizontalIrradiance", or how it was recomputed.
+    pub source: String,
+}
+
+/// Horizontal irradiance of a DLS2 file (module doc); `None` when the file carries no DLS2 irradiance (no
+/// non-zero direct and scattered irradiance, and no trusted horizontal one).
+pub fn dls2(b: &BandFile) -> Result<Option<Dls2>, RigError> {
+    let m = &b.meta;
+    let (scale, scale_source) = irradiance_scale(b)?;
+    let horizontal = dls_tag(b, "HorizontalIrradiance");
+    let direct = dls_tag(b, "DirectIrradiance").unwrap_or(0.0);
+    let scattered = dls_tag(b, "ScatteredIrradiance").unwrap_or(0.0);
+    let valid = horizontal.is_some() && horizontal_irradiance_valid(m.model.as_deref(), m.software.as_deref());
+    let out = |h: f64, source: String| Dls2 {
+        horizontal: h,
+        direct: direct * scale,
+        scattered: scattered * scale,
+        scale,
+        scale_source,
+        source,
+    };
+    if direct != 0.0 && scattered != 0.0 {
+        if let (true, Some(h)) = (valid, horizontal) {
+            return Ok(Some(out(h * scale, "DLS:HorizontalIrradiance".into())));
+        }
+        // The firmware's horizontal value is not trusted: direct and scattered with the sun's elevation.
+        let why = "the firmware's HorizontalIrradiance is not trusted, and recomputing it from the direct and \
+                   scattered irradiance needs the sun's elevation (or give --panel)";
+        let gps = m.gps.ok_or_else(|| RigError::missing(&m.path, "GPSLatitude / GPSLongitude", why))?;
+        let dt = m.datetime.as_deref().ok_or_else(|| RigError::missing(&m.path, "DateTimeOriginal", why))?;
+        let t = UtcTime::from_exif(dt)
+            .ok_or_else(|| RigError::bad(&m.path, "DateTimeOriginal", format!("`{dt}` is not YYYY:MM:DD HH:MM:SS")))?;
+        let (el, _) = solar_position(gps.latitude, gps.longitude, &t);
+        let h = (direct * el.sin() + scattered) * scale;
+        let firmware = m.software.as_deref().unwrap_or("unknown");
+        return Ok(Some(out(
+            h,
+            format!(
+                "DirectIrradiance sin(el) + ScatteredIrradiance, el = {:.2} deg from the time and place (firmware {firmware} of the {} predates a trustworthy HorizontalIrradiance)",
+                el.to_degrees(),
+                m.model.as_deref().unwrap_or("camera")
+            ),
+        )));
+    }
+    match (valid, horizontal) {
+        (true, Some(h)) if h > 0.0 => Ok(Some(out(h * scale, "HorizontalIrradiance".into()))),
+        _ => Ok(None),
+    }
+}
+
 /// Horizontal irradiance from a DLS1 band file (errors name the file and the missing tag).
 pub fn dls1(b: &BandFile) -> Result<Dls1, RigError> {
     let m = &b.meta;
     let x = &m.xmp;
     let why = "the DLS1 sun-angle correction needs it (or give --panel)";
+    let (scale, _) = irradiance_scale(b)?;
     let spectral = x
         .number(NS_CAMERA, "Irradiance")
+        .or_else(|| x.number(NS_DLS, "SpectralIrradiance"))
         .filter(|v| *v > 0.0)
+        .map(|v| v * scale)
         .ok_or_else(|| RigError::missing(&m.path, "Camera:Irradiance", why))?;
     let angle = |tag: &str| x.number(NS_DLS, tag).ok_or_else(|| RigError::missing(&m.path, &format!("DLS:{tag}"), why));
     let (yaw, pitch, roll) = (angle("Yaw")?, angle("Pitch")?, angle("Roll")?);

@@ -30,6 +30,8 @@ pub struct FileMeta {
     pub samples_per_pixel: u32,
     pub make: Option<String>,
     pub model: Option<String>,
+    /// EXIF Software: the camera's firmware version.
+    pub software: Option<String>,
     pub exposure_s: Option<f64>,
     pub iso: Option<f64>,
     pub black_level: Option<Vec<f64>>,
@@ -165,6 +167,7 @@ pub fn read_meta(path: &Path) -> Result<FileMeta, RigError> {
         samples_per_pixel,
         make: ascii(&exif, Tag::Make),
         model: ascii(&exif, Tag::Model),
+        software: ascii(&exif, Tag::Software),
         exposure_s: num(&exif, Tag::ExposureTime),
         iso,
         black_level,

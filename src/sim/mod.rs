@@ -9,6 +9,7 @@
 //!   misregistration, vignetting, exposure drift, noise with quantisation). Absent effects run no code.
 //! - [`render`]: one ray per pixel, f64, deterministic for a seed at any thread count.
 //! - [`sparse`]: simulated SfM points with their tracks (`--sparse-points`), for depth supervision.
+//! - [`sensor`]: the camera in the simulator (`--raw-rig`): the flight as raw single-band files with the maker's tags.
 //! - [`writer`]: TIFF/PLY/JSON files and the staging folder that makes writing atomic.
 //!
 //! Frames: the scene is described and rendered in a local frame (metres, x east, y north, z up, ground z = 0);
@@ -28,6 +29,7 @@ pub mod geometry;
 pub mod output;
 pub mod render;
 pub mod scene;
+pub mod sensor;
 pub mod sparse;
 pub mod spectra;
 pub mod texture;

@@ -14,6 +14,10 @@ use super::cameras::Mat4;
 use super::effects::{self, EffectsDesc};
 use super::geometry::{Hit, HitKind, World, SHADOW_EPS, V3};
 
+/// The light of a scene as [`Prepared::shade`] takes it: the sun (unit direction, sky fraction) and the
+/// vegetation BRDF, each `None` when its effect is off.
+pub type LightModel<'a> = (Option<(V3, f64)>, Option<&'a effects::BrdfDesc>);
+
 /// A material with its band values.
 #[derive(Debug, Clone)]
 pub struct Material {
@@ -108,8 +112,7 @@ impl Prepared {
         let k: Intrinsics<f64> = self.camera.intrinsics();
         let c2w = self.poses[vi];
         let rows = [c2w[0], c2w[1], c2w[2]];
-        let sun = self.effects.sun.as_ref().map(|s| (effects::sun_direction(s), s.sky_fraction));
-        let brdf = self.effects.vegetation_brdf.as_ref();
+        let (sun, brdf) = self.light_model();
         let gains: Option<Vec<f64>> =
             self.effects.exposure_drift.as_ref().map(|_| (0..nb).map(|b| self.gain(vi, b)).collect());
         let noise = self.effects.noise.as_ref();
@@ -135,7 +138,7 @@ impl Prepared {
                     for (i, row) in rows.iter().enumerate() {
                         ray.origin[i] += (0..3).map(|j| row[j] * tr.offset[j]).sum::<f64>();
                     }
-                    let hit = self.world.trace(ray.origin, ray.direction);
+                    let (hit, light) = self.shade(ray.origin, ray.direction, sun, brdf);
                     if ti == 0 {
                         depth[p] = hit.t as f32;
                         if hit.kind != HitKind::Horizon && (p + pt_phase) % self.point_stride == 0 {
@@ -143,12 +146,7 @@ impl Prepared {
                             points.push((q, hit.material));
                         }
                     }
-                    let mut light = self.light(&hit, ray.origin, ray.direction, sun, brdf);
                     let m = &self.materials[hit.material];
-                    if let Some(tex) = &m.texture {
-                        let q = [0, 1, 2].map(|i| ray.origin[i] + hit.t * ray.direction[i]);
-                        light *= tex.factor(self.seed, hit.material, q);
-                    }
                     for ((bv, &bt), r) in band_val.iter_mut().zip(&self.band_transform).zip(&m.refl) {
                         if bt == ti {
                             *bv = r * light;
@@ -187,6 +185,27 @@ impl Prepared {
             }
         }
         ViewImage { values, dn, depth, points, registered }
+    }
+
+    /// The sun (direction, sky fraction) and the vegetation BRDF of the active effects, for [`Prepared::shade`].
+    pub fn light_model(&self) -> LightModel<'_> {
+        (
+            self.effects.sun.as_ref().map(|s| (effects::sun_direction(s), s.sky_fraction)),
+            self.effects.vegetation_brdf.as_ref(),
+        )
+    }
+
+    /// Traces one ray (local frame, unit direction) and returns what it hit with the band-independent factor of
+    /// its value: the light L (see `effects`) times the material's albedo texture at the hit. A band's value is
+    /// the material's band reflectance times this factor.
+    pub fn shade(&self, o: V3, d: V3, sun: Option<(V3, f64)>, brdf: Option<&effects::BrdfDesc>) -> (Hit, f64) {
+        let hit = self.world.trace(o, d);
+        let mut light = self.light(&hit, o, d, sun, brdf);
+        if let Some(tex) = &self.materials[hit.material].texture {
+            let q = [0, 1, 2].map(|i| o[i] + hit.t * d[i]);
+            light *= tex.factor(self.seed, hit.material, q);
+        }
+        (hit, light)
     }
 
     /// The band-independent light factor L at a hit (see `effects`).
