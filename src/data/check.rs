@@ -104,6 +104,8 @@ pub struct CheckReport {
     /// With `rig_cameras`: per band, its camera's distance from the frame camera (world units) and its rotation
     /// from it (degrees).
     pub rig_cameras: Option<Vec<(String, f64, f64)>>,
+    /// Named concerns that do not stop training (registration residuals above a pixel, GPS pose priors).
+    pub warnings: Vec<String>,
     /// Every problem found, one line each.
     pub errors: Vec<String>,
     #[serde(skip)]
@@ -154,6 +156,7 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
         dropped_outliers: vec![],
         applied_transform_undone: false,
         crs: None,
+        warnings: vec![],
         errors: vec![],
         problems: vec![],
     };
@@ -214,9 +217,20 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
         });
     }
     let mut ranges: Vec<Option<(f32, f32)>> = vec![None; ds.n_bands()];
+    // Per frame and band, the median and 99th percentile of a strided sample of unmasked pixels.
+    let mut quantiles: Vec<Vec<[f32; 2]>> = vec![Vec::new(); ds.n_bands()];
     for i in 0..ds.frames.len() {
         match ds.read_frame(i) {
             Ok(r) => {
+                for (b, q) in quantiles.iter_mut().enumerate() {
+                    let (w, h) = (ds.width, ds.height);
+                    let sample = (0..w * h)
+                        .step_by(7)
+                        .map(|p| (p / w, p % w))
+                        .filter(|&(row, col)| r.mask_at(row, col) > 0)
+                        .map(|(row, col)| r.get(row, col, b));
+                    q.push(crate::rig::flight_checks::quantiles(sample));
+                }
                 for (b, rr) in r.band_ranges().into_iter().enumerate() {
                     if let Some((l, h)) = rr {
                         ranges[b] = Some(match ranges[b] {
@@ -232,6 +246,7 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
             rep.push(e);
         }
     }
+    flight_checks(&mut rep, &ds, &quantiles);
     rep.bands = ds
         .bands
         .iter()
@@ -245,6 +260,54 @@ pub fn check_dataset_with(dir: &Path, budget_bytes: u64, options: &LoadOptions) 
         })
         .collect();
     rep
+}
+
+/// Checks over the whole flight: reflectance that is implausible for its units (a problem), cameras that all
+/// sit at one point (a problem: the dataset is not posed), registration residuals above a pixel (warnings).
+fn flight_checks(rep: &mut CheckReport, ds: &super::loader::Dataset, quantiles: &[Vec<[f32; 2]>]) {
+    use crate::rig::flight_checks::{flight_quantiles, reflectance_problem, RESIDUAL_LIMIT_PX};
+    let problem = |key: &str, reason: String| DataError::InvalidValue {
+        path: ds.transforms_path.clone(),
+        key: key.into(),
+        frame: None,
+        reason,
+    };
+    if rep.import.as_ref().is_some_and(|im| im.units == "reflectance") {
+        for (b, q) in ds.bands.iter().zip(quantiles) {
+            if let Some(msg) = flight_quantiles(q).and_then(|(m, p)| reflectance_problem(&b.name, m, p)) {
+                rep.push(problem("units", msg));
+            }
+        }
+    }
+    if ds.frames.len() > 1 {
+        let c0 = ds.frames[0].c2w;
+        let spread = ds
+            .frames
+            .iter()
+            .map(|f| (0..3).map(|i| (f.c2w[i][3] - c0[i][3]).abs()).fold(0.0, f64::max))
+            .fold(0.0, f64::max);
+        if spread == 0.0 {
+            rep.push(problem(
+                "frames[].transform_matrix",
+                format!(
+                    "all {} cameras sit at one point: the dataset is not posed (no GPS in the files?); run `msnerf \
+                     sfm` or `msnerf import poses`",
+                    ds.frames.len()
+                ),
+            ));
+        }
+    }
+    if let Some(im) = &rep.import {
+        let bands: Vec<String> = im.calibration.iter().map(|c| c.0.clone()).collect();
+        for (band, r) in bands.iter().zip(&im.max_residual_px) {
+            if let Some(r) = r.filter(|r| *r > RESIDUAL_LIMIT_PX) {
+                rep.warnings.push(format!(
+                    "band {band}: registration residual up to {r:.2} px (above {RESIDUAL_LIMIT_PX} px: not aligned with \
+                     the reference everywhere)"
+                ));
+            }
+        }
+    }
 }
 
 fn gib(b: u64) -> String {
@@ -323,8 +386,11 @@ impl fmt::Display for CheckReport {
             )?,
             None => writeln!(f, "  cache budget {}: no plan", gib(self.cache_budget_bytes))?,
         }
+        for w in &self.warnings {
+            writeln!(f, "  warning: {w}")?;
+        }
         if self.errors.is_empty() {
-            writeln!(f, "  OK")
+            writeln!(f, "  OK{}", if self.warnings.is_empty() { "" } else { " (with the warnings above)" })
         } else {
             writeln!(f, "  {} problem(s):", self.errors.len())?;
             for e in &self.errors {

@@ -96,6 +96,9 @@ pub struct BandFile {
     pub irradiance: Option<f64>,
 }
 
+/// Bands centred above this (nm) are thermal (MicaSense Altum's LWIR at 11000 nm): not reflectance.
+pub const THERMAL_FROM_NM: f64 = 2500.0;
+
 fn need<T>(v: Option<T>, m: &FileMeta, tag: &str, why: &str) -> Result<T, RigError> {
     v.ok_or_else(|| RigError::missing(&m.path, tag, why))
 }
@@ -145,6 +148,9 @@ pub fn interpret(meta: FileMeta) -> Result<BandFile, RigError> {
     let center_nm = x.number(NS_CAMERA, "CentralWavelength").or(dji_freq.map(|f| f.0));
     let center_nm = need(center_nm, &meta, "Camera:CentralWavelength", "bands are ordered by wavelength")?;
     let fwhm_nm = x.number(NS_CAMERA, "WavelengthFWHM").or(dji_freq.and_then(|f| f.1));
+    if center_nm > THERMAL_FROM_NM {
+        return Err(RigError::Thermal { path: meta.path.clone(), band: band_name, center_nm });
+    }
 
     let capture_key = match vendor {
         Vendor::MicaSense => x.text(NS_MICASENSE, "CaptureId"),

@@ -48,6 +48,8 @@ pub struct Scan {
     /// Band names in wavelength order (the complete set).
     pub band_names: Vec<String>,
     pub skipped: Vec<Skipped>,
+    /// Thermal band files, left out (msnerf trains on the reflective bands): (file, band name).
+    pub thermal: Vec<(PathBuf, String)>,
 }
 
 /// TIFF files under `dir` (recursive, sorted).
@@ -75,9 +77,11 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
     let mut band_files: Vec<BandFile> = Vec::new();
     let mut first_error: Option<RigError> = None;
     let mut unreadable: Vec<&PathBuf> = Vec::new();
+    let mut thermal = Vec::new();
     for f in files {
         match read_meta(f).and_then(interpret) {
             Ok(b) => band_files.push(b),
+            Err(RigError::Thermal { path, band, .. }) => thermal.push((path, band)),
             Err(e) => {
                 skipped.push(Skipped { capture: None, what: f.display().to_string(), reason: e.to_string() });
                 first_error.get_or_insert(e);
@@ -86,7 +90,12 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
         }
     }
     if band_files.is_empty() {
-        return Err(first_error.unwrap_or_else(|| RigError::option("DIR", "no TIFF files found")));
+        return Err(first_error.unwrap_or_else(|| {
+            RigError::option(
+                "DIR",
+                if thermal.is_empty() { "no TIFF files found" } else { "only thermal band files: no reflective band" },
+            )
+        }));
     }
     if let Some(other) = band_files.iter().find(|b| b.camera != band_files[0].camera) {
         return Err(RigError::Mixed {
@@ -164,7 +173,7 @@ pub fn scan_files(files: &[PathBuf]) -> Result<Scan, RigError> {
         captures.push(Capture { key, bands: files });
     }
     captures.sort_by(|a, b| a.bands[0].meta.path.cmp(&b.bands[0].meta.path));
-    Ok(Scan { captures, band_names, skipped })
+    Ok(Scan { captures, band_names, skipped, thermal })
 }
 
 /// A band file's capture (its folder and name without the band suffix) and its band suffix: `IMG_0001_3.tif` ->

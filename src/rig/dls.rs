@@ -191,6 +191,20 @@ pub struct Dls1 {
     pub horizontal: f64,
 }
 
+/// The capture's UTC time for the sun's position: refused when missing, malformed, or from an unset clock.
+fn capture_time(m: &super::meta::FileMeta, why: &str) -> Result<UtcTime, RigError> {
+    let dt = m.datetime.as_deref().ok_or_else(|| RigError::missing(&m.path, "DateTimeOriginal", why))?;
+    if !m.clock_set {
+        return Err(RigError::bad(
+            &m.path,
+            "DateTimeOriginal",
+            format!("`{dt}`: the camera's clock was not set (no GPS time), so the sun's position is unknown ({why})"),
+        ));
+    }
+    UtcTime::from_exif(dt)
+        .ok_or_else(|| RigError::bad(&m.path, "DateTimeOriginal", format!("`{dt}` is not YYYY:MM:DD HH:MM:SS")))
+}
+
 /// A light-sensor tag from either namespace real files use (`DLS:` first, then Pix4D's `Camera:`).
 fn dls_tag(b: &BandFile, tag: &str) -> Option<f64> {
     b.meta.xmp.number(NS_DLS, tag).or_else(|| b.meta.xmp.number(NS_CAMERA, tag))
@@ -274,9 +288,7 @@ pub fn dls2(b: &BandFile) -> Result<Option<Dls2>, RigError> {
         let why = "the firmware's HorizontalIrradiance is not trusted, and recomputing it from the direct and \
                    scattered irradiance needs the sun's elevation (or give --panel)";
         let gps = m.gps.ok_or_else(|| RigError::missing(&m.path, "GPSLatitude / GPSLongitude", why))?;
-        let dt = m.datetime.as_deref().ok_or_else(|| RigError::missing(&m.path, "DateTimeOriginal", why))?;
-        let t = UtcTime::from_exif(dt)
-            .ok_or_else(|| RigError::bad(&m.path, "DateTimeOriginal", format!("`{dt}` is not YYYY:MM:DD HH:MM:SS")))?;
+        let t = capture_time(m, why)?;
         let (el, _) = solar_position(gps.latitude, gps.longitude, &t);
         let h = (direct * el.sin() + scattered) * scale;
         let firmware = m.software.as_deref().unwrap_or("unknown");
@@ -310,9 +322,7 @@ pub fn dls1(b: &BandFile) -> Result<Dls1, RigError> {
     let angle = |tag: &str| x.number(NS_DLS, tag).ok_or_else(|| RigError::missing(&m.path, &format!("DLS:{tag}"), why));
     let (yaw, pitch, roll) = (angle("Yaw")?, angle("Pitch")?, angle("Roll")?);
     let gps = m.gps.ok_or_else(|| RigError::missing(&m.path, "GPSLatitude / GPSLongitude", why))?;
-    let dt = m.datetime.as_deref().ok_or_else(|| RigError::missing(&m.path, "DateTimeOriginal", why))?;
-    let t = UtcTime::from_exif(dt)
-        .ok_or_else(|| RigError::bad(&m.path, "DateTimeOriginal", format!("`{dt}` is not YYYY:MM:DD HH:MM:SS")))?;
+    let t = capture_time(m, why)?;
     let (el, az) = solar_position(gps.latitude, gps.longitude, &t);
     let (s, n) = (sun_ned(el, az), sensor_ned(yaw, pitch, roll));
     let theta = (s[0] * n[0] + s[1] * n[1] + s[2] * n[2]).clamp(-1.0, 1.0).acos();

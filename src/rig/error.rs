@@ -20,6 +20,8 @@ pub enum RigError {
     PanelNotFound { path: PathBuf, reason: String },
     #[error("{}: panel: {reason}", path.display())]
     Panel { path: PathBuf, reason: String },
+    #[error("{}: a thermal band ({band}, {center_nm} nm): msnerf trains on the reflective bands, so it is left out", path.display())]
+    Thermal { path: PathBuf, band: String, center_nm: f64 },
     #[error("option {key}: {reason}")]
     Option { key: String, reason: String },
     #[error("capture {capture}: {reason}")]

@@ -36,6 +36,8 @@ pub struct FrameOut {
     pub cy: f64,
     pub saturated: Vec<usize>,
     pub registration: Vec<BandRegistration>,
+    /// Per band, the median and 99th percentile of the written values (a strided sample).
+    pub value_quantiles: Vec<[f32; 2]>,
 }
 
 /// A capture's bands in output units, with each band's count of saturated pixels.
@@ -319,6 +321,8 @@ pub fn write_frame(
         }
     }
     write_sfm_png(&out[ref_idx], rect, &dir.join("sfm_images").join(format!("{}.png", cap.name())))?;
+    let value_quantiles =
+        (0..nb).map(|b| crate::rig::flight_checks::quantiles(data.iter().skip(b).step_by(nb * 7).copied())).collect();
     let file = format!("images/{}.tif", cap.name());
     let path = dir.join(&file);
     write_tiff(&path, cw as u32, ch as u32, nb, TiffData::F32(&data))
@@ -333,5 +337,6 @@ pub fn write_frame(
         cy: target.cy - y0 as f64,
         saturated: l.saturated.clone(),
         registration,
+        value_quantiles,
     })
 }

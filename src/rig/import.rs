@@ -200,9 +200,32 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         let why = scan.skipped.iter().map(|s| format!("{}: {}", s.what, s.reason)).collect::<Vec<_>>().join("; ");
         return Err(RigError::option("DIR", format!("no complete flight capture in {} ({why})", opts.input.display())));
     }
+    let ref_idx = reference_index(&scan.captures[0].bands, opts.reference_band.as_deref())?;
+    let mut warnings = Vec::new();
+    let mut auto_panels = false;
+    if opts.panel_files.is_empty() {
+        // Panel captures taken on the ground among the flight's: found, kept out of the flight.
+        let split = super::panels::split_panel_captures(std::mem::take(&mut scan.captures), ref_idx)?;
+        scan.captures = split.flight;
+        for (name, why) in split.left_out {
+            scan.skipped.push(Skipped { capture: Some(name.clone()), what: format!("capture {name}"), reason: why });
+        }
+        warnings.extend(split.warnings);
+        auto_panels = !split.panels.is_empty();
+        panels = split.panels;
+        if scan.captures.is_empty() {
+            return Err(RigError::option("DIR", "every capture is a panel or ground capture: no flight to import"));
+        }
+    }
+    if !scan.thermal.is_empty() {
+        let (_, band) = &scan.thermal[0];
+        warnings.push(format!(
+            "{} thermal band file(s) ({band}) left out: msnerf trains on the reflective bands",
+            scan.thermal.len()
+        ));
+    }
     let first = &scan.captures[0];
     let nb = first.bands.len();
-    let ref_idx = reference_index(&first.bands, opts.reference_band.as_deref())?;
     if first.bands[ref_idx].lens.is_none() {
         // Without a lens model the frames' intrinsics would be made up: refuse, naming what is missing.
         return Err(RigError::missing(
@@ -211,7 +234,6 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
             "the reference band's camera model; without it the dataset's intrinsics are unknown",
         ));
     }
-    let mut warnings = Vec::new();
     if opts.rig_cameras {
         if !matches!(opts.registration, Registration::Auto | Registration::None) {
             return Err(RigError::option(
@@ -223,10 +245,32 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     }
 
     // Irradiance.
+    let panel_names = || panels.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ");
+    if auto_panels && opts.panel_reflectance.is_empty() && opts.units == Units::Reflectance {
+        if opts.irradiance == IrradianceSource::Panel {
+            return Err(RigError::option(
+                "--panel-reflectance",
+                format!(
+                    "panel capture(s) {} found: give the panel's reflectance from its calibration sheet",
+                    panel_names()
+                ),
+            ));
+        }
+        warnings.push(format!(
+            "panel capture(s) {} found but no --panel-reflectance: calibrated from the light sensor; give the \
+             panel's reflectance (its calibration sheet) to calibrate from the panel",
+            panel_names()
+        ));
+        panels.clear();
+    }
     let source = match (opts.units, opts.irradiance, panels.is_empty()) {
         (Units::Radiance, _, _) => "none",
         (_, IrradianceSource::Panel, true) => {
-            return Err(RigError::option("--irradiance panel", "needs --panel FILE (a band file of a panel capture)"))
+            return Err(RigError::option(
+                "--irradiance panel",
+                "needs a panel capture: --panel FILE (a band file of a panel capture), or panel captures taken on \
+                 the ground in DIR",
+            ))
         }
         (_, IrradianceSource::Panel | IrradianceSource::Auto, false) => "panel",
         (_, IrradianceSource::Dls | IrradianceSource::Auto, _) => "dls",
@@ -362,11 +406,15 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     }
     .transpose()
     .map_err(|e| RigError::Option { key: "--crs".into(), reason: e.to_string() })?;
-    let mut frames_json = Vec::with_capacity(n);
-    for (cap, f) in scan.captures.iter().zip(&frames) {
+    // Pose priors: the GPS fix projected, the heading from the attitude; captures without a fix get the mean of
+    // the others' positions (named in the warnings), not a place the fix never gave.
+    let (gps_warn, no_fix) = super::flight_checks::gps_warnings(&scan.captures, ref_idx);
+    warnings.extend(gps_warn);
+    let mut priors = Vec::with_capacity(n);
+    for cap in &scan.captures {
         let m = &cap.bands[ref_idx].meta;
         let yaw = m.xmp.number("dji.com", "GimbalYawDegree").or(m.xmp.number("pix4d.com", "Yaw")).unwrap_or(0.0);
-        let (pos, heading) = match (&projector, m.gps) {
+        priors.push(match (&projector, m.gps) {
             (Some(p), Some(g)) => {
                 let proj_err = |e: crate::geo::CrsError| RigError::Capture {
                     capture: cap.key.clone(),
@@ -374,10 +422,21 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
                 };
                 let pos = p.from_geodetic(g.latitude, g.longitude, g.altitude.unwrap_or(0.0)).map_err(proj_err)?;
                 // The yaw is from true north; the grid's north is off by the meridian convergence.
-                (pos, yaw - p.convergence_deg(g.latitude, g.longitude).map_err(proj_err)?)
+                (Some(pos), yaw - p.convergence_deg(g.latitude, g.longitude).map_err(proj_err)?)
             }
-            _ => ([0.0, 0.0, 0.0], yaw),
-        };
+            _ => (None, yaw),
+        });
+    }
+    let fixes: Vec<[f64; 3]> = priors.iter().filter_map(|p| p.0).collect();
+    let mean_fix = if fixes.is_empty() {
+        [0.0; 3]
+    } else {
+        [0, 1, 2].map(|i| fixes.iter().map(|p| p[i]).sum::<f64>() / fixes.len() as f64)
+    };
+    let mut frames_json = Vec::with_capacity(n);
+    for ((cap, f), prior) in scan.captures.iter().zip(&frames).zip(&priors) {
+        let m = &cap.bands[ref_idx].meta;
+        let (pos, heading) = (prior.0.unwrap_or(mean_fix), prior.1);
         let mut frame = json!({
             "file_path": f.file,
             "transform_matrix": nadir_pose(pos, heading),
@@ -387,6 +446,7 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
             "capture_id": cap.key,
             "time": m.datetime,
             "gps": m.gps,
+            "gps_rejected": m.gps_rejected,
             "source_files": cap.bands.iter().map(|b| b.meta.path.display().to_string()).collect::<Vec<_>>(),
             "registration_residual_px": f.registration.iter().map(|r| r.stats.map(|s| s.residual_px)).collect::<Vec<_>>(),
         });
@@ -420,6 +480,7 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
                 "radiance": radiance_units(b),
                 "source": source,
                 "irradiance": panel_e.as_ref().map(|e| e[bi]),
+                "light_sensor": (source == "dls").then(|| super::calibrate::band_dls(b).ok().map(|d| d.1)).flatten(),
             })
         })
         .collect();
@@ -457,6 +518,26 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     let text = serde_json::to_string_pretty(&transforms).expect("json");
     std::fs::write(&tpath, text).map_err(RigError::io(&tpath))?;
 
+    // Flight-level checks: reflectance that is implausible for a whole flight, bands left unaligned.
+    let band_names: Vec<String> = first.bands.iter().map(|b| b.band_name.clone()).collect();
+    if opts.units == Units::Reflectance {
+        for (bi, name) in band_names.iter().enumerate() {
+            let per: Vec<[f32; 2]> = frames.iter().map(|f| f.value_quantiles[bi]).collect();
+            if let Some((median, p99)) = super::flight_checks::flight_quantiles(&per) {
+                warnings.extend(super::flight_checks::reflectance_problem(name, median, p99));
+            }
+        }
+    }
+    let worst: Vec<Option<(f64, String)>> = (0..nb)
+        .map(|bi| {
+            scan.captures
+                .iter()
+                .zip(&frames)
+                .filter_map(|(c, f)| f.registration[bi].stats.map(|s| (s.residual_px, c.name())))
+                .max_by(|a, b| a.0.total_cmp(&b.0))
+        })
+        .collect();
+    warnings.extend(super::flight_checks::registration_warnings(&band_names, &worst, rig_spread_px.as_deref()));
     let seconds = t0.elapsed().as_secs_f64();
     let max_residual_px = frames
         .iter()
@@ -478,7 +559,8 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         rig_spread_px,
         panel: panel_report,
     };
-    let report = json!({"summary": summary, "frames": frames, "rig_samples": sample_stats});
+    let report =
+        json!({"summary": summary, "frames": frames, "rig_samples": sample_stats, "captures_without_gps": no_fix});
     let rpath = staging.path.join("import_report.json");
     std::fs::write(&rpath, serde_json::to_string_pretty(&report).expect("json")).map_err(RigError::io(&rpath))?;
     if let Some(p) = &summary.panel {

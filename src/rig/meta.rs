@@ -39,7 +39,11 @@ pub struct FileMeta {
     /// EXIF FocalLength in millimetres.
     pub focal_length_mm: Option<f64>,
     pub datetime: Option<String>,
+    /// False when the camera's clock was not set (a date before 2000: cameras without a GPS fix write 1970).
+    pub clock_set: bool,
     pub gps: Option<GpsFix>,
+    /// Why the file's GPS tags were not taken as a fix (they read 0 N 0 E: cameras write that without a fix).
+    pub gps_rejected: Option<String>,
     pub xmp: XmpProps,
 }
 
@@ -134,10 +138,19 @@ pub fn read_meta(path: &Path) -> Result<FileMeta, RigError> {
         .unwrap_or_default();
     let black_level = field(Tag(Context::Tiff, TAG_BLACK_LEVEL)).map(|f| numbers(&f.value)).filter(|v| !v.is_empty());
     let iso = num(&exif, Tag::PhotographicSensitivity).or_else(|| num(&exif, Tag::ISOSpeed));
+    let mut gps_rejected = None;
     let gps = match (
         dms(&exif, Tag::GPSLatitude, Tag::GPSLatitudeRef, b'S'),
         dms(&exif, Tag::GPSLongitude, Tag::GPSLongitudeRef, b'W'),
     ) {
+        (Some(latitude), Some(longitude)) if latitude.abs() < 1e-7 && longitude.abs() < 1e-7 => {
+            gps_rejected = Some("its GPS tags read 0 N 0 E, what cameras write without a fix".to_string());
+            None
+        }
+        (Some(latitude), Some(_)) if latitude.abs() > 90.0 => {
+            gps_rejected = Some(format!("its GPS latitude {latitude} is not on Earth"));
+            None
+        }
         (Some(latitude), Some(longitude)) => {
             let below =
                 matches!(field(Tag::GPSAltitudeRef).map(|f| &f.value), Some(Value::Byte(b)) if b.first() == Some(&1));
@@ -151,6 +164,8 @@ pub fn read_meta(path: &Path) -> Result<FileMeta, RigError> {
         dt.push('.');
         dt.push_str(&sub);
     }
+    let clock_set =
+        datetime.as_deref().and_then(|d| d.get(..4)).and_then(|y| y.parse::<u32>().ok()).is_some_and(|y| y >= 2000);
     let fp_res = num(&exif, Tag::FocalPlaneXResolution).map(|r| {
         // FocalPlaneResolutionUnit: 2 inch, 3 cm, 4 mm (MicaSense writes 4).
         match field(Tag::FocalPlaneResolutionUnit).and_then(|f| f.value.get_uint(0)) {
@@ -174,7 +189,9 @@ pub fn read_meta(path: &Path) -> Result<FileMeta, RigError> {
         focal_plane_x_res_per_mm: fp_res,
         focal_length_mm: num(&exif, Tag::FocalLength).filter(|f| *f > 0.0),
         datetime,
+        clock_set,
         gps,
+        gps_rejected,
         xmp,
     })
 }

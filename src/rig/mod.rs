@@ -3,11 +3,13 @@
 //!
 //! - [`meta`]: EXIF/TIFF tags and XMP of one file; [`calib`]: vendor conventions -> [`calib::BandFile`];
 //! - [`capture`]: grouping files into captures by XMP capture id, bands by wavelength;
-//! - [`radiometry`]: raw DN -> radiance; [`panel`], [`calibrate`]: panel detection, irradiance; [`dls`]: DLS1 sun angle;
+//! - [`radiometry`]: raw DN -> radiance; [`panel`], [`calibrate`]: panel detection, irradiance; [`dls`]: DLS2 and
+//!   DLS1 (sun angle) irradiance; [`panels`]: panel captures found among a flight's;
 //! - [`lens`], [`register`], [`warp`]: undistortion and band-to-band registration (one resampling per band);
 //! - [`plane`]: the f32 image type; [`geo`]: GPS -> local ENU pose priors;
 //! - [`rig_model`]: `--rig-cameras`, every band kept in its own camera and the rig's geometry written from the XMP;
 //! - [`register_dataset`]: `msnerf dataset register`, the same alignment on a dataset already in msnerf's format;
+//! - [`flight_checks`]: flight-level checks (reflectance plausibility, registration, GPS) named as warnings;
 //! - [`frame`]: one capture through the chain; [`import`]: the whole flow, writing the dataset atomically.
 
 pub mod calib;
@@ -15,12 +17,14 @@ pub mod calibrate;
 pub mod capture;
 pub mod dls;
 pub mod error;
+pub mod flight_checks;
 pub mod frame;
 pub mod geo;
 pub mod import;
 pub mod lens;
 pub mod meta;
 pub mod panel;
+pub mod panels;
 pub mod plane;
 pub mod radiometry;
 pub mod register;

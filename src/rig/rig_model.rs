@@ -156,7 +156,7 @@ pub fn write_frame_rig(
     if let Some(parent) = mpath.parent() {
         std::fs::create_dir_all(parent).map_err(RigError::io(parent))?;
     }
-    image::GrayImage::from_raw(w as u32, h as u32, mask)
+    image::GrayImage::from_raw(w as u32, h as u32, mask.clone())
         .expect("mask size")
         .save_with_format(&mpath, image::ImageFormat::Png)
         .map_err(|e| RigError::Output { path: mpath.clone(), reason: e.to_string() })?;
@@ -173,6 +173,14 @@ pub fn write_frame_rig(
             .bands
             .iter()
             .map(|b| BandRegistration { band: b.band_name.clone(), warp: Warp::identity(), stats: None })
+            .collect(),
+        value_quantiles: (0..nb)
+            .map(|b| {
+                let valid = data.iter().zip(mask.iter().flat_map(|m| std::iter::repeat_n(*m, nb)));
+                crate::rig::flight_checks::quantiles(
+                    valid.skip(b).step_by(nb * 7).filter(|(_, m)| *m > 0).map(|(v, _)| *v),
+                )
+            })
             .collect(),
     })
 }

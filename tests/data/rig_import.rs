@@ -86,6 +86,7 @@ fn exif_for(k: usize) -> FixtureExif {
         black_level: BLACK,
         make: "MicaSense",
         model: "RedEdge-M",
+        software: "v6.2.1",
         datetime: format!("2026:06:01 10:00:{:02}", k),
         gps: Some((45.0, 7.0 + 1e-5 * k as f64, 100.0)),
         focal_plane_res_per_mm: Some(100.0),
@@ -234,6 +235,7 @@ fn dji_style_fixture_uses_microseconds_multiplying_vignetting_and_gain_adjustmen
     let e = FixtureExif {
         make: "DJI",
         model: "FC6360",
+        software: "v6.2.1",
         black_level: 4096,
         gps: None,
         focal_plane_res_per_mm: None,

@@ -135,6 +135,8 @@ pub struct FixtureExif {
     pub black_level: u16,
     pub make: &'static str,
     pub model: &'static str,
+    /// EXIF Software: the firmware version (MicaSense's DLS2 rules depend on it).
+    pub software: &'static str,
     pub datetime: String,
     pub gps: Option<(f64, f64, f64)>,
     pub focal_plane_res_per_mm: Option<f64>,
@@ -172,6 +174,7 @@ pub fn write_rig_tiff(path: &std::path::Path, w: u32, h: u32, px: &[u16], xmp: &
         f(Tag::PlanarConfiguration, Value::Short(vec![1])),
         f(Tag::Make, ascii(e.make)),
         f(Tag::Model, ascii(e.model)),
+        f(Tag::Software, ascii(e.software)),
         f(Tag(Context::Tiff, 700), Value::Byte(xmp.as_bytes().to_vec())),
         f(Tag(Context::Tiff, 50714), Value::Short(vec![e.black_level; 4])),
         f(Tag::ExposureTime, Value::Rational(vec![Rational { num: e.exposure.0, denom: e.exposure.1 }])),
@@ -231,9 +234,24 @@ pub struct MsXmp<'a> {
 
 pub fn micasense_xmp(x: &MsXmp) -> String {
     let seq = |v: &[f64]| v.iter().map(|a| format!("<rdf:li>{a:e}</rdf:li>")).collect::<String>();
+    // DLS2 as MicaSense firmware writes it: tag values in units of 0.01 W/(m^2 nm) (Camera:IrradianceScaleToSIUnits),
+    // the horizontal irradiance = direct sin(elevation) + scattered, the elevation in radians.
     let irr = x
         .horizontal_irradiance
-        .map(|e| format!("<Camera:HorizontalIrradiance>{e}</Camera:HorizontalIrradiance>"))
+        .map(|e| {
+            let (el, diffuse) = (0.9f64, 0.2);
+            let direct = (1.0 - diffuse) * e / el.sin();
+            format!(
+                "<Camera:IrradianceScaleToSIUnits>0.01</Camera:IrradianceScaleToSIUnits>\
+                 <DLS:HorizontalIrradiance xmlns:DLS=\"http://micasense.com/DLS/1.0/\">{h}</DLS:HorizontalIrradiance>\
+                 <DLS:DirectIrradiance xmlns:DLS=\"http://micasense.com/DLS/1.0/\">{d}</DLS:DirectIrradiance>\
+                 <DLS:ScatteredIrradiance xmlns:DLS=\"http://micasense.com/DLS/1.0/\">{s}</DLS:ScatteredIrradiance>\
+                 <DLS:SolarElevation xmlns:DLS=\"http://micasense.com/DLS/1.0/\">{el}</DLS:SolarElevation>",
+                h = e / 0.01,
+                d = direct / 0.01,
+                s = diffuse * e / 0.01,
+            )
+        })
         .unwrap_or_default();
     let rig = x
         .rig
