@@ -3,7 +3,8 @@
 //! Layers, one folder each: [`gpu`] (the Vulkan runtime), [`ops`] (generic compute operations), [`nn`] (neural
 //! modules: hash grid, MLP, SH, Adam, parameter store), [`data`] (datasets, image readers, poses, cameras, the host image cache),
 //! [`reference`] (CPU twins of every kernel), [`output`] (metrics, rasters, previews, point clouds, cloud
-//! comparison), [`sweep`] (accuracy against training time), [`cli`] (the `msnerf` subcommands).
+//! comparison), [`products`] (what is made from a trained run), [`sweep`] (accuracy against training time), [`cli`]
+//! (the `msnerf` subcommands).
 
 pub mod bench;
 pub mod cli;
@@ -17,6 +18,7 @@ pub mod ops;
 pub mod output;
 pub mod plan;
 pub mod poses;
+pub mod products;
 pub mod reference;
 pub mod rig;
 pub mod scale;

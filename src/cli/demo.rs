@@ -7,17 +7,17 @@
 //! simulated dataset carries SfM points (noise 0.1 m) and training uses them for DS-NeRF depth supervision
 //! (docs/geometry.md); `--images-only` trains on the images alone, for comparison.
 
-use super::export::{filter, write_cloud, PointcloudArgs};
 use super::render::{write_view, RenderArgs};
 use super::Cli;
 use crate::data::Split;
 use crate::gpu::Context;
-use crate::nerf::config::{DepthLoss, DepthSource, DepthSupervision, ModelConfig};
+use crate::nerf::config::ModelConfig;
 use crate::nerf::export::{export_points, ExportOptions};
 use crate::nerf::run::LoadedRun;
 use crate::nerf::trainer::{train, TrainOptions};
 use crate::output::compare::{compare_clouds, CompareOptions};
 use crate::output::pointcloud::read_ply;
+use crate::products::cloud::{write_cloud, CloudFilter};
 use crate::sim::sparse::SparseOptions;
 use crate::sim::{simulate, SceneDesc, SimOptions};
 use std::path::{Path, PathBuf};
@@ -48,15 +48,6 @@ pub struct DemoArgs {
 /// The simulated SfM points of the demo: about as many as structure from motion finds on such a flight, with
 /// 0.1 m of position noise, each seen by at least 3 views.
 const DEMO_SPARSE: SparseOptions = SparseOptions { count: 20_000, noise_m: 0.1, min_views: 3 };
-
-/// The depth supervision of the demo: the settings measured in docs/geometry.md ("What it is worth").
-const DEMO_DEPTH: DepthSupervision = DepthSupervision {
-    loss: DepthLoss::DsNerf,
-    source: DepthSource::SparsePoints,
-    mult: 1e-3,
-    sigma: 0.2,
-    ray_fraction: 0.25,
-};
 
 const MARKER: &str = "msnerf-demo.json";
 
@@ -94,9 +85,11 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
     let supervision = if a.images_only { "images only" } else { "images + DS-NeRF depth from the SfM points" };
     println!("[2/6] training `{}` for {:.0} s ({supervision})", a.model, a.time_budget);
     let ctx = Context::new(&cli.context_desc())?;
+    // Depth supervision comes from the profile (`loss.depth`, on where the dataset has sparse points); the demo's
+    // dataset has none with --images-only, and the profile's is switched off too, so the run is images alone.
     let mut model = ModelConfig::resolve(&a.model)?;
-    if !a.images_only {
-        model.loss.depth = Some(DEMO_DEPTH);
+    if a.images_only {
+        model.loss.depth = None;
     }
     let opts = TrainOptions {
         data: data.clone(),
@@ -145,30 +138,9 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
         .write_png(&renders.join("contact_sheet.png"))?;
 
     println!("[5/6] exporting the multispectral point cloud");
+    // The same export and filters as `msnerf export pointcloud` (their defaults), at 100,000 rays.
     let raw = export_points(&mut run, &ExportOptions { rays: 100_000, ..Default::default() })?;
-    let pargs = PointcloudArgs {
-        run: run_dir.clone(),
-        out: cloud_path.clone(),
-        rays: 100_000,
-        min_accumulation: 0.5,
-        outlier_neighbours: 20,
-        outlier_std_ratio: 2.0,
-        crop: None,
-        points: None,
-        seed: 42,
-        normals: false,
-        max_spread_cells: 8.0,
-        check_views: 6,
-        min_agree: 2,
-        agree_tolerance: 2.0,
-        gsd: None,
-        legacy: false,
-        keep_outside_box: false,
-        refine: Default::default(),
-        keep_unsupported: false,
-        partial: false,
-    };
-    let cloud = filter(raw, &pargs)?;
+    let cloud = CloudFilter::default().apply(raw)?;
     write_cloud(&cloud, &cloud_path, run.ds.crs.as_ref())?;
     write_cloud(&cloud, &cloud_path.with_extension("las"), run.ds.crs.as_ref())?;
 

@@ -9,11 +9,11 @@
 
 use super::refine_args::RefineArgs;
 use super::Cli;
-use crate::geo::Crs;
 use crate::gpu::Context;
-use crate::nerf::export::{export_points_with_stats, Consistency, ExportOptions, ExportStats};
+use crate::nerf::export::{export_points_with_stats, ExportOptions};
 use crate::nerf::run::LoadedRun;
-use crate::output::pointcloud::{self, LasOptions, PlyOptions, PointCloud};
+use crate::output::pointcloud::{self, PointCloud};
+use crate::products::cloud::{careful_filters, summary, unsupported_note, write_cloud, CloudFilter};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -46,9 +46,9 @@ pub struct PointcloudArgs {
     #[arg(long, value_parser = super::opacity_f32, default_value_t = 0.5)]
     pub min_accumulation: f32,
     /// Statistical outlier removal: neighbours and standard-deviation ratio (0 neighbours turns it off)
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = CloudFilter::default().outlier_neighbours)]
     pub outlier_neighbours: usize,
-    #[arg(long, value_parser = super::finite_f64, default_value_t = 10.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = CloudFilter::default().outlier_std_ratio)]
     pub outlier_std_ratio: f64,
     /// Axis-aligned crop box in world units: minx,miny,minz,maxx,maxy,maxz
     #[arg(long, value_delimiter = ',', num_args = 6)]
@@ -111,16 +111,11 @@ impl PointcloudArgs {
             self.rays
         );
         if let Some(b) = &self.crop {
-            anyhow::ensure!(
-                b.len() == 6 && b.iter().all(|v| v.is_finite()) && (0..3).all(|k| b[k] < b[k + 3]),
-                "--crop needs minx,miny,minz,maxx,maxy,maxz with each min below its max, got {b:?}"
-            );
+            anyhow::ensure!(b.len() == 6, "--crop needs minx,miny,minz,maxx,maxy,maxz, got {b:?}");
         }
         let (max_spread_cells, consistency) =
             careful_filters(self.max_spread_cells, self.check_views, self.min_agree, self.agree_tolerance)?;
-        if let Some(g) = self.gsd {
-            anyhow::ensure!(g.is_finite() && g > 0.0, "--gsd must be > 0, got {g}");
-        }
+        self.cloud_filter().validate()?;
         if self.legacy {
             return Ok(ExportOptions {
                 normals: self.normals,
@@ -140,65 +135,23 @@ impl PointcloudArgs {
     }
 }
 
-/// The careful export's spread and consistency filters from their flags (`export pointcloud`, `dsm` and `ortho`
-/// share them): 0 turns a filter off; errors name the flag.
-pub fn careful_filters(
-    max_spread_cells: f64,
-    check_views: usize,
-    min_agree: usize,
-    agree_tolerance: f64,
-) -> anyhow::Result<(Option<f64>, Option<Consistency>)> {
-    anyhow::ensure!(
-        max_spread_cells.is_finite() && max_spread_cells >= 0.0,
-        "--max-spread-cells must be >= 0, got {max_spread_cells}"
-    );
-    anyhow::ensure!(
-        agree_tolerance.is_finite() && agree_tolerance > 0.0,
-        "--agree-tolerance must be > 0, got {agree_tolerance}"
-    );
-    anyhow::ensure!(
-        check_views == 0 || (1..=check_views).contains(&min_agree),
-        "--min-agree must be between 1 and --check-views ({check_views}), got {min_agree}"
-    );
-    Ok((
-        (max_spread_cells > 0.0).then_some(max_spread_cells),
-        (check_views > 0).then_some(Consistency { views: check_views, min_agree, tolerance: agree_tolerance }),
-    ))
+impl PointcloudArgs {
+    /// The post-filters these flags ask for.
+    pub fn cloud_filter(&self) -> CloudFilter {
+        CloudFilter {
+            crop: self.crop.as_ref().map(|b| std::array::from_fn(|k| b[k])),
+            outlier_neighbours: self.outlier_neighbours,
+            outlier_std_ratio: self.outlier_std_ratio,
+            gsd: self.gsd,
+            points: self.points,
+            seed: self.seed,
+        }
+    }
 }
 
 /// Filters a cloud as the flags ask.
-pub fn filter(mut cloud: PointCloud, a: &PointcloudArgs) -> anyhow::Result<PointCloud> {
-    if let Some(b) = &a.crop {
-        let inside = |p: &[f64; 3]| (0..3).all(|k| p[k] >= b[k] && p[k] <= b[k + 3]);
-        cloud = pointcloud::filter::crop(&cloud, inside)?.0;
-    }
-    if a.outlier_neighbours > 0 && cloud.len() > a.outlier_neighbours {
-        cloud = pointcloud::filter::remove_statistical_outliers(&cloud, a.outlier_neighbours, a.outlier_std_ratio)?.0;
-    }
-    if let Some(g) = a.gsd {
-        cloud = pointcloud::thin::thin_to_grid(&cloud, g, &["agreeing_views"], &["depth_spread"])?.0;
-    }
-    if let Some(n) = a.points {
-        cloud = pointcloud::filter::subsample(&cloud, n, a.seed)?.0;
-    }
-    Ok(cloud)
-}
-
-/// Writes `cloud` as PLY or LAS (by extension), carrying the dataset's `crs`: LAS as its OGC WKT record
-/// (`LASF_Projection`/2112), PLY as `comment crs EPSG:n` and `comment crs_wkt WKT` lines.
-pub fn write_cloud(cloud: &PointCloud, out: &std::path::Path, crs: Option<&Crs>) -> anyhow::Result<()> {
-    match out.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
-        Some("ply") => {
-            let comments =
-                crs.map(|c| vec![format!("crs {}", c.key()), format!("crs_wkt {}", c.wkt)]).unwrap_or_default();
-            pointcloud::write_ply(out, cloud, &PlyOptions { comments, ..Default::default() })?
-        }
-        Some("las") => {
-            pointcloud::write_las(out, cloud, &LasOptions { wkt: crs.map(|c| c.wkt.clone()), ..Default::default() })?
-        }
-        _ => anyhow::bail!("--out {}: the file must end in .ply or .las", out.display()),
-    }
-    Ok(())
+pub fn filter(cloud: PointCloud, a: &PointcloudArgs) -> anyhow::Result<PointCloud> {
+    Ok(a.cloud_filter().apply(cloud)?)
 }
 
 pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
@@ -258,55 +211,4 @@ fn export_blocks(ctx: &Context, a: &PointcloudArgs, opts: &ExportOptions) -> any
     }
     println!("-> {} ({} points from {} blocks)", a.out.display(), cloud.len(), stats.blocks.len());
     Ok(())
-}
-
-/// One line per filter: what it removed.
-pub fn summary(s: &ExportStats, min_accumulation: f32, written: usize) -> String {
-    format!(
-        "{} rays rendered: {} below accumulation {min_accumulation}, {} outside the scene box, {} with spread weights, \
-         {} inconsistent across views ({} check rays); {} points kept, {} written after outlier removal and thinning",
-        s.rays,
-        s.below_accumulation,
-        s.outside_box,
-        s.spread,
-        s.inconsistent,
-        s.check_rays,
-        s.kept,
-        written
-    ) + &refine_summary(s)
-}
-
-/// A note when the refinement dropped most of the consistent points: the images carry little texture (uniform
-/// materials), and the user should know the flags that keep them.
-pub fn unsupported_note(s: &ExportStats) -> Option<String> {
-    let points = s.refine.as_ref().map_or(0, |r| r.points);
-    (points > 0 && 2 * s.unsupported > points).then(|| {
-        format!(
-            "note: {} of {points} consistent points ({:.0} %) had no photometric support and were dropped: the \
-             training images carry little texture there (uniform surfaces), or the surface lies beyond \
-             --refine-range; --keep-unsupported keeps them where the field put them, --no-refine skips the refinement",
-            s.unsupported,
-            100.0 * s.unsupported as f64 / points as f64
-        )
-    })
-}
-
-/// The refinement's line of the summary (empty when it was off).
-fn refine_summary(s: &ExportStats) -> String {
-    match &s.refine {
-        None => String::new(),
-        Some(r) => match &r.skipped {
-            Some(why) => format!("; photometric refinement skipped: {why}"),
-            None => format!(
-                "; photometric refinement moved {} of {} points (median |shift| {:.3} in world units), kept {} where \
-                 the field put them (weak correlation), {} without photometric support {}",
-                r.moved,
-                r.points,
-                r.median_shift,
-                r.kept,
-                r.points - r.moved - r.kept,
-                if s.unsupported > 0 { "dropped" } else { "kept" }
-            ),
-        },
-    }
 }

@@ -6,7 +6,6 @@
 
 use std::path::PathBuf;
 
-use super::export::careful_filters;
 use super::refine_args::RefineArgs;
 use super::Cli;
 use crate::gpu::Context;
@@ -15,6 +14,7 @@ use crate::nerf::survey::{seen_bounds, SurveyGrid, SurveyOptions};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
 use crate::output::raster::geotiff_read::read_grid;
 use crate::output::raster::indices::VegetationIndex;
+use crate::products::cloud::careful_filters;
 
 #[derive(clap::Args, Debug)]
 pub struct SurveyArgs {

@@ -68,6 +68,10 @@ pub struct TrainArgs {
     /// `sampling.rig_cameras`)
     #[arg(long)]
     pub no_rig_cameras: bool,
+    /// Train on the images alone: no depth supervision from the dataset's sparse points (the profiles use them
+    /// when the dataset has them: model key `loss.depth`)
+    #[arg(long)]
+    pub images_only: bool,
 }
 
 pub fn model_with_overrides(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
@@ -86,6 +90,9 @@ fn resolve_model(a: &TrainArgs) -> anyhow::Result<ModelConfig> {
     }
     if a.no_rig_cameras {
         m.sampling.rig_cameras = false;
+    }
+    if a.images_only {
+        m.loss.depth = None;
     }
     Ok(m)
 }
@@ -185,6 +192,7 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         s.best_eval_step.map(|v| format!(" at step {v}")).unwrap_or_default(),
         s.stopped_early.map(|w| format!(" (stopped: {w})")).unwrap_or_default()
     );
+    println!("depth supervision: {}", s.depth_supervision);
     println!("run folder: {}", s.run_dir.display());
     Ok(())
 }

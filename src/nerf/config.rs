@@ -234,12 +234,27 @@ pub enum DepthSource {
     DepthMaps,
 }
 
+/// When `loss.depth` applies.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthWhen {
+    /// Always: a dataset without the source is refused by name.
+    #[default]
+    Always,
+    /// When the dataset has the source (sparse points from `msnerf sfm` or `import poses`, or depth maps); a dataset
+    /// without it trains on the images alone, and the run says so. The profiles' default.
+    Available,
+}
+
 /// `loss.depth`: depth supervision of the NeRF-level weights.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DepthSupervision {
     pub loss: DepthLoss,
     pub source: DepthSource,
+    /// `always` (default) or `available`: see [`DepthWhen`].
+    #[serde(default)]
+    pub when: DepthWhen,
     /// Loss weight (nerfstudio's `depth_loss_mult`, 1e-3).
     #[serde(default = "depth_mult")]
     pub mult: f32,

@@ -86,6 +86,8 @@ pub struct TrainSummary {
     pub device: String,
     pub environment: Vec<String>,
     pub mlp_tiling: String,
+    /// What depth supervision did in this run (`loss.depth` resolved against the dataset).
+    pub depth_supervision: String,
 }
 
 /// Consecutive NaN/Inf-poisoned steps after which training stops.
@@ -246,10 +248,31 @@ pub fn load_run_dataset(
     Ok(ds)
 }
 
+/// Resolves `loss.depth` with `when: available` against the dataset: kept when the dataset has its source, dropped
+/// (the run trains on the images alone) otherwise. Returns what was decided, for the log and the summary.
+pub fn resolve_depth_supervision(cfg: &mut crate::nerf::config::ModelConfig, ds: &Dataset) -> String {
+    use crate::nerf::config::{DepthSource, DepthWhen};
+    let Some(d) = cfg.loss.depth else { return "off".into() };
+    let (has, what) = match d.source {
+        DepthSource::SparsePoints => (ds.sparse_points_path.is_some(), "sparse points"),
+        DepthSource::DepthMaps => (ds.frames.iter().any(|f| f.depth.is_some()), "depth maps"),
+    };
+    match (d.when, has) {
+        (DepthWhen::Available, false) => {
+            cfg.loss.depth = None;
+            format!("off: the dataset has no {what} (images only; `msnerf sfm` or `import poses` bring sparse points)")
+        }
+        _ => format!("{:?} from the dataset's {what} (sigma {} world units, weight {})", d.loss, d.sigma, d.mult),
+    }
+}
+
 /// Runs training; returns the summary. Errors are messages that name the file, key or step.
 pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
-    let cfg = &opts.model;
-    let mut ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &cfg.sampling)?;
+    let mut model_cfg = opts.model.clone();
+    let mut ds = load_run_dataset(&opts.data, opts.bands.as_deref(), &model_cfg.sampling)?;
+    let depth_note = resolve_depth_supervision(&mut model_cfg, &ds);
+    log::info!("depth supervision: {depth_note}");
+    let cfg = &model_cfg;
     ds.options.alpha_background = crate::data::AlphaBackground::for_rendering(&cfg.rendering, true);
     let bands = ds.n_bands();
     cfg.band_weights(bands)?;
@@ -342,7 +365,12 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     ctx.with_ledger(|l| l.reset_peaks());
     let start = Instant::now();
     let elapsed0 = state.elapsed_s;
-    let mut summary = TrainSummary { run_dir: run.clone(), best_eval_psnr: state.best_eval_psnr, ..Default::default() };
+    let mut summary = TrainSummary {
+        run_dir: run.clone(),
+        best_eval_psnr: state.best_eval_psnr,
+        depth_supervision: depth_note.clone(),
+        ..Default::default()
+    };
     let mut steps =
         StepLog::new(metrics, metrics_path, bar, run.join("checkpoints"), (cfg.trainer.rays_per_batch, max_steps));
     let mut step_ms_total = 0.0f64;

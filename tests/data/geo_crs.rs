@@ -155,7 +155,7 @@ fn clouds_and_rasters_carry_the_crs_where_gdal_reads_it() {
     let tmp = TempDir::new("geo-outputs");
     let crs = Crs::parse("EPSG:32650").unwrap();
     let las = tmp.path().join("c.las");
-    msnerf::cli::export::write_cloud(&cloud(), &las, Some(&crs)).unwrap();
+    msnerf::products::cloud::write_cloud(&cloud(), &las, Some(&crs)).unwrap();
     let (wkt, bit) = las_wkt(&las);
     let wkt = wkt.expect("a LASF_Projection/2112 WKT record");
     assert!(bit, "the header's global encoding has the WKT bit set");
@@ -163,11 +163,11 @@ fn clouds_and_rasters_carry_the_crs_where_gdal_reads_it() {
     assert_eq!(gdalsrsinfo_epsg(&wkt), "EPSG:32650", "GDAL identifies the LAS's CRS");
     // The same cloud without a CRS has no WKT record.
     let plain = tmp.path().join("plain.las");
-    msnerf::cli::export::write_cloud(&cloud(), &plain, None).unwrap();
+    msnerf::products::cloud::write_cloud(&cloud(), &plain, None).unwrap();
     assert_eq!(las_wkt(&plain).0, None);
 
     let ply = tmp.path().join("c.ply");
-    msnerf::cli::export::write_cloud(&cloud(), &ply, Some(&crs)).unwrap();
+    msnerf::products::cloud::write_cloud(&cloud(), &ply, Some(&crs)).unwrap();
     let bytes = std::fs::read(&ply).unwrap();
     let end = bytes.windows(10).position(|w| w == b"end_header").unwrap();
     let header = String::from_utf8_lossy(&bytes[..end]);

@@ -37,8 +37,14 @@ fn supervised(source: DepthSource) -> ModelConfig {
     model.trainer.max_steps = STEPS;
     model.trainer.steps_per_eval = 1000;
     model.trainer.steps_per_save = 1000;
-    model.loss.depth =
-        Some(DepthSupervision { loss: DepthLoss::DsNerf, source, mult: 1e-3, sigma: 0.2, ray_fraction: 0.25 });
+    model.loss.depth = Some(DepthSupervision {
+        loss: DepthLoss::DsNerf,
+        source,
+        mult: 1e-3,
+        sigma: 0.2,
+        ray_fraction: 0.25,
+        when: Default::default(),
+    });
     model
 }
 

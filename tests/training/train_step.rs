@@ -398,6 +398,7 @@ fn whole_step_matches_reference_with_depth_supervision() {
                 mult: 0.1,
                 sigma: 0.1,
                 ray_fraction: 0.0,
+                when: Default::default(),
             })
         });
     }

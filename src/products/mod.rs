@@ -1,0 +1,13 @@
+//! Products of a trained run, beside training: the layer the commands (`export`, `process`, `demo`) call, so that
+//! every way of making a product makes the same one.
+//!
+//! - [`cloud`]: the multispectral point cloud's post-filters (crop, statistical outliers, grid thinning, a point
+//!   budget), writing (PLY or LAS with the CRS) and its summary;
+//! - [`error`]: [`ProductError`], naming the option or file concerned.
+//!
+//! The rendering itself (points, DSM and true ortho from the field) is `nerf::export` and `nerf::survey`.
+
+pub mod cloud;
+pub mod error;
+
+pub use error::ProductError;
