@@ -18,6 +18,7 @@ pub mod ops;
 pub mod output;
 pub mod plan;
 pub mod poses;
+pub mod process;
 pub mod products;
 pub mod reference;
 pub mod rig;

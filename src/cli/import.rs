@@ -19,24 +19,11 @@ pub enum ImportWhat {
     Poses(PosesArgs),
 }
 
-/// Pose sources.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum PoseFormat {
-    /// A COLMAP sparse model folder (text or binary: cameras, images, points3D)
-    Colmap,
-    /// An OpenSfM reconstruction.json (tracks.csv beside it gives the points' tracks)
-    Opensfm,
-    /// An OpenDroneMap project folder (opensfm/reconstruction.json plus odm_georeferencing/coords.txt)
-    Odm,
-    /// An Agisoft Metashape camera XML (File > Export > Export Cameras)
-    Metashape,
-}
-
 #[derive(clap::Args, Debug)]
 pub struct PosesArgs {
     /// Where the poses come from
     #[arg(long, value_enum)]
-    pub from: PoseFormat,
+    pub from: crate::poses::PoseFormat,
     /// The model: COLMAP's sparse model folder (e.g. sparse/0), OpenSfM's reconstruction.json, the ODM project
     /// folder, or Metashape's cameras XML
     pub model: PathBuf,
@@ -79,7 +66,7 @@ pub struct RigArgs {
     #[arg(long, value_enum, default_value_t = Registration::Auto)]
     pub register: Registration,
     /// Captures the shared rig warps are estimated on (`--register rig`)
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = crate::rig::import::REGISTER_SAMPLE)]
     pub register_sample: usize,
     /// Skip band-to-band registration (same as `--register none`)
     #[arg(long)]
@@ -106,19 +93,11 @@ pub struct RigArgs {
 fn run_poses(p: &PosesArgs) -> anyhow::Result<()> {
     let crs = p.crs.as_deref().map(crate::geo::Crs::parse).transpose().map_err(|e| anyhow::anyhow!("--crs: {e}"))?;
     anyhow::ensure!(
-        crs.is_none() || p.from == PoseFormat::Metashape,
+        crs.is_none() || p.from == crate::poses::PoseFormat::Metashape,
         "--crs: only a georeferenced Metashape chunk (ECEF) is projected on import; COLMAP, OpenSfM and ODM poses \
          stay in the model's own frame"
     );
-    let model = match p.from {
-        PoseFormat::Colmap => {
-            let m = crate::poses::colmap::read_model(&p.model)?;
-            crate::poses::colmap::to_pose_model(&m, &p.model)?
-        }
-        PoseFormat::Opensfm => crate::poses::opensfm::read_reconstruction(&p.model)?,
-        PoseFormat::Odm => crate::poses::opensfm::read_odm(&p.model)?,
-        PoseFormat::Metashape => crate::poses::metashape::read_cameras_xml(&p.model, crs.as_ref())?,
-    };
+    let model = p.from.read(&p.model, crs.as_ref())?;
     let rep = crate::poses::apply_poses(&model, &p.model, &p.dataset)?;
     if p.json {
         println!("{}", serde_json::to_string_pretty(&rep)?);

@@ -140,30 +140,23 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
     let (mut host_budget_bytes, mut resample_every) =
         ((a.host_budget_gib * (1u64 << 30) as f64) as u64, a.resample_every);
     if let Some(h) = &a.hardware {
-        use crate::plan::{train as pt, DatasetShape};
         let base = resolve_model(a)?;
         let ds = crate::nerf::trainer::load_run_dataset(&a.data, a.bands.as_deref(), &base.sampling)?;
-        let shape = DatasetShape::from_dataset(&ds);
-        let profile = pt::resolve_profile(&ctx, h, &base, &shape)?;
-        let mut m = base;
-        pt::apply_profile(&mut m, &profile);
-        model = apply_overrides(m, a)?;
-        let p = pt::check_training(&ctx, &model, &profile, shape)?;
-        host_budget_bytes = p.host.cache_budget_bytes;
-        resample_every = p.host.resample_every.unwrap_or(resample_every);
-        let t = &model.trainer;
-        eprintln!(
-            "hardware {}: {} rays per batch in chunks of {}, eval chunks of {}; planned VRAM {:.2} of {:.2} GiB; cache N = {} of {} images{}",
-            profile.name,
-            t.rays_per_batch,
-            t.rays_per_chunk,
-            t.eval_rays_per_chunk,
-            p.vram.total_bytes as f64 / (1u64 << 30) as f64,
-            p.vram_budget_bytes as f64 / (1u64 << 30) as f64,
-            p.host.n_resident,
-            p.host.n_images,
-            p.host.resample_every.map(|m| format!(", M = {m}")).unwrap_or_default()
-        );
+        let mut override_err = None;
+        let fitted = crate::plan::train::fit_training(&ctx, h, base.clone(), &ds, |m| match apply_overrides(m, a) {
+            Ok(m) => Ok(m),
+            Err(e) => {
+                override_err = Some(e);
+                Ok(base)
+            }
+        })?;
+        if let Some(e) = override_err {
+            return Err(e);
+        }
+        host_budget_bytes = fitted.host_budget_bytes;
+        resample_every = fitted.resample_every.unwrap_or(resample_every);
+        eprintln!("{}", fitted.describe());
+        model = fitted.model;
     }
     let opts = TrainOptions {
         data: a.data.clone(),

@@ -104,3 +104,59 @@ pub fn check_training(
     pl.fit = Some(f);
     Err(PlanError::DoesNotFit { profile: p.name.clone(), problems: pl.problems().join("; "), hint })
 }
+
+/// What profile-driven training settles on: the model with the profile's ray counts (and the caller's overrides),
+/// the plan that fits, and the cache settings it implies.
+#[derive(Debug, Clone)]
+pub struct FittedTraining {
+    pub model: ModelConfig,
+    pub plan: Plan,
+    pub host_budget_bytes: u64,
+    /// Resampling interval M when not every image fits (None: all resident).
+    pub resample_every: Option<u64>,
+}
+
+impl FittedTraining {
+    /// One line for the command's output.
+    pub fn describe(&self) -> String {
+        let t = &self.model.trainer;
+        let p = &self.plan;
+        format!(
+            "hardware {}: {} rays per batch in chunks of {}, eval chunks of {}; planned VRAM {:.2} of {:.2} GiB; cache N \
+             = {} of {} images{}",
+            p.profile,
+            t.rays_per_batch,
+            t.rays_per_chunk,
+            t.eval_rays_per_chunk,
+            p.vram.total_bytes as f64 / (1u64 << 30) as f64,
+            p.vram_budget_bytes as f64 / (1u64 << 30) as f64,
+            p.host.n_resident,
+            p.host.n_images,
+            p.host.resample_every.map(|m| format!(", M = {m}")).unwrap_or_default()
+        )
+    }
+}
+
+/// Fits `model` to `hardware` (a profile name or file, or `auto`) for training on `ds` on `ctx`: the profile's ray
+/// counts, then `overrides` (explicit flags win over the profile), then the plan, refused before anything is
+/// allocated when it does not fit.
+pub fn fit_training(
+    ctx: &Context,
+    hardware: &str,
+    model: ModelConfig,
+    ds: &crate::data::Dataset,
+    overrides: impl FnOnce(ModelConfig) -> Result<ModelConfig, PlanError>,
+) -> Result<FittedTraining, PlanError> {
+    let shape = DatasetShape::from_dataset(ds);
+    let profile = resolve_profile(ctx, hardware, &model, &shape)?;
+    let mut m = model;
+    apply_profile(&mut m, &profile);
+    let m = overrides(m)?;
+    let plan = check_training(ctx, &m, &profile, shape)?;
+    Ok(FittedTraining {
+        host_budget_bytes: plan.host.cache_budget_bytes,
+        resample_every: plan.host.resample_every,
+        model: m,
+        plan,
+    })
+}

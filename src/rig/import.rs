@@ -62,6 +62,9 @@ pub enum Registration {
     None,
 }
 
+/// Captures the shared rig warps are estimated on by default (`--register-sample`).
+pub const REGISTER_SAMPLE: usize = 8;
+
 /// Flights with more captures than this share the rig's warps under `--register auto`.
 pub const RIG_REGISTRATION_ABOVE: usize = 24;
 

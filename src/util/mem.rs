@@ -1,5 +1,5 @@
 //! The process's peak resident memory (Linux `/proc/self/status` `VmHWM`), which the survey exports print so that
-//! their host-memory bound can be checked on any run.
+//! their host-memory bound can be checked on any run, and its reset between the stages of `msnerf process`.
 
 /// Peak resident set size in bytes; None where `/proc` does not say.
 pub fn peak_rss_bytes() -> Option<u64> {
@@ -7,4 +7,10 @@ pub fn peak_rss_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
+}
+
+/// Resets the peak resident set size to the current one (Linux: `5` into `/proc/self/clear_refs`), so that a stage
+/// of a longer run can measure its own peak. Returns whether it could.
+pub fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
