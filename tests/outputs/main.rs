@@ -7,6 +7,8 @@ mod common;
 mod geo_support;
 #[path = "../output_support/mod.rs"]
 mod output_support;
+#[path = "../rig_support/mod.rs"]
+mod rig_support;
 #[path = "../sim_support/mod.rs"]
 mod sim_support;
 
@@ -23,5 +25,6 @@ mod sim_dataset;
 mod sim_effects;
 mod sim_geometry;
 mod sim_radiometry;
+mod sim_raw_rig;
 mod sim_truth;
 mod survey_units;

@@ -160,7 +160,8 @@ impl SensorProfile {
 
     /// The same camera with its sensor resampled to `width` x `height` (same field of view): focal lengths,
     /// principal points, vignetting centres and focal-plane resolution scale with the image; the vignetting
-    /// polynomial is rescaled to the new pixel radius. For CI-sized flights.
+    /// polynomial is rescaled to the new pixel radius and the row-gradient coefficients a2, a3 to the new rows (the
+    /// same gradient from the top row to the bottom one). For CI-sized flights.
     pub fn scaled(mut self, width: u32, height: u32) -> SensorProfile {
         let (sx, sy) = (width as f64 / self.width as f64, height as f64 / self.height as f64);
         let s = 0.5 * (sx + sy);
@@ -176,6 +177,9 @@ impl SensorProfile {
             for (i, k) in b.vignetting_poly.iter_mut().enumerate() {
                 *k /= s.powi(i as i32 + 1);
             }
+            // R(y) = 1 / (1 + a2 y / t - a3 y) with y = y_new / sy.
+            b.radiometric[1] /= sy;
+            b.radiometric[2] /= sy;
         }
         self.focal_plane_px_per_mm *= s;
         self.width = width;
