@@ -13,6 +13,7 @@ pub mod import;
 pub mod partition;
 pub mod plan;
 pub mod preview;
+pub mod process;
 pub mod refine_args;
 pub mod render;
 pub mod sfm;
@@ -52,6 +53,9 @@ pub enum Command {
     Export(export::ExportArgs),
     /// Import raw captures: `import rig DIR --out DATASET` (raw multispectral rig TIFFs to reflectance)
     Import(import::ImportArgs),
+    /// The whole flight in one command: raw camera files -> dataset -> poses -> training -> cloud, DSM, ortho, indices
+    /// and a processing report (resumable; each stage skipped when current)
+    Process(process::ProcessArgs),
     /// Camera poses by running COLMAP on a dataset (geo-registered to the frames' GPS when they have it)
     Sfm(sfm::SfmArgs),
     /// Dataset tools (check, register)
@@ -103,6 +107,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(a) => dataset::run(&cli, a),
         Command::Import(a) => import::run(a),
         Command::Sfm(a) => sfm::run(a),
+        Command::Process(a) => process::run(&cli, a),
         Command::Demo(a) => demo::run(&cli, a),
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),

@@ -30,6 +30,10 @@ pub struct SfmArgs {
     /// SIFT peak threshold (COLMAP's default 0.0067 finds too few features in small aerial views; docs/poses.md)
     #[arg(long, value_parser = super::finite_f64, default_value_t = 0.002)]
     pub peak_threshold: f64,
+    /// Most SIFT features per image (default: one per 150 pixels of the upsampled image, 1024 to 8192); CPU
+    /// matching time grows with its square
+    #[arg(long)]
+    pub max_features: Option<usize>,
     /// Let bundle adjustment refine the dataset's focal length and distortion
     #[arg(long)]
     pub refine_intrinsics: bool,
@@ -61,6 +65,10 @@ pub fn run(a: &SfmArgs) -> anyhow::Result<()> {
     o.matcher = a.matcher;
     o.overlap = a.overlap;
     o.peak_threshold = a.peak_threshold;
+    if let Some(m) = a.max_features {
+        anyhow::ensure!((64..=65536).contains(&m), "--max-features must be 64..=65536, got {m}");
+        o.max_features = Some(m);
+    }
     o.refine_intrinsics = a.refine_intrinsics;
     o.crs = a.crs.as_deref().map(crate::geo::Crs::parse).transpose().map_err(|e| anyhow::anyhow!("--crs: {e}"))?;
     o.no_georef = a.no_georef;

@@ -104,16 +104,20 @@ fn positions_over_ortho(project: &Path, survey: &Value) -> Option<Vec<u8>> {
     Some(out.into_inner())
 }
 
-/// Per frame, by file: (GPS prior position from the import, SfM position).
-fn frame_positions(project: &Path) -> Vec<(Option<[f64; 3]>, Option<[f64; 3]>)> {
+/// A frame's GPS prior position (from the import; None without a fix) and its SfM position (None: unregistered).
+type FramePositions = (Option<[f64; 3]>, Option<[f64; 3]>);
+
+/// Per frame, by file: [`FramePositions`].
+fn frame_positions(project: &Path) -> Vec<FramePositions> {
     let pos = |f: &Value| -> Option<[f64; 3]> {
         let m = f["transform_matrix"].as_array()?;
         let c = |r: usize| m.get(r)?.as_array()?.get(3)?.as_f64();
         Some([c(0)?, c(1)?, c(2)?])
     };
-    let (Some(prior), Some(posed)) =
-        (read_json(&project.join("dataset/transforms.import.json")), read_json(&project.join("dataset/transforms.json")))
-    else {
+    let (Some(prior), Some(posed)) = (
+        read_json(&project.join("dataset/transforms.import.json")),
+        read_json(&project.join("dataset/transforms.json")),
+    ) else {
         return vec![];
     };
     let by_file = |v: &Value| -> Vec<(String, Option<[f64; 3]>, bool)> {
@@ -146,7 +150,9 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
         .iter()
         .filter(|s| **s != Stage::Report)
         .map(|s| match rec(*s) {
-            Some(r) => vec![s.name().into(), format!("{:.1} s", r.seconds), mib(r.peak_host_bytes), mib(r.peak_gpu_bytes)],
+            Some(r) => {
+                vec![s.name().into(), format!("{:.1} s", r.seconds), mib(r.peak_host_bytes), mib(r.peak_gpu_bytes)]
+            }
             None => vec![s.name().into(), "not run".into(), "n/a".into(), "n/a".into()],
         })
         .collect();
@@ -161,7 +167,10 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
         "<p>Flight {}: {} captures, bands {}; units {}; irradiance from {}.</p>",
         esc(&flight.display().to_string()),
         import["captures"].as_u64().unwrap_or(0),
-        esc(&import["bands"].as_array().map(|b| b.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(", ")).unwrap_or_default()),
+        esc(&import["bands"]
+            .as_array()
+            .map(|b| b.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(", "))
+            .unwrap_or_default()),
         esc(import["units"].as_str().unwrap_or("n/a")),
         esc(import["calibration"].as_str().unwrap_or("n/a")),
     );
@@ -181,7 +190,8 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
         })
         .unwrap_or_default();
     s += &table(&["band", "irradiance from", "light-sensor tags", "panel irradiance W/(m² nm)"], &cal);
-    let warnings: Vec<&str> = import["warnings"].as_array().map(|a| a.iter().filter_map(|w| w.as_str()).collect()).unwrap_or_default();
+    let warnings: Vec<&str> =
+        import["warnings"].as_array().map(|a| a.iter().filter_map(|w| w.as_str()).collect()).unwrap_or_default();
     if !warnings.is_empty() {
         s += "<ul class=\"warn\">";
         for w in warnings {
@@ -193,9 +203,18 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
 
     // Registration.
     let ir = read_json(&project.join("dataset/import_report.json")).unwrap_or(Value::Null);
-    let bands: Vec<String> = import["bands"].as_array().map(|b| b.iter().filter_map(|x| x.as_str().map(String::from)).collect()).unwrap_or_default();
+    let bands: Vec<String> = import["bands"]
+        .as_array()
+        .map(|b| b.iter().filter_map(|x| x.as_str().map(String::from)).collect())
+        .unwrap_or_default();
     let mut per_band: Vec<Vec<f64>> = vec![Vec::new(); bands.len()];
-    for set in ir["frames"].as_array().into_iter().flatten().map(|f| &f["registration"]).chain(ir["rig_samples"].as_array().into_iter().flatten()) {
+    for set in ir["frames"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|f| &f["registration"])
+        .chain(ir["rig_samples"].as_array().into_iter().flatten())
+    {
         for (bi, r) in set.as_array().into_iter().flatten().enumerate() {
             if let (Some(v), Some(slot)) = (r["stats"]["residual_px"].as_f64(), per_band.get_mut(bi)) {
                 slot.push(v);
@@ -209,13 +228,23 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
             if v.is_empty() {
                 vec![b.clone(), "reference".into(), "-".into()]
             } else {
-                vec![b.clone(), num(Some(crate::util::stats::median(v)), 3), num(Some(v.iter().copied().fold(0.0, f64::max)), 3)]
+                vec![
+                    b.clone(),
+                    num(Some(crate::util::stats::median(v)), 3),
+                    num(Some(v.iter().copied().fold(0.0, f64::max)), 3),
+                ]
             }
         })
         .collect();
-    let spread = import["rig_spread_px"].as_array().map(|a| a.iter().map(|v| num(v.as_f64(), 2)).collect::<Vec<_>>().join(", "));
+    let spread =
+        import["rig_spread_px"].as_array().map(|a| a.iter().map(|v| num(v.as_f64(), 2)).collect::<Vec<_>>().join(", "));
     let mut s = table(&["band", "median residual (px)", "largest residual (px)"], &rows);
-    let _ = write!(s, "<p>Registration: {}.{}</p>", esc(import["registration"].as_str().unwrap_or("n/a")), spread.map(|x| format!(" Shared warps' spread per band (px): {}", esc(&x))).unwrap_or_default());
+    let _ = write!(
+        s,
+        "<p>Registration: {}.{}</p>",
+        esc(import["registration"].as_str().unwrap_or("n/a")),
+        spread.map(|x| format!(" Shared warps' spread per band (px): {}", esc(&x))).unwrap_or_default()
+    );
     body += &section("registration", "Band registration", &s);
 
     // Poses.
@@ -234,13 +263,16 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
         poses["frames"].as_u64().unwrap_or(0),
         poses["points"].as_u64().unwrap_or(0),
         num(poses["mean_reprojection_error_px"].as_f64(), 3),
-        esc(&poses["georef"].as_object().map(|g| format!(
-            "scale {}, RMS {} m, largest {} m, {} GPS fixes rejected",
-            num(g.get("scale").and_then(Value::as_f64), 4),
-            num(g.get("rms_m").and_then(Value::as_f64), 3),
-            num(g.get("max_m").and_then(Value::as_f64), 3),
-            g.get("rejected").and_then(Value::as_array).map_or(0, |r| r.len())
-        )).unwrap_or_else(|| "none".into())),
+        esc(&poses["georef"]
+            .as_object()
+            .map(|g| format!(
+                "scale {}, RMS {} m, largest {} m, {} GPS fixes rejected",
+                num(g.get("scale").and_then(Value::as_f64), 4),
+                num(g.get("rms_m").and_then(Value::as_f64), 3),
+                num(g.get("max_m").and_then(Value::as_f64), 3),
+                g.get("rejected").and_then(Value::as_array).map_or(0, |r| r.len())
+            ))
+            .unwrap_or_else(|| "none".into())),
     );
     let _ = write!(
         s,
@@ -295,7 +327,17 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
     let eval = read_json(&project.join("run/eval.json")).unwrap_or(Value::Null);
     let rows: Vec<Vec<String>> = eval["bands"]
         .as_array()
-        .map(|a| a.iter().map(|b| vec![b["name"].as_str().unwrap_or("").into(), num(b["psnr"].as_f64(), 2), num(b["ssim"].as_f64(), 4)]).collect())
+        .map(|a| {
+            a.iter()
+                .map(|b| {
+                    vec![
+                        b["name"].as_str().unwrap_or("").into(),
+                        num(b["psnr"].as_f64(), 2),
+                        num(b["ssim"].as_f64(), 4),
+                    ]
+                })
+                .collect()
+        })
         .unwrap_or_default();
     let train = rec(Stage::Train).map(|r| r.summary).unwrap_or(Value::Null);
     let mut s = format!(

@@ -21,7 +21,9 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::error::ProcessError;
-use super::stage::{freshness, read_record, remove_record, stamp, stamps_fingerprint, write_record, Freshness, Stage, StageRecord};
+use super::stage::{
+    freshness, read_record, remove_record, stamp, stamps_fingerprint, write_record, Freshness, Stage, StageRecord,
+};
 use crate::gpu::{Context, ContextDesc};
 use crate::output::raster::indices::VegetationIndex;
 use crate::rig::{IrradianceSource, Units};
@@ -98,7 +100,8 @@ fn flight_fingerprint(flight: &Path) -> Result<String, ProcessError> {
     let mut list = Vec::with_capacity(files.len());
     for f in files {
         let m = std::fs::metadata(&f).map_err(ProcessError::io(&f))?;
-        let t = m.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());
+        let t =
+            m.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());
         list.push(format!("{}\t{}\t{t}", f.strip_prefix(flight).unwrap_or(&f).display(), m.len()));
     }
     Ok(super::stage::sha256_hex(list.join("\n").as_bytes()))
@@ -119,7 +122,10 @@ pub fn process(o: &ProcessOptions, progress: Progress) -> Result<ProcessSummary,
             continue;
         }
         if o.stop.as_ref().is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed)) {
-            return Err(ProcessError::Stage { stage: stage.name().into(), reason: "interrupted before it started".into() });
+            return Err(ProcessError::Stage {
+                stage: stage.name().into(),
+                reason: "interrupted before it started".into(),
+            });
         }
         let inputs = stage_inputs(o, stage, &flight_fp, &upstream);
         let record = read_record(project, stage)?;
@@ -135,7 +141,11 @@ pub fn process(o: &ProcessOptions, progress: Progress) -> Result<ProcessSummary,
                 continue;
             }
             (Freshness::Edited(file, what), false) => {
-                return Err(ProcessError::Edited { stage: stage.name().into(), file: file.clone(), what: what.clone() });
+                return Err(ProcessError::Edited {
+                    stage: stage.name().into(),
+                    file: file.clone(),
+                    what: what.clone(),
+                });
             }
             _ => {}
         }
@@ -146,6 +156,7 @@ pub fn process(o: &ProcessOptions, progress: Progress) -> Result<ProcessSummary,
         }
         progress(&format!("{n}: {}", describe(stage, o)));
         crate::util::mem::reset_peak_rss();
+        let children_before = crate::util::mem::children_peak_rss_bytes();
         let t0 = Instant::now();
         let done = run_stage(o, stage, &inputs, progress)?;
         let seconds = t0.elapsed().as_secs_f64();
@@ -160,7 +171,12 @@ pub fn process(o: &ProcessOptions, progress: Progress) -> Result<ProcessSummary,
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| d.as_secs()),
             seconds,
-            peak_host_bytes: crate::util::mem::peak_rss_bytes(),
+            // The process's own peak, or a child's (COLMAP) when one ran in this stage and needed more.
+            peak_host_bytes: {
+                let own = crate::util::mem::peak_rss_bytes();
+                let child = crate::util::mem::children_peak_rss_bytes().filter(|c| Some(*c) != children_before);
+                own.max(child)
+            },
             peak_gpu_bytes: done.peak_gpu_bytes,
             summary: done.summary,
         };
@@ -177,11 +193,7 @@ pub fn process(o: &ProcessOptions, progress: Progress) -> Result<ProcessSummary,
         outcomes.push(StageOutcome { stage, status: "ran".into(), seconds });
     }
     let report = project.join("report.html");
-    Ok(ProcessSummary {
-        project: project.clone(),
-        report: report.is_file().then_some(report),
-        stages: outcomes,
-    })
+    Ok(ProcessSummary { project: project.clone(), report: report.is_file().then_some(report), stages: outcomes })
 }
 
 fn mib(b: u64) -> String {
@@ -314,7 +326,16 @@ pub(super) type StageDone = Done;
 pub(super) fn gpu_peak(ctx: &Context) -> u64 {
     ctx.with_ledger(|l| l.total_peak())
 }
-pub(super) fn with_gpu(mut d: Done, ctx: &Context) -> Done {
+/// A GPU stage's result with its peak device memory; a stage whose context recorded validation-layer messages
+/// fails with them (the layer is on where `MSNERF_VALIDATION` or `MSNERF_REQUIRE_VALIDATION` asks for it).
+pub(super) fn with_gpu(mut d: Done, ctx: &Context) -> Result<Done, ProcessError> {
+    let msgs = ctx.validation_messages();
+    if !msgs.is_empty() {
+        return Err(ProcessError::Stage {
+            stage: "gpu".into(),
+            reason: format!("{} Vulkan validation message(s): {}", msgs.len(), msgs.join("; ")),
+        });
+    }
     d.peak_gpu_bytes = Some(gpu_peak(ctx));
-    d
+    Ok(d)
 }

@@ -37,8 +37,16 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 8] =
-        [Stage::Import, Stage::Poses, Stage::Check, Stage::Train, Stage::Eval, Stage::Cloud, Stage::Survey, Stage::Report];
+    pub const ALL: [Stage; 8] = [
+        Stage::Import,
+        Stage::Poses,
+        Stage::Check,
+        Stage::Train,
+        Stage::Eval,
+        Stage::Cloud,
+        Stage::Survey,
+        Stage::Report,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -213,7 +221,10 @@ pub fn freshness(project: &Path, record: Option<&StageRecord>, inputs: &str) -> 
             return Ok(Freshness::Edited(s.path.clone(), "it is missing".into()));
         };
         if m.len() != s.size {
-            return Ok(Freshness::Edited(s.path.clone(), format!("{} bytes where the stage wrote {}", m.len(), s.size)));
+            return Ok(Freshness::Edited(
+                s.path.clone(),
+                format!("{} bytes where the stage wrote {}", m.len(), s.size),
+            ));
         }
         if let Some(h) = &s.sha256 {
             if &file_sha256(&p)? != h {

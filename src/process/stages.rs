@@ -40,9 +40,16 @@ pub(super) fn import(o: &ProcessOptions) -> Result<StageDone, crate::rig::RigErr
     let d = paths::dataset();
     let mut notes: Vec<String> = s.warnings.iter().map(|w| format!("warning: {w}")).collect();
     notes.extend(s.skipped.iter().map(|k| format!("skipped {}: {}", k.what, k.reason)));
-    notes.insert(0, format!("{} captures, bands {}; irradiance from {}", s.captures, s.bands.join(", "), s.calibration));
+    notes
+        .insert(0, format!("{} captures, bands {}; irradiance from {}", s.captures, s.bands.join(", "), s.calibration));
     Ok(done(
-        vec![d.join("images"), d.join("sfm_images"), d.join("import_report.json"), d.join("transforms.import.json"), d.join("panel_report.json")],
+        vec![
+            d.join("images"),
+            d.join("sfm_images"),
+            d.join("import_report.json"),
+            d.join("transforms.import.json"),
+            d.join("panel_report.json"),
+        ],
         serde_json::to_value(&s).expect("the summary serialises"),
         notes,
     ))
@@ -63,7 +70,10 @@ pub(super) fn poses(o: &ProcessOptions) -> Result<StageDone, Box<dyn std::error:
         Some((format, path)) => {
             let model = format.read(path, o.crs.as_ref())?;
             let r = crate::poses::apply_poses(&model, path, &ds)?;
-            let notes = vec![format!("{} of {} frames posed from {}; {} sparse points", r.registered, r.frames, r.source, r.points)];
+            let notes = vec![format!(
+                "{} of {} frames posed from {}; {} sparse points",
+                r.registered, r.frames, r.source, r.points
+            )];
             Ok(done(outputs, serde_json::to_value(&r)?, notes))
         }
         None => {
@@ -73,6 +83,15 @@ pub(super) fn poses(o: &ProcessOptions) -> Result<StageDone, Box<dyn std::error:
             }
             let mut so = crate::sfm::SfmOptions::new(&ds);
             so.threads = o.threads.max(1);
+            // Each frame matched with its nearest neighbours by GPS, as OpenDroneMap does on a flight with GPS
+            // (`spatial` falls back to sequential matching without fixes).
+            let t: serde_json::Value = serde_json::from_slice(&std::fs::read(&t)?)?;
+            let frames = t["frames"].as_array().map_or(&[][..], |v| v.as_slice());
+            let with_gps = frames.iter().filter(|f| f["gps"].is_object()).count();
+            if with_gps * 10 >= frames.len() * 9 && frames.len() > SPATIAL_NEIGHBOURS {
+                so.matcher = crate::sfm::run::Matcher::Spatial;
+                so.overlap = SPATIAL_NEIGHBOURS;
+            }
             if let Some(c) = &o.crs {
                 so.crs = Some(c.clone());
             }
@@ -88,10 +107,17 @@ pub(super) fn poses(o: &ProcessOptions) -> Result<StageDone, Box<dyn std::error:
                 notes.push(format!("geo-registered to GPS: {}", serde_json::to_string(g)?));
             }
             notes.extend(r.unregistered.iter().map(|f| format!("not registered: {f}")));
-            Ok(done(outputs.into_iter().chain([d.join("colmap/sfm_report.json")]).collect(), serde_json::to_value(&r)?, notes))
+            Ok(done(
+                outputs.into_iter().chain([d.join("colmap/sfm_report.json")]).collect(),
+                serde_json::to_value(&r)?,
+                notes,
+            ))
         }
     }
 }
+
+/// Neighbours each frame is matched with by GPS position in the poses stage.
+pub const SPATIAL_NEIGHBOURS: usize = 12;
 
 /// Check: `dataset check`; a problem stops the run (the record is not written, so the stage runs again).
 pub(super) fn check(o: &ProcessOptions) -> Result<StageDone, ProcessError> {
@@ -117,7 +143,8 @@ fn model_for(o: &ProcessOptions, ctx: &Context) -> Result<ModelConfig, ProcessEr
         "auto" => "multispectral-nerf",
         m => m,
     };
-    let mut m = ModelConfig::resolve(name).map_err(|e| ProcessError::Option { key: "--model".into(), reason: e.to_string() })?;
+    let mut m = ModelConfig::resolve(name)
+        .map_err(|e| ProcessError::Option { key: "--model".into(), reason: e.to_string() })?;
     if o.images_only {
         m.loss.depth = None;
     }
@@ -197,14 +224,19 @@ pub(super) fn train(o: &ProcessOptions, inputs: &str, progress: Progress) -> Res
         "planned_host_bytes": fitted.plan.host.peak_bytes, "peak_gpu_bytes": s.peak_gpu_bytes,
         "peak_cache_bytes": s.peak_cache_bytes, "stopped_early": s.stopped_early,
     });
-    Ok(with_gpu(
+    with_gpu(
         done(
-            vec![r.join("config.yaml"), r.join("dataset.json"), r.join("dataparser_transforms.json"), r.join("checkpoints")],
+            vec![
+                r.join("config.yaml"),
+                r.join("dataset.json"),
+                r.join("dataparser_transforms.json"),
+                r.join("checkpoints"),
+            ],
             summary,
             notes,
         ),
         &ctx,
-    ))
+    )
 }
 
 /// Eval: every held-out view, PSNR and SSIM per band (`run/eval.json`).
@@ -212,11 +244,17 @@ pub(super) fn eval(o: &ProcessOptions) -> Result<StageDone, ProcessError> {
     let fail = ProcessError::stage(Stage::Eval);
     let ctx = Context::new(&o.device).map_err(|e| fail(&e))?;
     let mut run = LoadedRun::load(&ctx, &o.project.join(paths::run())).map_err(|e| fail(&e))?;
-    let rep = crate::nerf::evaluate::evaluate(&mut run, crate::data::Split::Eval, None, None, false).map_err(|e| fail(&e))?;
+    let rep =
+        crate::nerf::evaluate::evaluate(&mut run, crate::data::Split::Eval, None, None, false).map_err(|e| fail(&e))?;
     let path = o.project.join(paths::run()).join("eval.json");
     rep.write(&path).map_err(|e| fail(&e))?;
-    let notes = vec![rep.bands.iter().map(|b| format!("{} {:.2} dB / SSIM {:.3}", b.name, b.psnr, b.ssim)).collect::<Vec<_>>().join(", ")];
-    Ok(with_gpu(done(vec![paths::run().join("eval.json")], serde_json::to_value(&rep).expect("json"), notes), &ctx))
+    let notes = vec![rep
+        .bands
+        .iter()
+        .map(|b| format!("{} {:.2} dB / SSIM {:.3}", b.name, b.psnr, b.ssim))
+        .collect::<Vec<_>>()
+        .join(", ")];
+    with_gpu(done(vec![paths::run().join("eval.json")], serde_json::to_value(&rep).expect("json"), notes), &ctx)
 }
 
 /// Cloud: the careful export with the photometric refinement and the default filters, as LAS in the dataset's CRS.
@@ -239,7 +277,7 @@ pub(super) fn cloud(o: &ProcessOptions) -> Result<StageDone, ProcessError> {
         "unsupported": stats.unsupported, "refine": stats.refine.as_ref().map(|r| json!({"points": r.points, "moved": r.moved, "kept": r.kept})),
         "crs": run.ds.crs.as_ref().map(|c| c.key()),
     });
-    Ok(with_gpu(done(vec![paths::products().join("cloud.las")], summary, notes), &ctx))
+    with_gpu(done(vec![paths::products().join("cloud.las")], summary, notes), &ctx)
 }
 
 /// The flight's ground sampling distance: per training camera, its height above the sparse points' median height
@@ -269,14 +307,19 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
     let mut run = LoadedRun::load(&ctx, &o.project.join(paths::run())).map_err(|e| fail(&e))?;
     let gsd = match o.gsd {
         Some(g) => g,
-        None => flight_gsd(&run.ds).ok_or_else(|| fail(&"the flight's ground sampling distance is unknown (no sparse points): give --gsd"))?,
+        None => flight_gsd(&run.ds)
+            .ok_or_else(|| fail(&"the flight's ground sampling distance is unknown (no sparse points): give --gsd"))?,
     };
     let bounds = seen_bounds(&mut run).map_err(|e| fail(&e))?;
     let grid = SurveyGrid::covering(bounds, gsd, 200_000_000).map_err(|e| fail(&e))?;
     progress(&format!("    grid {} x {} cells of {gsd:.3} (world units)", grid.width, grid.height));
     let dir = o.project.join(paths::products());
     std::fs::create_dir_all(&dir).map_err(ProcessError::io(&dir))?;
-    let outputs = SurveyOutputs { dsm: Some(dir.join("dsm.tif")), ortho: Some(dir.join("ortho.tif")), indices: o.indices.clone() };
+    let outputs = SurveyOutputs {
+        dsm: Some(dir.join("dsm.tif")),
+        ortho: Some(dir.join("ortho.tif")),
+        indices: o.indices.clone(),
+    };
     let rep = export_survey(&mut run, &grid, &SurveyOptions::default(), &outputs, |_| {}).map_err(|e| fail(&e))?;
     let s = &rep.stats;
     if s.valid == 0 {
@@ -294,10 +337,9 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
         s.refined,
         s.unsupported
     )];
-    let files: Vec<PathBuf> =
-        rep.files.iter().map(|f| f.strip_prefix(&o.project).unwrap_or(f).to_path_buf()).collect();
+    let files: Vec<PathBuf> = rep.files.iter().map(|f| f.strip_prefix(&o.project).unwrap_or(f).to_path_buf()).collect();
     let summary = json!({"gsd": gsd, "grid": {"width": grid.width, "height": grid.height, "origin": grid.origin}, "stats": s, "notes": rep.notes});
-    Ok(with_gpu(done(files, summary, notes), &ctx))
+    with_gpu(done(files, summary, notes), &ctx)
 }
 
 /// A file of the project, for the report.

@@ -29,6 +29,12 @@ pub enum Matcher {
     Spatial,
 }
 
+/// Features per image for `max_features: None`: one per 150 pixels of the (upsampled) image, between 1024 and
+/// COLMAP's default of 8192: enough for a pose on small images without paying 8192^2 per pair on a CPU.
+pub fn auto_max_features(pixels: u64) -> usize {
+    ((pixels / 150) as usize).clamp(1024, 8192)
+}
+
 /// Frames up to which `auto` matches every pair (COLMAP's CPU matching of 100 frames, 4950 pairs, takes over
 /// 6 minutes on 2 cores).
 pub const EXHAUSTIVE_UP_TO: usize = 50;
@@ -66,6 +72,9 @@ pub struct SfmOptions {
     pub overlap: usize,
     /// SIFT's peak threshold (COLMAP's default 0.0067 is tuned for large photographs).
     pub peak_threshold: f64,
+    /// Most SIFT features kept per image (None: [`auto_max_features`] of the image size). CPU matching time grows
+    /// with the square of it.
+    pub max_features: Option<usize>,
     /// Let bundle adjustment refine focal length, principal point and distortion (they are kept fixed when the
     /// dataset states them and all frames share them).
     pub refine_intrinsics: bool,
@@ -88,6 +97,7 @@ impl SfmOptions {
             matcher: Matcher::Auto,
             overlap: 20,
             peak_threshold: 0.002,
+            max_features: None,
             refine_intrinsics: false,
             crs: None,
             no_georef: false,
@@ -348,6 +358,8 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
         format!("{}", o.peak_threshold),
         "--SiftExtraction.max_image_size".into(),
         format!("{}", (w.max(h) * u64::from(factor)).max(3200)),
+        "--SiftExtraction.max_num_features".into(),
+        o.max_features.unwrap_or_else(|| auto_max_features(w * h * u64::from(factor * factor))).to_string(),
     ];
     let intrinsics = match &camera {
         Some((model, params)) => {

@@ -14,3 +14,19 @@ pub fn peak_rss_bytes() -> Option<u64> {
 pub fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
+
+/// The largest peak resident set size of the child processes waited for so far (COLMAP), in bytes (`getrusage`);
+/// None where the platform does not say.
+pub fn children_peak_rss_bytes() -> Option<u64> {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: getrusage fills the struct it is given; RUSAGE_CHILDREN is a valid `who`.
+        let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+        let rc = unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut u) };
+        (rc == 0 && u.ru_maxrss > 0).then(|| u.ru_maxrss as u64 * 1024)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        None
+    }
+}

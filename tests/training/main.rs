@@ -3,12 +3,15 @@
 
 #[path = "../common/mod.rs"]
 mod common;
+#[path = "../geo_support/mod.rs"]
+mod geo_support;
 
 mod bench_cli;
 mod config_errors;
 mod depth_supervision;
 mod plan_cli;
 mod plan_ledger;
+mod process_flight;
 mod scale_blocks;
 mod sweep_bands;
 mod sweep_grid;

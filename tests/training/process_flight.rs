@@ -1,0 +1,207 @@
+//! `msnerf process` end to end at CI size: a raw flight written by the sensor in the simulator (MicaSense
+//! RedEdge-MX files of the `flight-rural` scene, 30 captures of 240x180 and a panel capture, GPS with noise and a
+//! datum shift) becomes a dataset, COLMAP poses, a trained run, a LAS cloud, a DSM, a true ortho, an NDVI raster and
+//! an HTML report in one call; then the stage records do their job:
+//!
+//! - every stage ran; the products carry the flight's UTM CRS (read back by GDAL and from the LAS bytes);
+//! - the panel capture was found and kept out of the flight, and the panel reflectance comes back;
+//! - the held-out views are far above a collapsed field (every band's PSNR above 25 dB);
+//! - the report parses: every section is present, every number in it is finite, every embedded PNG decodes;
+//! - a rerun skips every stage and rewrites nothing; an output edited by hand stops the run naming the file;
+//!   `--redo survey` makes the survey and the report again and nothing before them.
+//!
+//! The acceptance figures (registration, reflectance, cloud and DSM against the truth) are the benchmark's
+//! (`make flight-acceptance`, docs/results); this test proves the chain and its bookkeeping.
+
+use std::path::{Path, PathBuf};
+
+use super::common::{gpu, TempDir};
+use super::geo_support::{gdalinfo_json, las_wkt};
+use msnerf::process::{process, ProcessOptions, Stage};
+
+fn simulate(dir: &Path) -> PathBuf {
+    let scene = msnerf::sim::SceneDesc::load("flight-rural").expect("built-in scene");
+    let o = msnerf::sim::sensor::RawRigOptions { width: Some(240), ..Default::default() };
+    msnerf::sim::sensor::simulate_raw_rig(&scene, &o, &dir.join("flight")).expect("raw flight");
+    dir.join("flight")
+}
+
+/// The panel's reflectance per band in wavelength order, from the simulation's calibration sheet.
+fn panel_sheet(flight_root: &Path) -> Vec<f64> {
+    let p: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(flight_root.join("truth/panel.json")).unwrap()).unwrap();
+    let mut bands: Vec<(f64, f64)> = p["bands"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| (b["center_nm"].as_f64().unwrap(), b["reflectance"].as_f64().unwrap()))
+        .collect();
+    bands.sort_by(|a, b| a.0.total_cmp(&b.0));
+    bands.into_iter().map(|b| b.1).collect()
+}
+
+fn options(flight: &Path, project: &Path, panel: Vec<f64>) -> ProcessOptions {
+    let mut device = msnerf::gpu::ContextDesc::from_env();
+    if device.validation == msnerf::gpu::Validation::Off {
+        device.validation = msnerf::gpu::Validation::IfAvailable;
+    }
+    ProcessOptions {
+        flight: flight.join("card"),
+        project: project.to_path_buf(),
+        panel_reflectance: panel,
+        irradiance: msnerf::rig::IrradianceSource::Auto,
+        units: msnerf::rig::Units::Reflectance,
+        reference_band: None,
+        crs: None,
+        poses: None,
+        model: "demo".into(),
+        hardware: "auto".into(),
+        time_budget_s: Some(45.0),
+        max_steps: None,
+        seed: Some(7),
+        images_only: false,
+        gsd: None,
+        cloud_rays: 40_000,
+        indices: vec![msnerf::output::raster::indices::VegetationIndex::Ndvi],
+        stop_after: None,
+        redo: None,
+        threads: 2,
+        device,
+        stop: None,
+    }
+}
+
+fn statuses(s: &msnerf::process::ProcessSummary) -> Vec<(Stage, String)> {
+    s.stages.iter().map(|o| (o.stage, o.status.clone())).collect()
+}
+
+/// Every `data:image/png;base64,...` of the report, decoded with the `png` crate; the sections' ids; and every
+/// number in the report's text (outside the images).
+fn parse_report(html: &str) -> (Vec<(u32, u32)>, Vec<String>, Vec<String>) {
+    use base64::Engine as _;
+    let mut images = Vec::new();
+    let mut text = String::new();
+    let mut rest = html;
+    while let Some(i) = rest.find("data:image/png;base64,") {
+        text.push_str(&rest[..i]);
+        let tail = &rest[i + "data:image/png;base64,".len()..];
+        let end = tail.find('"').expect("a closed src attribute");
+        let bytes = base64::engine::general_purpose::STANDARD.decode(&tail[..end]).expect("valid base64");
+        let dec = png::Decoder::new(std::io::Cursor::new(bytes));
+        let reader = dec.read_info().expect("an embedded PNG decodes");
+        images.push((reader.info().width, reader.info().height));
+        rest = &tail[end..];
+    }
+    text.push_str(rest);
+    let sections: Vec<String> =
+        text.split("<section id=\"").skip(1).map(|s| s.split('"').next().unwrap().to_string()).collect();
+    // Words of the visible text that look numeric (digits, a sign, a point) or that a bad number prints as.
+    let plain: String = text.split('<').map(|s| s.split_once('>').map_or(s, |(_, t)| t)).collect::<Vec<_>>().join(" ");
+    let words: Vec<String> = plain
+        .split(|c: char| c.is_whitespace() || c == ',' || c == ';' || c == '(' || c == ')' || c == ':')
+        .filter(|w| !w.is_empty())
+        .map(str::to_string)
+        .collect();
+    (images, sections, words)
+}
+
+#[test]
+fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip_what_is_current() {
+    let _g = gpu();
+    let t = TempDir::new("process-flight");
+    let flight = simulate(t.path());
+    let project = t.path().join("project");
+    let o = options(&flight, &project, panel_sheet(&flight));
+    let mut lines = Vec::new();
+    let s = process(&o, &mut |l| lines.push(l.to_string())).unwrap_or_else(|e| panic!("{e}\n{}", lines.join("\n")));
+    assert!(statuses(&s).iter().all(|(_, st)| st == "ran"), "{:?}", statuses(&s));
+
+    // The import found the panel capture, calibrated from it, and kept it out of the flight.
+    let rec = |st: Stage| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(project.join(format!("stages/{}.json", st.name()))).unwrap())
+            .unwrap()
+    };
+    let import = &rec(Stage::Import)["summary"];
+    assert_eq!(import["captures"], 30, "{import}");
+    assert_eq!(import["calibration"], "panel");
+    let back = &import["panel"]["captures"][0];
+    for (b, want) in back.as_array().unwrap().iter().zip(panel_sheet(&flight)) {
+        let got = b["reflectance_back"].as_f64().unwrap();
+        assert!((got - want).abs() < 1e-9, "{b}");
+    }
+    // COLMAP registered the flight and geo-registered it to the GPS.
+    let poses = &rec(Stage::Poses)["summary"];
+    assert!(poses["registered"].as_u64().unwrap() >= 29, "{poses}");
+    assert!(poses["georef"]["rms_m"].as_f64().unwrap() < 3.0, "{poses}");
+
+    // Held-out views: a field that collapsed (transparent, or stuck at a constant) scores below 30 dB here.
+    let eval: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(project.join("run/eval.json")).unwrap()).unwrap();
+    for b in eval["bands"].as_array().unwrap() {
+        assert!(b["psnr"].as_f64().unwrap() > 25.0, "{b}");
+    }
+
+    // Products in the flight's UTM zone (32N), read back by GDAL and from the LAS bytes.
+    let products = project.join("products");
+    for raster in ["dsm.tif", "ortho.tif", "ortho_ndvi.tif"] {
+        let info = gdalinfo_json(&products.join(raster));
+        let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or_default();
+        assert!(wkt.contains("UTM zone 32N"), "{raster}: {wkt}");
+    }
+    let (wkt, bit) = las_wkt(&products.join("cloud.las"));
+    assert!(bit && wkt.unwrap_or_default().contains("UTM zone 32N"), "cloud.las CRS");
+    let survey = &rec(Stage::Survey)["summary"]["stats"];
+    let (valid, cells) = (survey["valid"].as_f64().unwrap(), survey["cells"].as_f64().unwrap());
+    assert!(valid > 0.5 * cells, "DSM cells with a height: {valid} of {cells}");
+
+    // The report: every section, every number finite, every image decodes.
+    let html = std::fs::read_to_string(project.join("report.html")).unwrap();
+    let (images, sections, words) = parse_report(&html);
+    for want in ["stages", "import", "registration", "poses", "products", "accuracy", "cloud"] {
+        assert!(sections.iter().any(|s| s == want), "section {want} missing: {sections:?}");
+    }
+    assert!(images.len() >= 4, "camera positions, hillshade, ortho and NDVI: {images:?}");
+    for w in &words {
+        let l = w.to_ascii_lowercase();
+        assert!(
+            !(l == "nan" || l == "inf" || l == "-inf" || l.contains("nan ")),
+            "a non-finite number in the report: {w}"
+        );
+        if let Ok(v) = w.parse::<f64>() {
+            assert!(v.is_finite(), "{w}");
+        }
+    }
+    assert!(words.iter().any(|w| w == "PSNR"), "the held-out table");
+
+    // A rerun: every stage current, nothing rewritten.
+    let stamp = std::fs::metadata(products.join("dsm.tif")).unwrap().modified().unwrap();
+    let s = process(&o, &mut |_| {}).unwrap();
+    assert!(statuses(&s).iter().all(|(_, st)| st == "current"), "{:?}", statuses(&s));
+    assert_eq!(std::fs::metadata(products.join("dsm.tif")).unwrap().modified().unwrap(), stamp);
+
+    // An output edited by hand stops the run, naming the file; restored, the run goes on.
+    let check = project.join("check.json");
+    let original = std::fs::read(&check).unwrap();
+    std::fs::write(&check, b"{}").unwrap();
+    let e = process(&o, &mut |_| {}).unwrap_err().to_string();
+    assert!(e.contains("check.json") && e.contains("check"), "{e}");
+    std::fs::write(&check, original).unwrap();
+
+    // --redo survey: the survey and the report again, nothing before them.
+    let s = process(&Stage::Survey.redo_of(o), &mut |_| {}).unwrap();
+    let st = statuses(&s);
+    for (stage, status) in st {
+        let want = if stage >= Stage::Survey { "ran" } else { "current" };
+        assert_eq!(status, want, "{stage:?}");
+    }
+}
+
+trait Redo {
+    fn redo_of(self, o: ProcessOptions) -> ProcessOptions;
+}
+
+impl Redo for Stage {
+    fn redo_of(self, o: ProcessOptions) -> ProcessOptions {
+        ProcessOptions { redo: Some(self), ..o }
+    }
+}
