@@ -186,6 +186,9 @@ pub fn run(cli: &Cli, a: &TrainArgs) -> anyhow::Result<()> {
         s.stopped_early.map(|w| format!(" (stopped: {w})")).unwrap_or_default()
     );
     println!("depth supervision: {}", s.depth_supervision);
+    for n in &s.notes {
+        println!("warning: {n}");
+    }
     println!("run folder: {}", s.run_dir.display());
     Ok(())
 }

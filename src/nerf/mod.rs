@@ -1,6 +1,7 @@
 //! The nerfacto pipeline for B spectral bands: ray generation, proposal sampling, the fields, volume rendering,
 //! losses and training (spec/nerfacto.md §2; Multispectral-NeRF §3).
 
+pub mod background_guard;
 pub mod buffers;
 pub mod camera_path;
 pub mod camera_poses;

@@ -13,6 +13,7 @@
 //! Ctrl-C or SIGTERM (a Slurm preemption or time limit) saves a checkpoint and stops; `--resume` continues from the
 //! latest one; `--time-budget` stops in time.
 
+use super::background_guard::{constant_psnr, BackgroundGuard, NOTHING_LEARNT_DB};
 use super::config::{LrSchedule, ModelConfig};
 use super::error::{NerfError, NerfResult};
 use super::model::Model;
@@ -88,7 +89,13 @@ pub struct TrainSummary {
     pub mlp_tiling: String,
     /// What depth supervision did in this run (`loss.depth` resolved against the dataset).
     pub depth_supervision: String,
+    /// Named warnings of the run: a field that turned transparent and was re-warmed, a run that learnt nothing
+    /// ([`NOTHING_LEARNT`]).
+    pub notes: Vec<String>,
 }
+
+/// The start of the note of a run whose held-out PSNR stayed near a constant colour's.
+pub const NOTHING_LEARNT: &str = "nothing learnt";
 
 /// Consecutive NaN/Inf-poisoned steps after which training stops.
 pub const MAX_POISONED_STEPS: u32 = 5;
@@ -373,6 +380,8 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     };
     let mut steps =
         StepLog::new(metrics, metrics_path, bar, run.join("checkpoints"), (cfg.trainer.rays_per_batch, max_steps));
+    // A resumed run past its warm-up has nothing left to guard.
+    steps.guard = BackgroundGuard::new(&cfg.rendering).filter(|g| state.step < g.switch_at);
     let mut step_ms_total = 0.0f64;
     let r = cfg.trainer.rays_per_batch;
     // Steps submitted; `state.step` counts the completed ones (they differ by the steps in flight).
@@ -416,6 +425,9 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
         let done = done.map_err(NerfError::gpu(format!("step {}", submitted - 1)))?;
         step_ms_total += t0.elapsed().as_secs_f64() * 1e3;
         steps.take(done, &mut state)?;
+        if let Some(end) = steps.rewarm_to.take() {
+            pipe.model.cfg.rendering.random_background_steps = end;
+        }
         if want_eval {
             let p = eval_psnr(&mut pipe, &eval)?;
             summary.first_eval_psnr.get_or_insert(p);
@@ -469,6 +481,18 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     summary.device = ctx.caps().summary_line();
     summary.environment = crate::util::env::settings().set_switches();
     summary.mlp_tiling = format!("{:?}", pipe.model.field.mlp.tiling);
+    summary.notes = steps.guard.as_ref().map(|g| g.notes.clone()).unwrap_or_default();
+    if let (Some(best), Some(c)) = (summary.best_eval_psnr, constant_psnr(&eval.targets, bands)) {
+        if best < c + NOTHING_LEARNT_DB {
+            let note = format!(
+                "{NOTHING_LEARNT}: the best held-out PSNR, {best:.2} dB, is within {NOTHING_LEARNT_DB} dB of what one \
+                 constant colour per band scores on the same pixels ({c:.2} dB): the field learnt little of the \
+                 scene (too few steps, wrong poses, or images that disagree)"
+            );
+            log::warn!("{note}");
+            summary.notes.push(note);
+        }
+    }
     let s = serde_json::to_string_pretty(&summary).expect("json");
     write_atomic_str(&run.join("summary.json"), s.as_bytes())?;
     Ok(summary)
@@ -503,6 +527,9 @@ struct StepLog {
     profiled_steps: u64,
     /// When the previous results arrived (the per-step time logged is the time between arrivals).
     last_arrival: Instant,
+    /// The random-background warm-up's guard, and the warm-up end it asks for after a collapse.
+    guard: Option<BackgroundGuard>,
+    rewarm_to: Option<u64>,
 }
 
 impl StepLog {
@@ -530,6 +557,8 @@ impl StepLog {
             gpu_ms_total: 0.0,
             profiled_steps: 0,
             last_arrival: Instant::now(),
+            guard: None,
+            rewarm_to: None,
         }
     }
 
@@ -581,6 +610,12 @@ impl StepLog {
             if let Some(b) = &self.bar {
                 b.set_position(state.step);
                 b.set_message(format!("{rays_per_s:.0} rays/s loss {:.4} psnr {:.2}", stats.loss, stats.psnr));
+            }
+            if let Some(end) = self.guard.as_mut().and_then(|g| g.observe(stats.step, stats.loss_rgb)) {
+                self.rewarm_to = Some(end);
+                let note = self.guard.as_ref().and_then(|g| g.notes.last().cloned()).unwrap_or_default();
+                log::warn!("{note}");
+                self.log(serde_json::json!({"step": stats.step, "background_rewarm_until": end}))?;
             }
             self.last = stats;
         }

@@ -207,7 +207,10 @@ pub(super) fn train(o: &ProcessOptions, inputs: &str, progress: Progress) -> Res
     if s.stopped_early.is_some() && o.stop.as_ref().is_some_and(|f| f.load(std::sync::atomic::Ordering::Relaxed)) {
         return Err(fail(&"interrupted: the checkpoint is kept, and a rerun resumes from it"));
     }
-    let notes = vec![
+    if let Some(n) = s.notes.iter().find(|n| n.starts_with(crate::nerf::trainer::NOTHING_LEARNT)) {
+        return Err(fail(&format!("{n}; the products would show nothing of the flight (see {})", run.display())));
+    }
+    let mut notes = vec![
         format!(
             "{} steps in {:.0} s; held-out PSNR (sampled pixels) best {}",
             s.steps,
@@ -216,13 +219,14 @@ pub(super) fn train(o: &ProcessOptions, inputs: &str, progress: Progress) -> Res
         ),
         format!("depth supervision: {}", s.depth_supervision),
     ];
+    notes.extend(s.notes.iter().map(|n| format!("warning: {n}")));
     let r = paths::run();
     let summary = json!({
         "model": fitted.model.name, "hardware": fitted.plan.profile, "steps": s.steps, "seconds": s.elapsed_s,
         "rays_per_s": s.rays_per_s, "best_sampled_eval_psnr": s.best_eval_psnr, "eval_history": s.eval_history,
         "depth_supervision": s.depth_supervision, "device": s.device, "planned_vram_bytes": fitted.plan.vram.total_bytes,
         "planned_host_bytes": fitted.plan.host.peak_bytes, "peak_gpu_bytes": s.peak_gpu_bytes,
-        "peak_cache_bytes": s.peak_cache_bytes, "stopped_early": s.stopped_early,
+        "peak_cache_bytes": s.peak_cache_bytes, "stopped_early": s.stopped_early, "notes": s.notes,
     });
     with_gpu(
         done(

@@ -26,6 +26,7 @@ mod poses_colmap;
 mod poses_colmap_rigs;
 mod poses_metashape;
 mod poses_opensfm;
+mod rig_flight;
 mod rig_import;
 mod rig_real;
 mod sfm_colmap;

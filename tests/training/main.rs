@@ -6,6 +6,7 @@ mod common;
 #[path = "../geo_support/mod.rs"]
 mod geo_support;
 
+mod background_guard;
 mod bench_cli;
 mod config_errors;
 mod depth_supervision;
