@@ -3,14 +3,18 @@
 //! - [`BackgroundGuard`]: after the `random` warm-up (`rendering.random_background_steps`) the `last_sample`
 //!   background lets a field that stays transparent cost nothing, and on some flights and seeds the field collapses
 //!   right at the switch: every ray's weight moves behind the ground, the distortion loss falls to 0 and the colour
-//!   loss doubles within a hundred steps, then stays (a nadir grid flight of `flight-rural`: 3 of 6 images-only
-//!   runs; the bisection of issue 50's importer keys was this, not a key). The guard compares the colour loss of the
-//!   [`WINDOW`] steps after the switch with the [`WINDOW`] steps before it; a rise by [`COLLAPSE_RATIO`] is a
+//!   loss doubles within a hundred steps, then stays (a nadir grid flight of `flight-rural`: 1 of 6 images-only
+//!   runs stayed there; the bisection of issue 50's importer keys was this, not a key). A switch is often followed
+//!   by a dip that recovers within a few hundred steps (the colour loss doubles too, but the weights stay on a
+//!   surface: the distortion loss keeps its size), which must be left alone. So the guard compares the
+//!   [`WINDOW`] steps after the switch with the [`WINDOW`] steps before it, over the [`WATCH`] steps after it: the
+//!   colour loss up by [`COLLAPSE_RATIO`] *and* the distortion loss down to [`TRANSPARENT_RATIO`] of its size is a
 //!   collapse, and the warm-up is extended by [`REWARM_STEPS`] (the field turns opaque again under the random
 //!   background), up to [`MAX_REWARMS`] times, after which the random background stays for the rest of the run.
 //!   Every re-warm is logged and recorded in the run's summary.
 //! - [`constant_psnr`]: the held-out PSNR a constant colour per band scores on the same pixels; a run whose best
-//!   held-out PSNR stays within [`NOTHING_LEARNT_DB`] of it learnt little of the scene, and says so.
+//!   held-out PSNR stays within [`NOTHING_LEARNT_DB`] of it learnt little of the scene, and says so; targets below
+//!   [`SMALL_VALUES`] in every band (radiance rather than reflectance) are named as the likely reason.
 
 use std::collections::VecDeque;
 
@@ -18,22 +22,26 @@ use super::config::{Background, RenderingConfig};
 
 /// Steps compared before and after the switch.
 pub const WINDOW: usize = 40;
-/// A colour loss this many times the warm-up's is a collapse.
+/// A colour loss this many times the warm-up's, with a distortion loss below [`TRANSPARENT_RATIO`] of the warm-up's,
+/// is a collapse.
 pub const COLLAPSE_RATIO: f64 = 1.5;
+/// The distortion loss of a transparent field (no weight on any surface) relative to the warm-up's.
+pub const TRANSPARENT_RATIO: f64 = 0.1;
 /// Steps of `random` background added after a collapse.
 pub const REWARM_STEPS: u64 = 300;
 /// Re-warms before the random background stays.
 pub const MAX_REWARMS: u32 = 3;
 /// Steps after a switch during which a collapse is looked for.
-const WATCH: u64 = 3 * WINDOW as u64;
+pub const WATCH: u64 = 400;
 
 /// Watches the switch from the random warm-up to `background`.
 #[derive(Debug, Clone)]
 pub struct BackgroundGuard {
     /// The step the warm-up ends at (the configuration's, then each re-warm's).
     pub switch_at: u64,
-    before: VecDeque<f64>,
-    after: VecDeque<f64>,
+    /// (colour loss, distortion loss) of the last steps before and after the switch.
+    before: VecDeque<(f64, f64)>,
+    after: VecDeque<(f64, f64)>,
     pub rewarms: u32,
     /// What the guard did, one line each.
     pub notes: Vec<String>,
@@ -51,17 +59,18 @@ impl BackgroundGuard {
         })
     }
 
-    /// Feeds the colour loss of completed step `step` (in order). Returns the new end of the warm-up when the field
-    /// collapsed after the switch.
-    pub fn observe(&mut self, step: u64, loss_rgb: f64) -> Option<u64> {
-        if !loss_rgb.is_finite() {
+    /// Feeds the colour and distortion losses of completed step `step` (in order). Returns the new end of the
+    /// warm-up when the field collapsed after the switch.
+    pub fn observe(&mut self, step: u64, loss_rgb: f64, loss_distortion: f64) -> Option<u64> {
+        if !(loss_rgb.is_finite() && loss_distortion.is_finite()) {
             return None;
         }
+        let losses = (loss_rgb, loss_distortion);
         if step < self.switch_at {
             if self.before.len() == WINDOW {
                 self.before.pop_front();
             }
-            self.before.push_back(loss_rgb);
+            self.before.push_back(losses);
             return None;
         }
         if step >= self.switch_at + WATCH || self.before.len() < WINDOW / 2 {
@@ -70,13 +79,16 @@ impl BackgroundGuard {
         if self.after.len() == WINDOW {
             self.after.pop_front();
         }
-        self.after.push_back(loss_rgb);
+        self.after.push_back(losses);
         if self.after.len() < WINDOW {
             return None;
         }
-        let mean = |v: &VecDeque<f64>| v.iter().sum::<f64>() / v.len() as f64;
-        let (b, a) = (mean(&self.before), mean(&self.after));
-        if a <= COLLAPSE_RATIO * b {
+        let mean = |v: &VecDeque<(f64, f64)>| {
+            let n = v.len() as f64;
+            (v.iter().map(|x| x.0).sum::<f64>() / n, v.iter().map(|x| x.1).sum::<f64>() / n)
+        };
+        let ((b, bd), (a, ad)) = (mean(&self.before), mean(&self.after));
+        if a <= COLLAPSE_RATIO * b || ad >= TRANSPARENT_RATIO * bd {
             return None;
         }
         self.rewarms += 1;
@@ -90,7 +102,7 @@ impl BackgroundGuard {
         };
         self.notes.push(format!(
             "step {step}: the field turned transparent after the switch to the {} background (colour loss {b:.3e} -> \
-             {a:.3e}): {what}",
+             {a:.3e}, distortion loss {bd:.2e} -> {ad:.2e}): {what}",
             "last_sample"
         ));
         self.switch_at = end;
@@ -98,8 +110,29 @@ impl BackgroundGuard {
     }
 }
 
-/// A held-out PSNR this close to [`constant_psnr`] means the field learnt little of the scene.
-pub const NOTHING_LEARNT_DB: f64 = 3.0;
+/// A held-out PSNR less than this above [`constant_psnr`] means the field predicts held-out views no better than
+/// a constant colour per band: it learnt little of the scene.
+pub const NOTHING_LEARNT_DB: f64 = 1.0;
+
+/// Targets whose 99th percentile stays below this in every band are small for the colour head's sigmoid (its
+/// gradient near 0 is a few percent of its gradient at 0.5): radiance in W/(m² sr nm) trains several times slower
+/// than reflectance of the same scene.
+pub const SMALL_VALUES: f64 = 0.2;
+
+/// The largest per-band 99th percentile of `targets` (`bands + 1` values per pixel, the last the weight).
+pub fn band_p99_max(targets: &[f32], bands: usize) -> Option<f64> {
+    let n = targets.len() / (bands + 1);
+    (0..bands)
+        .filter_map(|k| {
+            let mut v: Vec<f64> = (0..n).map(|i| targets[i * (bands + 1) + k] as f64).filter(|x| x.is_finite()).collect();
+            if v.is_empty() {
+                return None;
+            }
+            v.sort_by(f64::total_cmp);
+            Some(v[((v.len() - 1) as f64 * 0.99).round() as usize])
+        })
+        .reduce(f64::max)
+}
 
 /// The PSNR (data range 1) of the best constant colour per band on the weighted targets `targets` (`bands + 1`
 /// values per pixel: the bands, then the pixel's weight; NaN band values are left out), as

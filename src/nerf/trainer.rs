@@ -13,7 +13,7 @@
 //! Ctrl-C or SIGTERM (a Slurm preemption or time limit) saves a checkpoint and stops; `--resume` continues from the
 //! latest one; `--time-budget` stops in time.
 
-use super::background_guard::{constant_psnr, BackgroundGuard, NOTHING_LEARNT_DB};
+use super::background_guard::{band_p99_max, constant_psnr, BackgroundGuard, NOTHING_LEARNT_DB, SMALL_VALUES};
 use super::config::{LrSchedule, ModelConfig};
 use super::error::{NerfError, NerfResult};
 use super::model::Model;
@@ -482,12 +482,23 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     summary.environment = crate::util::env::settings().set_switches();
     summary.mlp_tiling = format!("{:?}", pipe.model.field.mlp.tiling);
     summary.notes = steps.guard.as_ref().map(|g| g.notes.clone()).unwrap_or_default();
+    let small = band_p99_max(&eval.targets, bands).filter(|m| *m < SMALL_VALUES);
+    if let Some(m) = small {
+        let note = format!(
+            "the held-out values are small in every band (99th percentile at most {m:.3}): the colour head's sigmoid \
+             fits values near 0 slowly (radiance trains several times slower than reflectance of the same scene); \
+             import reflectance (`import rig` without `--units radiance`) where the flight allows"
+        );
+        log::warn!("{note}");
+        summary.notes.push(note);
+    }
     if let (Some(best), Some(c)) = (summary.best_eval_psnr, constant_psnr(&eval.targets, bands)) {
         if best < c + NOTHING_LEARNT_DB {
             let note = format!(
                 "{NOTHING_LEARNT}: the best held-out PSNR, {best:.2} dB, is within {NOTHING_LEARNT_DB} dB of what one \
                  constant colour per band scores on the same pixels ({c:.2} dB): the field learnt little of the \
-                 scene (too few steps, wrong poses, or images that disagree)"
+                 scene (too few steps, wrong poses, images that disagree{})",
+                if small.is_some() { ", values too small for the colour head" } else { "" }
             );
             log::warn!("{note}");
             summary.notes.push(note);
@@ -611,7 +622,9 @@ impl StepLog {
                 b.set_position(state.step);
                 b.set_message(format!("{rays_per_s:.0} rays/s loss {:.4} psnr {:.2}", stats.loss, stats.psnr));
             }
-            if let Some(end) = self.guard.as_mut().and_then(|g| g.observe(stats.step, stats.loss_rgb)) {
+            if let Some(end) =
+                self.guard.as_mut().and_then(|g| g.observe(stats.step, stats.loss_rgb, stats.loss_distortion))
+            {
                 self.rewarm_to = Some(end);
                 let note = self.guard.as_ref().and_then(|g| g.notes.last().cloned()).unwrap_or_default();
                 log::warn!("{note}");
