@@ -2,6 +2,7 @@
 
 use super::Cli;
 use crate::gpu::Context;
+use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
@@ -11,6 +12,23 @@ pub struct BenchArgs {
 
 #[derive(clap::Subcommand, Debug)]
 pub enum BenchWhat {
+    /// A processed raw flight against the simulator's truth: captures, CRS, reflectance, registration, cloud and
+    /// DSM (datum shift removed), held-out PSNR, stage times and memory (`make flight-acceptance`)
+    Flight {
+        /// The simulated flight's folder (`simulate --raw-rig --out`: card/ and truth/)
+        #[arg(long)]
+        flight: PathBuf,
+        /// The project `msnerf process` made of its card
+        #[arg(long)]
+        project: PathBuf,
+        /// A run trained on the flight's truth/dataset, and the folder of its cloud.las and dsm.tif
+        #[arg(long, requires = "direct_products")]
+        direct_run: Option<PathBuf>,
+        #[arg(long, requires = "direct_run")]
+        direct_products: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Training-step time, rays/s and per-kernel breakdown for model profiles at several band counts
     Train {
         /// Model profiles (built-in names or YAML files), comma separated
@@ -73,6 +91,16 @@ pub enum BenchWhat {
 }
 
 pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
+    if let BenchWhat::Flight { ref flight, ref project, ref direct_run, ref direct_products, json } = args.what {
+        let direct = direct_run.as_deref().zip(direct_products.as_deref());
+        let r = crate::bench::flight::flight_acceptance(flight, project, direct)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&r)?);
+        } else {
+            print!("{}", r.table());
+        }
+        return Ok(());
+    }
     if let BenchWhat::Import { ref dir, replicate, threads, json } = args.what {
         let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
         let r = crate::bench::import::run(dir, replicate, threads)?;
@@ -131,7 +159,7 @@ pub fn run(cli: &Cli, args: &BenchArgs) -> anyhow::Result<()> {
                 println!("{}", serde_json::to_string_pretty(&all)?);
             }
         }
-        BenchWhat::Import { .. } => unreachable!("handled above"),
+        BenchWhat::Import { .. } | BenchWhat::Flight { .. } => unreachable!("handled above"),
         BenchWhat::Kernels { points, rows, repeats, json, ref filter } => {
             let r = crate::bench::kernels::run(&ctx, points, rows, repeats, filter.as_deref())?;
             if json {

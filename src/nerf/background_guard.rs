@@ -124,7 +124,8 @@ pub fn band_p99_max(targets: &[f32], bands: usize) -> Option<f64> {
     let n = targets.len() / (bands + 1);
     (0..bands)
         .filter_map(|k| {
-            let mut v: Vec<f64> = (0..n).map(|i| targets[i * (bands + 1) + k] as f64).filter(|x| x.is_finite()).collect();
+            let mut v: Vec<f64> =
+                (0..n).map(|i| targets[i * (bands + 1) + k] as f64).filter(|x| x.is_finite()).collect();
             if v.is_empty() {
                 return None;
             }

@@ -719,6 +719,13 @@ pub fn simulate_raw_rig(desc: &SceneDesc, opts: &RawRigOptions, out: &Path) -> R
     std::fs::create_dir_all(&truth).map_err(SimError::io(&truth))?;
     crate::sim::simulate(&tdesc, &SimOptions { overwrite: false, ..sim_opts }, &truth.join("dataset"))?;
     super::truth::write_flight_truth(&truth, &profile, opts, desc, &crs, &prep, &irradiance, &records)?;
+    // The scene as simulated, so the truth's geometry can be rebuilt from the flight folder alone.
+    let scene_text =
+        match crate::sim::scene::BUILTIN_SCENES.iter().find(|(n, _)| desc.source == format!("built-in scene `{n}`")) {
+            Some((_, text)) => text.to_string(),
+            None => std::fs::read_to_string(&desc.source).map_err(SimError::io(&desc.source))?,
+        };
+    std::fs::write(truth.join("scene.yaml"), scene_text).map_err(SimError::io(truth.join("scene.yaml")))?;
     write_json(
         &truth.join("panel.json"),
         &json!({

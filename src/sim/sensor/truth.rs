@@ -82,6 +82,11 @@ pub fn write_flight_truth(
         &json!({
             "scene": desc.name,
             "seed": prep.seed,
+            "options": {
+                "sensor": opts.sensor, "width": profile.width, "height": profile.height, "views": prep.poses.len(),
+                "seed": prep.seed, "firmware": profile.firmware, "gps_noise_m": opts.gps_noise_m,
+                "gps_shift_m": opts.gps_shift_m, "start": opts.start, "interval_s": opts.interval_s,
+            },
             "sensor": profile.kind,
             "make": profile.make,
             "model": profile.model,

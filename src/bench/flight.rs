@@ -1,0 +1,379 @@
+//! `msnerf bench flight`: a processed raw flight (`msnerf process`) against the truth the simulator wrote beside it
+//! (`msnerf simulate --raw-rig`), every product compared (issue 50's acceptance; `make flight-acceptance` runs it):
+//!
+//! - captures registered by SfM, and the CRS of every product;
+//! - reflectance: every imported image's pixels on ground away from material edges against the scene's value there
+//!   (reflectance times its light and texture, traced through the reference band's camera at the capture's true
+//!   pose), the median ratio per band;
+//! - band registration against the rig's true correspondences ([`crate::sim::sensor::registration_truth`]);
+//! - the cloud against the scene's true surface points, the DSM against the true DSM, both after removing the GPS
+//!   datum shift the simulation stated (no method without ground control can know it; the rest of the GPS error
+//!   stays in the figures);
+//! - held-out PSNR and SSIM per band, each stage's time and peak memory against the planner's host figure;
+//! - optionally, the same flight written directly by the simulator and trained and exported the same way.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::output::compare::{compare_clouds_with, AccuracyOptions, CompareOptions};
+use crate::output::pointcloud::read_cloud;
+use crate::output::raster::geotiff_read::read_geotiff;
+use crate::sim::sensor::flight::{prepare, RawRigOptions};
+use crate::sim::SceneDesc;
+
+/// Errors of the benchmark name the file.
+#[derive(Debug, thiserror::Error)]
+pub enum FlightBenchError {
+    #[error("{}: {reason}", path.display())]
+    File { path: PathBuf, reason: String },
+    #[error("{0}")]
+    Other(String),
+}
+
+fn file_err(path: &Path) -> impl Fn(&dyn std::fmt::Display) -> FlightBenchError + '_ {
+    move |e| FlightBenchError::File { path: path.to_path_buf(), reason: e.to_string() }
+}
+
+fn read_json(path: &Path) -> Result<Value, FlightBenchError> {
+    let text = std::fs::read_to_string(path).map_err(|e| file_err(path)(&e))?;
+    serde_json::from_str(&text).map_err(|e| file_err(path)(&e))
+}
+
+/// Reflectance of one band: imported over true value on ground pixels away from edges.
+#[derive(Debug, Clone, Serialize)]
+pub struct BandReflectance {
+    pub band: String,
+    pub median_ratio: f64,
+    pub p10_ratio: f64,
+    pub p90_ratio: f64,
+    pub pixels: usize,
+}
+
+/// A surface product against the truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct SurfaceStats {
+    pub count: usize,
+    pub median_abs_m: f64,
+    pub bias_m: f64,
+    pub within_0_10: f64,
+    pub within_0_25: f64,
+    pub within_0_50: f64,
+}
+
+/// The whole comparison.
+#[derive(Debug, Clone, Serialize)]
+pub struct FlightAcceptance {
+    pub flight: String,
+    pub project: String,
+    pub sensor: Value,
+    pub captures: usize,
+    pub registered: usize,
+    pub crs: String,
+    pub products_crs: Vec<(String, Option<u16>)>,
+    pub datum_shift_m: [f64; 3],
+    pub reflectance: Vec<BandReflectance>,
+    pub eval: Vec<(String, f64, f64)>,
+    /// The cloud's accuracy: distance of its points to the true surface (median, RMSE planar and vertical).
+    pub cloud: Value,
+    pub dsm: SurfaceStats,
+    pub stages: Vec<Value>,
+    pub direct: Option<Value>,
+}
+
+fn pct(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// The raw-rig options the flight was simulated with (its truth records them).
+fn flight_options(truth: &Value) -> Result<RawRigOptions, FlightBenchError> {
+    let o = &truth["options"];
+    let sensor: crate::sim::sensor::SensorKind = serde_json::from_value(o["sensor"].clone())
+        .map_err(|e| FlightBenchError::Other(format!("truth/flight.json options.sensor: {e}")))?;
+    let num = |k: &str| o[k].as_u64().ok_or_else(|| FlightBenchError::Other(format!("truth/flight.json options.{k}")));
+    Ok(RawRigOptions {
+        sensor,
+        width: Some(num("width")? as u32),
+        height: Some(num("height")? as u32),
+        views: Some(num("views")? as usize),
+        seed: Some(num("seed")?),
+        ..Default::default()
+    })
+}
+
+/// Imported images against the scene (module doc).
+fn reflectance(flight: &Path, dataset: &Path, truth: &Value) -> Result<Vec<BandReflectance>, FlightBenchError> {
+    let scene_path = flight.join("truth/scene.yaml");
+    let text = std::fs::read_to_string(&scene_path).map_err(|e| file_err(&scene_path)(&e))?;
+    let desc = SceneDesc::from_yaml(&text, &scene_path.display().to_string())
+        .map_err(|e| FlightBenchError::Other(e.to_string()))?;
+    let (profile, _, prep, _) =
+        prepare(&desc, &flight_options(truth)?).map_err(|e| FlightBenchError::Other(e.to_string()))?;
+    let t = read_json(&dataset.join("transforms.json"))?;
+    // The dataset's frames are the importer's reference band's camera (its rig pose in the scene's reference camera).
+    let reference = t["reference_band"].as_str().unwrap_or_default();
+    let rb = profile.bands.iter().find(|b| b.name == reference).ok_or_else(|| {
+        FlightBenchError::Other(format!("the dataset's reference band {reference:?} is not a band of the camera"))
+    })?;
+    let rig = crate::sim::sensor::forward::RigPose::of(&profile, rb);
+    let bands: Vec<String> =
+        t["bands"].as_array().into_iter().flatten().filter_map(|b| b["name"].as_str().map(String::from)).collect();
+    // The scene's bands are the camera's in wavelength order, as the dataset's.
+    let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); bands.len()];
+    let (sun, brdf) = prep.light_model();
+    for f in t["frames"].as_array().into_iter().flatten() {
+        let file = f["file_path"].as_str().unwrap_or_default();
+        let number: usize = Path::new(file)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .and_then(|s| s.rsplit('_').next())
+            .and_then(|n| n.parse().ok())
+            .ok_or_else(|| FlightBenchError::Other(format!("frame {file}: not a capture's image name")))?;
+        let Some(view) = number.checked_sub(1).filter(|v| *v < prep.poses.len()) else { continue };
+        let path = dataset.join(file);
+        let (w, h, planes) = read_f32_planes(&path)?;
+        let (fx, fy, cx, cy) = (f["fl_x"].as_f64(), f["fl_y"].as_f64(), f["cx"].as_f64(), f["cy"].as_f64());
+        let (Some(fx), Some(fy), Some(cx), Some(cy)) = (fx, fy, cx, cy) else { continue };
+        let c2w = prep.poses[view];
+        let rot = |p: [f64; 3]| [0, 1, 2].map(|i| c2w[i][0] * p[0] + c2w[i][1] * p[1] + c2w[i][2] * p[2]);
+        let oc = rot([rig.center.x, -rig.center.y, -rig.center.z]);
+        let origin = [c2w[0][3] + oc[0], c2w[1][3] + oc[1], c2w[2][3] + oc[2]];
+        let trace = |col: usize, row: usize| {
+            let d =
+                rig.ref_from_band * glam::DVec3::new((col as f64 + 0.5 - cx) / fx, (row as f64 + 0.5 - cy) / fy, 1.0);
+            let dw = rot([d.x, -d.y, -d.z]);
+            let n = (dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2]).sqrt();
+            prep.shade(origin, dw.map(|c| c / n), sun, brdf)
+        };
+        for row in (2..h.saturating_sub(2)).step_by(5) {
+            for col in (2..w.saturating_sub(2)).step_by(5) {
+                let (hit, light) = trace(col, row);
+                if hit.kind != crate::sim::geometry::HitKind::Ground || hit.normal[2] < 0.99 {
+                    continue;
+                }
+                // Away from material edges and shadow edges: the neighbours two pixels away see the same.
+                let same = [(col - 2, row), (col + 2, row), (col, row - 2), (col, row + 2)].iter().all(|&(c, r)| {
+                    let (hn, ln) = trace(c, r);
+                    hn.material == hit.material && (ln / light - 1.0).abs() < 0.1
+                });
+                if !same {
+                    continue;
+                }
+                for (b, plane) in planes.iter().enumerate() {
+                    let truth_v = prep.materials[hit.material].refl[b] * light;
+                    let v = plane[row * w + col] as f64;
+                    if truth_v > 0.01 && v.is_finite() {
+                        ratios[b].push(v / truth_v);
+                    }
+                }
+            }
+        }
+    }
+    Ok(bands
+        .into_iter()
+        .zip(ratios)
+        .map(|(band, mut r)| BandReflectance {
+            band,
+            pixels: r.len(),
+            p10_ratio: pct(&mut r, 0.1),
+            p90_ratio: pct(&mut r, 0.9),
+            median_ratio: pct(&mut r, 0.5),
+        })
+        .collect())
+}
+
+fn read_f32_planes(path: &Path) -> Result<(usize, usize, Vec<Vec<f32>>), FlightBenchError> {
+    use tiff::decoder::{Decoder, DecodingResult};
+    let f = std::fs::File::open(path).map_err(|e| file_err(path)(&e))?;
+    let mut d = Decoder::new(std::io::BufReader::new(f)).map_err(|e| file_err(path)(&e))?;
+    let (w, h) = d.dimensions().map_err(|e| file_err(path)(&e))?;
+    let DecodingResult::F32(v) = d.read_image().map_err(|e| file_err(path)(&e))? else {
+        return Err(file_err(path)(&"not float32"));
+    };
+    let (w, h) = (w as usize, h as usize);
+    let nb = v.len() / (w * h).max(1);
+    Ok((w, h, (0..nb).map(|b| (0..w * h).map(|i| v[i * nb + b]).collect()).collect()))
+}
+
+/// A cloud (shifted by `-shift`) against the truth's surface points.
+fn cloud_stats(cloud: &Path, truth: &Path, shift: [f64; 3]) -> Result<Value, FlightBenchError> {
+    let mut c = read_cloud(cloud).map_err(|e| file_err(cloud)(&e))?;
+    for p in &mut c.positions {
+        for (v, s) in p.iter_mut().zip(shift) {
+            *v -= s;
+        }
+    }
+    let r = read_cloud(truth).map_err(|e| file_err(truth)(&e))?;
+    let rep = compare_clouds_with(&c, &r, &CompareOptions::default(), &AccuracyOptions::default())
+        .map_err(|e| file_err(cloud)(&e))?;
+    Ok(serde_json::json!({
+        "points": rep.pred_points, "accuracy_median_m": rep.accuracy.median, "accuracy_rmse_m": rep.accuracy.rmse,
+        "completeness_median_m": rep.completeness.median, "f_score": rep.f_score, "position": rep.position,
+        "within": rep.within, "standard": rep.standard,
+    }))
+}
+
+/// A DSM (shifted by `-shift`) against the true DSM, cell by cell (the truth cell under each product cell's centre).
+fn dsm_stats(dsm: &Path, truth: &Path, shift: [f64; 3]) -> Result<SurfaceStats, FlightBenchError> {
+    let p = read_geotiff(dsm).map_err(|e| file_err(dsm)(&e))?;
+    let t = read_geotiff(truth).map_err(|e| file_err(truth)(&e))?;
+    let mut dz = Vec::new();
+    for row in 0..p.grid.height {
+        for col in 0..p.grid.width {
+            let v = p.value(0, col, row);
+            if p.is_nodata(v) {
+                continue;
+            }
+            let c = p.grid.centre(col, row);
+            let Some((tc, tr)) = t.grid.pixel_at(c[0] - shift[0], c[1] - shift[1]) else { continue };
+            let tv = t.value(0, tc, tr);
+            if t.is_nodata(tv) {
+                continue;
+            }
+            dz.push(v as f64 - shift[2] - tv as f64);
+        }
+    }
+    let n = dz.len().max(1) as f64;
+    let within = |x: f64| dz.iter().filter(|d| d.abs() <= x).count() as f64 / n;
+    let mut abs: Vec<f64> = dz.iter().map(|d| d.abs()).collect();
+    let mut signed = dz.clone();
+    Ok(SurfaceStats {
+        count: dz.len(),
+        median_abs_m: pct(&mut abs, 0.5),
+        bias_m: pct(&mut signed, 0.5),
+        within_0_10: within(0.10),
+        within_0_25: within(0.25),
+        within_0_50: within(0.50),
+    })
+}
+
+/// Compares the project with the flight's truth; `direct`: a run folder trained on `truth/dataset` whose products
+/// (`cloud.las`, `dsm.tif`) lie in `direct_products`.
+pub fn flight_acceptance(
+    flight: &Path,
+    project: &Path,
+    direct: Option<(&Path, &Path)>,
+) -> Result<FlightAcceptance, FlightBenchError> {
+    let truth = read_json(&flight.join("truth/flight.json"))?;
+    let shift: [f64; 3] = serde_json::from_value(truth["gps"]["datum_shift_m"].clone())
+        .map_err(|e| FlightBenchError::Other(format!("truth/flight.json gps.datum_shift_m: {e}")))?;
+    let stage = |s: &str| read_json(&project.join(format!("stages/{s}.json")));
+    let poses = stage("poses")?;
+    let captures = truth["captures"].as_array().map_or(0, |c| c.iter().filter(|c| c["kind"] == "flight").count());
+    let products = project.join("products");
+    let products_crs = ["dsm.tif", "ortho.tif"]
+        .iter()
+        .map(|f| {
+            let g = crate::output::raster::geotiff_read::read_grid(&products.join(f)).ok();
+            (f.to_string(), g.and_then(|g| g.epsg))
+        })
+        .collect();
+    let eval = read_json(&project.join("run/eval.json"))?;
+    let eval: Vec<(String, f64, f64)> = eval["bands"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|b| {
+            (
+                b["name"].as_str().unwrap_or("").to_string(),
+                b["psnr"].as_f64().unwrap_or(f64::NAN),
+                b["ssim"].as_f64().unwrap_or(f64::NAN),
+            )
+        })
+        .collect();
+    let truth_cloud = flight.join("truth/dataset/ground_truth.ply");
+    let truth_dsm = flight.join("truth/dataset/truth/dsm.tif");
+    let stages: Vec<Value> = crate::process::Stage::ALL
+        .iter()
+        .filter_map(|s| stage(s.name()).ok())
+        .map(|r| {
+            serde_json::json!({
+                "stage": r["stage"], "seconds": r["seconds"], "peak_host_bytes": r["peak_host_bytes"],
+                "peak_gpu_bytes": r["peak_gpu_bytes"],
+                "planned_host_bytes": r["summary"]["planned_host_bytes"], "planned_vram_bytes": r["summary"]["planned_vram_bytes"],
+            })
+        })
+        .collect();
+    let direct = match direct {
+        None => None,
+        Some((run, prods)) => {
+            let e = read_json(&run.join("eval.json"))?;
+            Some(serde_json::json!({
+                "eval": e["bands"],
+                "cloud": cloud_stats(&prods.join("cloud.las"), &truth_cloud, [0.0; 3])?,
+                "dsm": dsm_stats(&prods.join("dsm.tif"), &truth_dsm, [0.0; 3])?,
+            }))
+        }
+    };
+    Ok(FlightAcceptance {
+        flight: flight.display().to_string(),
+        project: project.display().to_string(),
+        sensor: truth["sensor"].clone(),
+        captures,
+        registered: poses["summary"]["registered"].as_u64().unwrap_or(0) as usize,
+        crs: truth["crs"].as_str().unwrap_or_default().to_string(),
+        products_crs,
+        datum_shift_m: shift,
+        reflectance: reflectance(flight, &project.join("dataset"), &truth)?,
+        eval,
+        cloud: cloud_stats(&products.join("cloud.las"), &truth_cloud, shift)?,
+        dsm: dsm_stats(&products.join("dsm.tif"), &truth_dsm, shift)?,
+        stages,
+        direct,
+    })
+}
+
+impl FlightAcceptance {
+    /// The figures as a plain-text table.
+    pub fn table(&self) -> String {
+        let mut s = format!(
+            "flight {} -> project {}\ncaptures registered {} of {}; crs {}; products {:?}\ndatum shift removed {:?} m\n",
+            self.flight, self.project, self.registered, self.captures, self.crs, self.products_crs, self.datum_shift_m
+        );
+        s += "reflectance (imported / true, ground away from edges): band median [p10, p90] pixels\n";
+        for r in &self.reflectance {
+            s += &format!(
+                "  {:<10} {:.4} [{:.4}, {:.4}] {}\n",
+                r.band, r.median_ratio, r.p10_ratio, r.p90_ratio, r.pixels
+            );
+        }
+        s += "held-out PSNR / SSIM per band:";
+        for (b, p, q) in &self.eval {
+            s += &format!(" {b} {p:.2} dB / {q:.3};");
+        }
+        s += &format!(
+            "\ncloud: {} points, median distance to the true surface {:.3} m, F-score {:.3}\n",
+            self.cloud["points"],
+            self.cloud["accuracy_median_m"].as_f64().unwrap_or(f64::NAN),
+            self.cloud["f_score"].as_f64().unwrap_or(f64::NAN)
+        );
+        let d = &self.dsm;
+        s += &format!(
+            "DSM: {} cells, median |dz| {:.3} m, bias {:+.3} m, within 0.10/0.25/0.50 m {:.1}/{:.1}/{:.1} %\n",
+            d.count,
+            d.median_abs_m,
+            d.bias_m,
+            100.0 * d.within_0_10,
+            100.0 * d.within_0_25,
+            100.0 * d.within_0_50
+        );
+        for st in &self.stages {
+            s += &format!(
+                "stage {}: {:.1} s, peak host {} MiB, GPU {} MiB\n",
+                st["stage"].as_str().unwrap_or(""),
+                st["seconds"].as_f64().unwrap_or(0.0),
+                st["peak_host_bytes"].as_f64().map_or("n/a".into(), |b| format!("{:.0}", b / 1048576.0)),
+                st["peak_gpu_bytes"].as_f64().map_or("n/a".into(), |b| format!("{:.0}", b / 1048576.0)),
+            );
+        }
+        if let Some(d) = &self.direct {
+            s += &format!("direct (the same flight written by the simulator): {d}\n");
+        }
+        s
+    }
+}
