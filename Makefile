@@ -5,7 +5,7 @@ export MSNERF_REQUIRE_VALIDATION ?= 1
 # Fresh GPU buffers hold NaN bits, so a read of memory nobody wrote fails a test on lavapipe as it would on NVIDIA.
 export MSNERF_POISON_BUFFERS ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-paper
 
 setup:
 	@bash tools/setup-debian.sh
@@ -81,3 +81,12 @@ test-slurm: build
 # 2x2 blocks at the same total steps, both clouds and DSMs against the truth (~20 min on 2 cores with lavapipe).
 scale-acceptance: build
 	bash tools/scale-acceptance.sh scale-acceptance-output 8000
+
+# Issue 50's acceptance: a raw flight simulated as a RedEdge-MX card, `msnerf process` from its card, the same flight
+# written directly by the simulator, every product against the truth (docs/results/flight.md; ~15 min on 2 cores).
+flight-acceptance: build
+	bash tools/flight-acceptance.sh ci flight-acceptance-ci 300
+
+# The paper's size: 300 captures of 1280x960 (hours on a CPU: the stages' time and host memory are the figures).
+flight-acceptance-paper: build
+	bash tools/flight-acceptance.sh paper flight-acceptance-paper 600

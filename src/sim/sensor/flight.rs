@@ -717,7 +717,13 @@ pub fn simulate_raw_rig(desc: &SceneDesc, opts: &RawRigOptions, out: &Path) -> R
     tdesc.effects.exposure_drift = None;
     let truth = root.join("truth");
     std::fs::create_dir_all(&truth).map_err(SimError::io(&truth))?;
-    crate::sim::simulate(&tdesc, &SimOptions { overwrite: false, ..sim_opts }, &truth.join("dataset"))?;
+    // With SfM-like points (0.1 m of noise, tracks of 3 views or more), as structure from motion brings them.
+    let sparse = crate::sim::sparse::SparseOptions { count: 600 * nv, noise_m: 0.1, min_views: 3 };
+    crate::sim::simulate(
+        &tdesc,
+        &SimOptions { overwrite: false, sparse_points: Some(sparse), ..sim_opts },
+        &truth.join("dataset"),
+    )?;
     super::truth::write_flight_truth(&truth, &profile, opts, desc, &crs, &prep, &irradiance, &records)?;
     // The scene as simulated, so the truth's geometry can be rebuilt from the flight folder alone.
     let scene_text =

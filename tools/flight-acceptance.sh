@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Issue 50's acceptance (`make flight-acceptance`, `make flight-acceptance-paper`): a flight written by the sensor in
+# the simulator (MicaSense RedEdge-MX files of the flight-rural scene, with a panel capture, GPS noise and a datum
+# shift) through `msnerf process` from its card, the same flight written directly by the simulator trained and
+# exported the same way, and every product of both compared with the truth (`msnerf bench flight`).
+#
+#   tools/flight-acceptance.sh [ci|paper] [OUT] [TRAIN_SECONDS]
+#
+# ci: 30 captures of 320x240 (about 15 minutes on 2 cores with lavapipe); paper: 300 captures of 1280x960 (hours on
+# a CPU; the time and memory of every stage are the point there). The JSON goes to
+# docs/results/log/flight-acceptance-<size>-<date>.json; docs/results/flight.md quotes it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+size=${1:-ci}
+out=${2:-flight-acceptance-$size}
+budget=${3:-300}
+bin=target/release/msnerf
+case "$size" in
+  ci) sim=(--width 320) ;;
+  paper) sim=(--views 300) ;;
+  *) echo "flight-acceptance: size must be ci or paper, got $size" >&2; exit 2 ;;
+esac
+mkdir -p "$out" docs/results/log
+echo "== simulate (${sim[*]})"
+$bin simulate --scene flight-rural --raw-rig micasense-rededge "${sim[@]}" --out "$out/flight" --overwrite
+# The panel's calibration sheet, band reflectances in wavelength order.
+panel=$(python3 -c 'import json,sys; b=json.load(open(sys.argv[1]))["bands"]; print(",".join(str(x["reflectance"]) for x in sorted(b, key=lambda x: x["center_nm"])))' "$out/flight/truth/panel.json")
+echo "== process (panel reflectance $panel, $budget s of training)"
+$bin process "$out/flight/card" --out "$out/project" --panel-reflectance "$panel" --time-budget "$budget" --model demo
+gsd=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["summary"]["gsd"])' "$out/project/stages/survey.json")
+echo "== the same flight written directly by the simulator: train, eval, export (gsd $gsd)"
+rm -rf "$out/direct-run" "$out/direct-products"
+mkdir -p "$out/direct-products"
+$bin train --data "$out/flight/truth/dataset" --model demo --time-budget "$budget" --out "$out/direct-run" --quiet
+$bin eval "$out/direct-run"
+$bin export pointcloud "$out/direct-run" --out "$out/direct-products/cloud.las"
+$bin export dsm "$out/direct-run" --gsd "$gsd" --out "$out/direct-products/dsm.tif"
+echo "== compare with the truth"
+json="docs/results/log/flight-acceptance-$size-$(date +%F).json"
+$bin bench flight --flight "$out/flight" --project "$out/project" --direct-run "$out/direct-run" \
+  --direct-products "$out/direct-products" --json > "$json.tmp"
+mv "$json.tmp" "$json"
+$bin bench flight --flight "$out/flight" --project "$out/project" --direct-run "$out/direct-run" \
+  --direct-products "$out/direct-products"
+echo "wrote $json"
