@@ -17,7 +17,7 @@
 //!   that is left; the largest is reported per band, with and without the field.
 
 /// A 3x3 homography, row-major, `h[8]` = 1.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Homography(pub [f64; 9]);
 
 impl Homography {
@@ -92,6 +92,58 @@ pub fn rig_homography(rel_deg: [f64; 3], f: f64, cx: f64, cy: f64) -> Homography
     let h = k * r.transpose() * k.inverse();
     let c = h.to_cols_array(); // column-major
     Homography([c[0], c[3], c[6], c[1], c[4], c[7], c[2], c[5], c[8]]).normalized()
+}
+
+/// A point and where it maps to.
+pub type PointPair = ((f64, f64), (f64, f64));
+
+/// The least-squares homography mapping `pairs[k].0` to `pairs[k].1` (the algebraic error of the direct linear
+/// transform in Hartley-normalised coordinates); `None` with fewer than four pairs or a degenerate set.
+pub fn fit_homography(pairs: &[PointPair]) -> Option<Homography> {
+    fit_homography_weighted(pairs, &vec![1.0; pairs.len()])
+}
+
+/// [`fit_homography`] with a weight per pair (non-negative; pairs of weight 0 left out).
+#[allow(clippy::needless_range_loop)] // the normal equations, indexed as written
+pub fn fit_homography_weighted(pairs: &[PointPair], weights: &[f64]) -> Option<Homography> {
+    let pairs: Vec<(PointPair, f64)> =
+        pairs.iter().zip(weights).filter(|(_, w)| **w > 0.0 && w.is_finite()).map(|(p, w)| (*p, *w)).collect();
+    if pairs.len() < 4 {
+        return None;
+    }
+    // Similarity that moves the points' centroid to 0 and their mean distance to sqrt(2).
+    let norm = |pts: &mut dyn Iterator<Item = (f64, f64)>| -> Option<Homography> {
+        let v: Vec<(f64, f64)> = pts.collect();
+        let n = v.len() as f64;
+        let (mx, my) = (v.iter().map(|p| p.0).sum::<f64>() / n, v.iter().map(|p| p.1).sum::<f64>() / n);
+        let d = v.iter().map(|p| (p.0 - mx).hypot(p.1 - my)).sum::<f64>() / n;
+        (d > 1e-12 && d.is_finite()).then(|| {
+            let s = std::f64::consts::SQRT_2 / d;
+            Homography([s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0])
+        })
+    };
+    let ts = norm(&mut pairs.iter().map(|p| p.0 .0))?;
+    let td = norm(&mut pairs.iter().map(|p| p.0 .1))?;
+    let mut a = [[0.0f64; 8]; 8];
+    let mut b = [0.0f64; 8];
+    for &((p, q), wt) in &pairs {
+        let (x, y) = ts.apply(p.0, p.1);
+        let (u, v) = td.apply(q.0, q.1);
+        for (row, rhs) in
+            [([x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y], u), ([0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y], v)]
+        {
+            for r in 0..8 {
+                b[r] += wt * row[r] * rhs;
+                for c in 0..8 {
+                    a[r][c] += wt * row[r] * row[c];
+                }
+            }
+        }
+    }
+    let h = solve8(a, b)?;
+    let hn = Homography([h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], 1.0]);
+    let out = td.inverse()?.mul(&hn).mul(&ts);
+    out.0.iter().all(|v| v.is_finite()).then_some(out)
 }
 
 use super::plane::Plane;

@@ -11,7 +11,7 @@
 use super::register::Homography;
 
 /// Shifts on a regular grid of nodes; node (i, j) sits at (i * step, j * step).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ShiftField {
     pub nx: usize,
     pub ny: usize,
@@ -24,6 +24,17 @@ impl ShiftField {
         let nx = ((width - 1) as f64 / step).ceil() as usize + 1;
         let ny = ((height - 1) as f64 / step).ceil() as usize + 1;
         ShiftField { nx, ny, step, d: vec![[0.0; 2]; nx * ny] }
+    }
+
+    /// Whether the grid is usable (nodes on both axes, a positive finite step, one finite shift per node): a
+    /// field read back from a report is checked before [`ShiftField::at`] indexes it.
+    pub fn is_consistent(&self) -> bool {
+        self.nx >= 1
+            && self.ny >= 1
+            && self.step.is_finite()
+            && self.step > 0.0
+            && self.nx.checked_mul(self.ny) == Some(self.d.len())
+            && self.d.iter().all(|v| v[0].is_finite() && v[1].is_finite())
     }
 
     /// Node position.
@@ -59,7 +70,7 @@ impl ShiftField {
 }
 
 /// Homography plus optional residual field.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Warp {
     pub homography: Homography,
     pub field: Option<ShiftField>,

@@ -18,7 +18,7 @@
 use crate::rig::calib::Lens;
 
 /// The camera a raw flight is written as.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SensorKind {
     /// MicaSense RedEdge-MX (model tag `RedEdge-M`): 5 bands, 1280x960, 12-bit in 16, DLS2.
