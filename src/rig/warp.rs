@@ -1,12 +1,12 @@
 //! `Warp`: the map from the reference band's target pixels to a band's target pixels: a smooth residual shift
 //! field (bilinear between nodes of a coarse grid), then the registration homography: `u = H (x + d(x))`.
 //!
-//! Why a field on top of the homography: at flight altitude the rig's parallax is far below a pixel, so the
-//! bands differ by a homography only if every band's lens model is exact. On the RedEdge flight capture of
-//! shared/data/real the best single homography leaves the Red band 0.6-1.1 px off in the left quadrants
-//! (phase correlation) while it fits the rest to 0.1 px: the per-band distortion calibrations disagree that
-//! much. A 128-px grid of local shifts (Lucas-Kanade with gain and offset per window, median-filtered, missing
-//! nodes filled from their neighbours' median) absorbs such smooth, low-order lens residuals and nothing finer.
+//! Why a field on top of the homography: at flight altitude the rig's parallax is nearly a translation, so the
+//! bands differ by a homography only if every band's lens model is exact. When the per-band distortion
+//! calibrations disagree, a band can sit a fraction of a pixel off in one part of the image while the best single
+//! homography fits the rest. The field absorbs such smooth, low-order lens residuals and nothing finer: the
+//! registration fits a polynomial to local shifts on a 128-px grid and keeps it only when the images support it
+//! ([`super::register`]), then stores it sampled at the grid's nodes.
 
 use super::register::Homography;
 
