@@ -12,7 +12,7 @@ use super::lens::{resample, Target};
 use super::meta::read_pixels;
 use super::plane::Plane;
 use super::radiometry::to_radiance;
-use super::register::{align, rig_homography, AlignStats, Homography};
+use super::register::{align, fit_homography, rig_homography, AlignStats, Homography};
 use super::warp::{ShiftField, Warp};
 use crate::util::tiff::{write_tiff, TiffData};
 
@@ -144,21 +144,137 @@ fn median(v: Vec<f64>) -> f64 {
     crate::util::stats::median(&v)
 }
 
-/// The rig's warps from several captures: per band the element-wise median of the homographies and fields
-/// (robust to a capture over water or a blurred one), and the spread: the largest distance, over the sampled
-/// captures and the image corners, between a capture's own warp and the median (pixels).
+/// Sampled captures whose alignment correlates less than this share of the band's median correlation are left
+/// out of the shared warp (a capture over water, a blurred one).
+pub const RIG_MIN_CORRELATION_SHARE: f64 = 0.5;
+
+/// A sampled capture whose warp lies farther from the median than this many times the sample's median distance
+/// (and at least [`RIG_OUTLIER_MIN_PX`]) is left out of the shared warp.
+pub const RIG_OUTLIER_FACTOR: f64 = 3.0;
+
+/// The smallest distance (pixels) from the median that makes a sampled capture an outlier.
+pub const RIG_OUTLIER_MIN_PX: f64 = 0.25;
+
+/// The captures of a band's sample that [`median_warps`] keeps: finite warps, a correlation (when the alignment
+/// reported one) at least [`RIG_MIN_CORRELATION_SHARE`] of the median, a quadrant residual at most three times
+/// the median (and at least half a pixel), and a warp within [`RIG_OUTLIER_FACTOR`] times the median distance of
+/// the median warp at a 3x3 grid of probe points. Returns the kept indices (all of them if the tests would leave
+/// none).
+pub fn rig_inliers(regs: &[&BandRegistration], width: usize, height: usize) -> Vec<usize> {
+    let probes = probe_points(width, height);
+    let finite: Vec<usize> = (0..regs.len())
+        .filter(|&k| {
+            let w = &regs[k].warp;
+            w.homography.0.iter().all(|v| v.is_finite())
+                && w.field.as_ref().is_none_or(|f| f.is_consistent())
+                && probes.iter().all(|&(x, y)| {
+                    let (u, v) = w.apply(x, y);
+                    u.is_finite() && v.is_finite()
+                })
+        })
+        .collect();
+    let mut keep = finite.clone();
+    let corr: Vec<(usize, f64)> = keep.iter().filter_map(|&k| regs[k].stats.map(|s| (k, s.correlation))).collect();
+    if corr.len() == keep.len() && !corr.is_empty() {
+        let m = median(corr.iter().map(|c| c.1).collect());
+        let res = median(keep.iter().filter_map(|&k| regs[k].stats.map(|s| s.residual_px)).collect());
+        keep.retain(|&k| {
+            let s = regs[k].stats.expect("every kept capture has stats");
+            s.correlation >= RIG_MIN_CORRELATION_SHARE * m && s.residual_px <= (3.0 * res).max(0.5)
+        });
+    }
+    if keep.len() >= 3 {
+        let med: Vec<(f64, f64)> = probes
+            .iter()
+            .map(|&(x, y)| {
+                let pts: Vec<(f64, f64)> = keep.iter().map(|&k| regs[k].warp.apply(x, y)).collect();
+                (median(pts.iter().map(|p| p.0).collect()), median(pts.iter().map(|p| p.1).collect()))
+            })
+            .collect();
+        let dist = |k: usize| -> f64 {
+            probes
+                .iter()
+                .zip(&med)
+                .map(|(&(x, y), m)| {
+                    let (u, v) = regs[k].warp.apply(x, y);
+                    (u - m.0).hypot(v - m.1)
+                })
+                .fold(0.0, f64::max)
+        };
+        let d: Vec<f64> = keep.iter().map(|&k| dist(k)).collect();
+        let limit = (RIG_OUTLIER_FACTOR * median(d.clone())).max(RIG_OUTLIER_MIN_PX);
+        keep = keep.into_iter().zip(d).filter(|(_, d)| *d <= limit).map(|(k, _)| k).collect();
+    }
+    if keep.is_empty() {
+        finite
+    } else {
+        keep
+    }
+}
+
+/// A 3x3 grid over the image (corners, edge midpoints, centre).
+fn probe_points(width: usize, height: usize) -> Vec<(f64, f64)> {
+    let (w, h) = ((width.max(1) - 1) as f64, (height.max(1) - 1) as f64);
+    [0.0, 0.5, 1.0].iter().flat_map(|&fy| [0.0, 0.5, 1.0].map(move |fx| (fx * w, fy * h))).collect()
+}
+
+/// The rig's warps from several captures, robust to captures whose alignment failed or wandered: per band the
+/// captures of [`rig_inliers`]; the homography fitted to the median positions of their homographies at a 3x3 grid
+/// of probe points (a median in the image, not of the matrices' entries); the field the node-wise median of
+/// theirs (a capture without a field counting as zero) when at least half of them have one. The spread: the
+/// largest distance, over the kept captures and the image corners, between a capture's own warp and the median
+/// (pixels).
 pub fn median_warps(sets: &[Vec<BandRegistration>], width: usize, height: usize) -> (Vec<BandRegistration>, Vec<f64>) {
-    let nb = sets[0].len();
+    let Some(first) = sets.first() else { return (Vec::new(), Vec::new()) };
+    let nb = first.len();
+    let probes = probe_points(width, height);
     let mut out = Vec::with_capacity(nb);
     let mut spread = Vec::with_capacity(nb);
-    for bi in 0..nb {
-        let hs: Vec<[f64; 9]> = sets.iter().map(|s| s[bi].warp.homography.normalized().0).collect();
-        let h = Homography(std::array::from_fn(|k| median(hs.iter().map(|v| v[k]).collect())));
-        let field = sets[0][bi].warp.field.as_ref().map(|f0| {
-            let fields: Vec<&ShiftField> = sets.iter().filter_map(|s| s[bi].warp.field.as_ref()).collect();
-            let d =
-                (0..f0.d.len()).map(|n| [0, 1].map(|c| median(fields.iter().map(|f| f.d[n][c]).collect()))).collect();
-            ShiftField { d, ..f0.clone() }
+    for (bi, band) in first.iter().enumerate() {
+        let regs: Vec<&BandRegistration> = sets.iter().filter_map(|s| s.get(bi)).collect();
+        let keep = rig_inliers(&regs, width, height);
+        let kept: Vec<&BandRegistration> = keep.iter().map(|&k| regs[k]).collect();
+        match kept.first() {
+            // One warp for every capture (the reference band's identity) is kept as it is; without any usable
+            // warp the first capture's stands.
+            Some(k0) if kept.iter().all(|r| r.warp == k0.warp) => {
+                spread.push(0.0);
+                out.push(BandRegistration { band: band.band.clone(), warp: k0.warp.clone(), stats: None });
+                continue;
+            }
+            None => {
+                spread.push(0.0);
+                out.push(BandRegistration { band: band.band.clone(), warp: band.warp.clone(), stats: None });
+                continue;
+            }
+            _ => {}
+        }
+        let pairs: Vec<((f64, f64), (f64, f64))> = probes
+            .iter()
+            .map(|&(x, y)| {
+                let pts: Vec<(f64, f64)> = kept.iter().map(|r| r.warp.homography.apply(x, y)).collect();
+                ((x, y), (median(pts.iter().map(|p| p.0).collect()), median(pts.iter().map(|p| p.1).collect())))
+            })
+            .collect();
+        let h = fit_homography(&pairs).unwrap_or_else(|| {
+            let hs: Vec<[f64; 9]> = kept.iter().map(|r| r.warp.homography.normalized().0).collect();
+            Homography(std::array::from_fn(|k| median(hs.iter().map(|v| v[k]).collect())))
+        });
+        let with_field: Vec<&ShiftField> = kept.iter().filter_map(|r| r.warp.field.as_ref()).collect();
+        let field = with_field.first().filter(|_| 2 * with_field.len() >= kept.len()).map(|f0| {
+            let same = |f: &ShiftField| f.nx == f0.nx && f.ny == f0.ny && f.step == f0.step;
+            let d = (0..f0.d.len())
+                .map(|n| {
+                    [0, 1].map(|c| {
+                        median(
+                            kept.iter()
+                                .map(|r| r.warp.field.as_ref().filter(|f| same(f)).map_or(0.0, |f| f.d[n][c]))
+                                .collect(),
+                        )
+                    })
+                })
+                .collect();
+            ShiftField { d, ..(*f0).clone() }
         });
         let warp = Warp { homography: h, field };
         let corners = [
@@ -167,11 +283,10 @@ pub fn median_warps(sets: &[Vec<BandRegistration>], width: usize, height: usize)
             (0.0, height as f64 - 1.0),
             (width as f64 - 1.0, height as f64 - 1.0),
         ];
-        let s = sets
+        let s = kept
             .iter()
-            .flat_map(|set| {
-                let w = &set[bi].warp;
-                let m = &warp;
+            .flat_map(|r| {
+                let (w, m) = (&r.warp, &warp);
                 corners.iter().map(move |&(x, y)| {
                     let (a, b) = w.apply(x, y);
                     let (c, d) = m.apply(x, y);
@@ -180,7 +295,7 @@ pub fn median_warps(sets: &[Vec<BandRegistration>], width: usize, height: usize)
             })
             .fold(0.0, f64::max);
         spread.push(s);
-        out.push(BandRegistration { band: sets[0][bi].band.clone(), warp, stats: None });
+        out.push(BandRegistration { band: band.band.clone(), warp, stats: None });
     }
     (out, spread)
 }

@@ -1,17 +1,17 @@
 //! `Warp`: the map from the reference band's target pixels to a band's target pixels: a smooth residual shift
 //! field (bilinear between nodes of a coarse grid), then the registration homography: `u = H (x + d(x))`.
 //!
-//! Why a field on top of the homography: at flight altitude the rig's parallax is far below a pixel, so the
-//! bands differ by a homography only if every band's lens model is exact. On the RedEdge flight capture of
-//! shared/data/real the best single homography leaves the Red band 0.6-1.1 px off in the left quadrants
-//! (phase correlation) while it fits the rest to 0.1 px: the per-band distortion calibrations disagree that
-//! much. A 128-px grid of local shifts (Lucas-Kanade with gain and offset per window, median-filtered, missing
-//! nodes filled from their neighbours' median) absorbs such smooth, low-order lens residuals and nothing finer.
+//! Why a field on top of the homography: at flight altitude the rig's parallax is nearly a translation, so the
+//! bands differ by a homography only if every band's lens model is exact. When the per-band distortion
+//! calibrations disagree, a band can sit a fraction of a pixel off in one part of the image while the best single
+//! homography fits the rest. The field absorbs such smooth, low-order lens residuals and nothing finer: the
+//! registration fits a polynomial to local shifts on a 128-px grid and keeps it only when the images support it
+//! ([`super::register`]), then stores it sampled at the grid's nodes.
 
 use super::register::Homography;
 
 /// Shifts on a regular grid of nodes; node (i, j) sits at (i * step, j * step).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ShiftField {
     pub nx: usize,
     pub ny: usize,
@@ -24,6 +24,17 @@ impl ShiftField {
         let nx = ((width - 1) as f64 / step).ceil() as usize + 1;
         let ny = ((height - 1) as f64 / step).ceil() as usize + 1;
         ShiftField { nx, ny, step, d: vec![[0.0; 2]; nx * ny] }
+    }
+
+    /// Whether the grid is usable (nodes on both axes, a positive finite step, one finite shift per node): a
+    /// field read back from a report is checked before [`ShiftField::at`] indexes it.
+    pub fn is_consistent(&self) -> bool {
+        self.nx >= 1
+            && self.ny >= 1
+            && self.step.is_finite()
+            && self.step > 0.0
+            && self.nx.checked_mul(self.ny) == Some(self.d.len())
+            && self.d.iter().all(|v| v[0].is_finite() && v[1].is_finite())
     }
 
     /// Node position.
@@ -59,7 +70,7 @@ impl ShiftField {
 }
 
 /// Homography plus optional residual field.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Warp {
     pub homography: Homography,
     pub field: Option<ShiftField>,

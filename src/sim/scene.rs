@@ -287,12 +287,13 @@ pub struct PoseDesc {
 }
 
 /// Names of the built-in scenes (`configs/scenes/<name>.yaml`, compiled in).
-pub const BUILTIN_SCENES: [(&str, &str); 5] = [
+pub const BUILTIN_SCENES: [(&str, &str); 6] = [
     ("campus", include_str!("../../configs/scenes/campus.yaml")),
     ("ci-small", include_str!("../../configs/scenes/ci-small.yaml")),
     ("rig-low", include_str!("../../configs/scenes/rig-low.yaml")),
     ("ci-textured", include_str!("../../configs/scenes/ci-textured.yaml")),
     ("flight-rural", include_str!("../../configs/scenes/flight-rural.yaml")),
+    ("flight-urban", include_str!("../../configs/scenes/flight-urban.yaml")),
 ];
 
 impl SceneDesc {

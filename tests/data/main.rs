@@ -29,5 +29,6 @@ mod poses_opensfm;
 mod rig_flight;
 mod rig_import;
 mod rig_real;
+mod rig_registration_truth;
 mod sfm_colmap;
 mod sfm_georef;

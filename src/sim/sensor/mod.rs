@@ -8,7 +8,8 @@
 //! - [`tags`]: EXIF, GPS and XMP as each maker writes them;
 //! - [`flight`]: the captures (rendered band by band through each band's own distorted, rotated, offset
 //!   camera), the calibration-panel captures, the card's folders and file names;
-//! - [`truth`]: what the files should give back: reflectance, poses, the rig, band correspondences.
+//! - [`truth`]: what the files should give back: reflectance, poses, the rig, band correspondences;
+//! - [`registration_truth`]: an import's band registration measured against those correspondences.
 //!
 //! Only what the option asks for runs: a scene simulated without `--raw-rig` runs none of this code. Effects the
 //! sensor models itself (`vignetting`, `noise`, `misregistration`, `rig_parallax`) are refused in a scene flown
@@ -18,6 +19,7 @@ pub mod flight;
 pub mod forward;
 pub mod light;
 pub mod profile;
+pub mod registration_truth;
 pub mod tags;
 pub mod truth;
 
