@@ -74,6 +74,8 @@ pub struct FlightAcceptance {
     pub products_crs: Vec<(String, Option<u16>)>,
     pub datum_shift_m: [f64; 3],
     pub reflectance: Vec<BandReflectance>,
+    /// Band registration against the rig's true correspondences (raw pixels of each band).
+    pub registration: crate::sim::sensor::registration_truth::RegistrationAccuracy,
     pub eval: Vec<(String, f64, f64)>,
     /// The cloud's accuracy: distance of its points to the true surface (median, RMSE planar and vertical).
     pub cloud: Value,
@@ -320,6 +322,15 @@ pub fn flight_acceptance(
         products_crs,
         datum_shift_m: shift,
         reflectance: reflectance(flight, &project.join("dataset"), &truth)?,
+        registration: {
+            let scene_path = flight.join("truth/scene.yaml");
+            let text = std::fs::read_to_string(&scene_path).map_err(|e| file_err(&scene_path)(&e))?;
+            let desc = SceneDesc::from_yaml(&text, &scene_path.display().to_string())
+                .map_err(|e| FlightBenchError::Other(e.to_string()))?;
+            let o = crate::sim::sensor::registration_truth::RegistrationTruthOptions { grid: 20, scene: Some(desc) };
+            crate::sim::sensor::registration_truth::evaluate_registration(flight, &project.join("dataset"), &o)
+                .map_err(|e| FlightBenchError::Other(format!("registration against the truth: {e}")))?
+        },
         eval,
         cloud: cloud_stats(&products.join("cloud.las"), &truth_cloud, shift)?,
         dsm: dsm_stats(&products.join("dsm.tif"), &truth_dsm, shift)?,
@@ -342,6 +353,7 @@ impl FlightAcceptance {
                 r.band, r.median_ratio, r.p10_ratio, r.p90_ratio, r.pixels
             );
         }
+        s += &self.registration.table();
         s += "held-out PSNR / SSIM per band:";
         for (b, p, q) in &self.eval {
             s += &format!(" {b} {p:.2} dB / {q:.3};");
