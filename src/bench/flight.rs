@@ -77,9 +77,15 @@ pub struct FlightAcceptance {
     /// Band registration against the rig's true correspondences (raw pixels of each band).
     pub registration: crate::sim::sensor::registration_truth::RegistrationAccuracy,
     pub eval: Vec<(String, f64, f64)>,
-    /// The cloud's accuracy: distance of its points to the true surface (median, RMSE planar and vertical).
+    /// The SfM cameras against the true ones once the stated datum shift is removed: the mean offset (east, north,
+    /// up, m), the scale error and the RMS of what is left after the best similarity; what ground control would remove.
+    pub georeferencing: Value,
+    /// The cloud's accuracy: distance of its points to the true surface (median, RMSE planar and vertical), after the
+    /// stated datum shift; and after the SfM cameras' similarity to the true ones (the reconstruction alone).
     pub cloud: Value,
+    pub cloud_after_similarity: Value,
     pub dsm: SurfaceStats,
+    pub dsm_after_similarity: SurfaceStats,
     pub stages: Vec<Value>,
     pub direct: Option<Value>,
 }
@@ -202,13 +208,19 @@ fn read_f32_planes(path: &Path) -> Result<(usize, usize, Vec<Vec<f32>>), FlightB
     Ok((w, h, (0..nb).map(|b| (0..w * h).map(|i| v[i * nb + b]).collect()).collect()))
 }
 
-/// A cloud (shifted by `-shift`) against the truth's surface points.
-fn cloud_stats(cloud: &Path, truth: &Path, shift: [f64; 3]) -> Result<Value, FlightBenchError> {
+/// A map from a product's coordinates to the truth's (removing a datum shift, or a similarity).
+type ToTruth<'a> = &'a dyn Fn([f64; 3]) -> [f64; 3];
+
+/// The map that removes a constant shift.
+fn unshift(shift: [f64; 3]) -> impl Fn([f64; 3]) -> [f64; 3] {
+    move |p| [p[0] - shift[0], p[1] - shift[1], p[2] - shift[2]]
+}
+
+/// A cloud (mapped by `to_truth`) against the truth's surface points.
+fn cloud_stats(cloud: &Path, truth: &Path, to_truth: ToTruth) -> Result<Value, FlightBenchError> {
     let mut c = read_cloud(cloud).map_err(|e| file_err(cloud)(&e))?;
     for p in &mut c.positions {
-        for (v, s) in p.iter_mut().zip(shift) {
-            *v -= s;
-        }
+        *p = to_truth(*p);
     }
     let r = read_cloud(truth).map_err(|e| file_err(truth)(&e))?;
     let rep = compare_clouds_with(&c, &r, &CompareOptions::default(), &AccuracyOptions::default())
@@ -220,8 +232,9 @@ fn cloud_stats(cloud: &Path, truth: &Path, shift: [f64; 3]) -> Result<Value, Fli
     }))
 }
 
-/// A DSM (shifted by `-shift`) against the true DSM, cell by cell (the truth cell under each product cell's centre).
-fn dsm_stats(dsm: &Path, truth: &Path, shift: [f64; 3]) -> Result<SurfaceStats, FlightBenchError> {
+/// A DSM (its cells' surface points mapped by `to_truth`) against the true DSM, cell by cell (the truth cell under
+/// each mapped point).
+fn dsm_stats(dsm: &Path, truth: &Path, to_truth: ToTruth) -> Result<SurfaceStats, FlightBenchError> {
     let p = read_geotiff(dsm).map_err(|e| file_err(dsm)(&e))?;
     let t = read_geotiff(truth).map_err(|e| file_err(truth)(&e))?;
     let mut dz = Vec::new();
@@ -232,12 +245,13 @@ fn dsm_stats(dsm: &Path, truth: &Path, shift: [f64; 3]) -> Result<SurfaceStats, 
                 continue;
             }
             let c = p.grid.centre(col, row);
-            let Some((tc, tr)) = t.grid.pixel_at(c[0] - shift[0], c[1] - shift[1]) else { continue };
+            let q = to_truth([c[0], c[1], v as f64]);
+            let Some((tc, tr)) = t.grid.pixel_at(q[0], q[1]) else { continue };
             let tv = t.value(0, tc, tr);
             if t.is_nodata(tv) {
                 continue;
             }
-            dz.push(v as f64 - shift[2] - tv as f64);
+            dz.push(q[2] - tv as f64);
         }
     }
     let n = dz.len().max(1) as f64;
@@ -252,6 +266,64 @@ fn dsm_stats(dsm: &Path, truth: &Path, shift: [f64; 3]) -> Result<SurfaceStats, 
         within_0_25: within(0.25),
         within_0_50: within(0.50),
     })
+}
+
+/// The similarity taking the project's SfM camera centres onto the true ones, and what it says (module doc).
+fn camera_similarity(
+    truth: &Value,
+    transforms: &Path,
+    shift: [f64; 3],
+) -> Result<(crate::maths::similarity::Similarity, Value), FlightBenchError> {
+    let t = read_json(transforms)?;
+    let mut sfm = Vec::new();
+    let mut real = Vec::new();
+    for f in t["frames"].as_array().into_iter().flatten() {
+        let file = f["file_path"].as_str().unwrap_or_default();
+        let Some(n) = Path::new(file)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .and_then(|s| s.rsplit('_').next())
+            .and_then(|n| n.parse::<u64>().ok())
+        else {
+            continue;
+        };
+        let Some(c) = truth["captures"].as_array().into_iter().flatten().find(|c| c["number"].as_u64() == Some(n))
+        else {
+            continue;
+        };
+        let m = &f["transform_matrix"];
+        let r = &c["reference_c2w"];
+        let at = |v: &Value, i: usize| v[i][3].as_f64();
+        if let (Some(a), Some(b), Some(c0), Some(d), Some(e), Some(g)) =
+            (at(m, 0), at(m, 1), at(m, 2), at(r, 0), at(r, 1), at(r, 2))
+        {
+            sfm.push([a, b, c0]);
+            real.push([d, e, g]);
+        }
+    }
+    let sim = crate::maths::similarity::fit_similarity(&sfm, &real).ok_or_else(|| {
+        FlightBenchError::Other(format!("{}: too few posed frames to compare with the truth", transforms.display()))
+    })?;
+    let n = sfm.len().max(1) as f64;
+    let offset: [f64; 3] =
+        std::array::from_fn(|k| sfm.iter().zip(&real).map(|(a, b)| a[k] - shift[k] - b[k]).sum::<f64>() / n);
+    let rms = (sfm
+        .iter()
+        .zip(&real)
+        .map(|(a, b)| {
+            let q = sim.apply(*a);
+            (0..3).map(|k| (q[k] - b[k]).powi(2)).sum::<f64>()
+        })
+        .sum::<f64>()
+        / n)
+        .sqrt();
+    Ok((
+        sim,
+        serde_json::json!({
+            "frames": sfm.len(), "mean_offset_after_datum_shift_m": offset, "scale_error": 1.0 / sim.scale - 1.0,
+            "rms_after_similarity_m": rms,
+        }),
+    ))
 }
 
 /// Compares the project with the flight's truth; `direct`: a run folder trained on `truth/dataset` whose products
@@ -301,14 +373,15 @@ pub fn flight_acceptance(
             })
         })
         .collect();
+    let (sim, georeferencing) = camera_similarity(&truth, &project.join("dataset/transforms.json"), shift)?;
     let direct = match direct {
         None => None,
         Some((run, prods)) => {
             let e = read_json(&run.join("eval.json"))?;
             Some(serde_json::json!({
                 "eval": e["bands"],
-                "cloud": cloud_stats(&prods.join("cloud.las"), &truth_cloud, [0.0; 3])?,
-                "dsm": dsm_stats(&prods.join("dsm.tif"), &truth_dsm, [0.0; 3])?,
+                "cloud": cloud_stats(&prods.join("cloud.las"), &truth_cloud, &unshift([0.0; 3]))?,
+                "dsm": dsm_stats(&prods.join("dsm.tif"), &truth_dsm, &unshift([0.0; 3]))?,
             }))
         }
     };
@@ -332,8 +405,11 @@ pub fn flight_acceptance(
                 .map_err(|e| FlightBenchError::Other(format!("registration against the truth: {e}")))?
         },
         eval,
-        cloud: cloud_stats(&products.join("cloud.las"), &truth_cloud, shift)?,
-        dsm: dsm_stats(&products.join("dsm.tif"), &truth_dsm, shift)?,
+        cloud: cloud_stats(&products.join("cloud.las"), &truth_cloud, &unshift(shift))?,
+        dsm: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &unshift(shift))?,
+        cloud_after_similarity: cloud_stats(&products.join("cloud.las"), &truth_cloud, &|p| sim.apply(p))?,
+        dsm_after_similarity: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &|p| sim.apply(p))?,
+        georeferencing,
         stages,
         direct,
     })
@@ -363,6 +439,14 @@ impl FlightAcceptance {
             self.cloud["points"],
             self.cloud["accuracy_median_m"].as_f64().unwrap_or(f64::NAN),
             self.cloud["f_score"].as_f64().unwrap_or(f64::NAN)
+        );
+        s += &format!("georeferencing (SfM cameras against the true ones): {}\n", self.georeferencing);
+        s += &format!(
+            "after that similarity: cloud median {:.3} m; DSM median |dz| {:.3} m, bias {:+.3} m, within 0.10 m {:.1} %\n",
+            self.cloud_after_similarity["accuracy_median_m"].as_f64().unwrap_or(f64::NAN),
+            self.dsm_after_similarity.median_abs_m,
+            self.dsm_after_similarity.bias_m,
+            100.0 * self.dsm_after_similarity.within_0_10
         );
         let d = &self.dsm;
         s += &format!(

@@ -8,7 +8,7 @@ use crate::sim::{simulate, PixelFormat, SceneDesc, SimOptions};
 
 #[derive(clap::Args, Debug)]
 pub struct SimulateArgs {
-    /// Scene: a built-in name (campus, ci-small, ci-textured, rig-low) or a YAML file
+    /// Scene: a built-in name (campus, ci-small, ci-textured, rig-low, flight-rural, flight-urban) or a YAML file
     #[arg(long)]
     pub scene: String,
     /// Output folder (written atomically; must not exist unless --overwrite)

@@ -21,7 +21,7 @@ pub struct SweepArgs {
     /// Dataset folder (transforms.json with bands)
     #[arg(long, conflicts_with = "builtin_scene", required_unless_present = "builtin_scene")]
     pub data: Option<PathBuf>,
-    /// Simulate a built-in scene (campus, ci-small, ci-textured, rig-low) or a scene YAML into OUT/data and sweep on it
+    /// Simulate a built-in scene (campus, ci-small, ci-textured, rig-low, flight-rural, flight-urban) or a scene YAML into OUT/data and sweep on it
     #[arg(long)]
     pub builtin_scene: Option<String>,
     /// Also write the report here, with its plots in a folder of the same name (e.g. docs/accuracy-vs-time.md

@@ -2,7 +2,8 @@
 //! ([`evaluate_registration`]).
 //!
 //! Inputs: a raw flight written by `msnerf simulate --raw-rig` (its `card/` and `truth/flight.json`) and the
-//! dataset `msnerf import rig` made of that card (`transforms.json`, `import_report.json`). The flight's geometry
+//! dataset `msnerf import rig` made of that card (`transforms.json`, or `transforms.import.json` where `msnerf process`
+//! kept the import's own beside the posed one; `import_report.json`). The flight's geometry
 //! is rebuilt from the truth's scene name, sensor, image size, seed and number of flight captures
 //! ([`super::flight::prepare`]) and checked against the poses the truth recorded.
 //!
@@ -501,7 +502,12 @@ pub fn evaluate_with(
     grid: usize,
 ) -> Result<RegistrationAccuracy, RegistrationTruthError> {
     let mismatch = RegistrationTruthError::Mismatch;
-    let transforms_path = dataset.join("transforms.json");
+    // The import's own transforms.json: `msnerf process` keeps it as transforms.import.json once SfM has rewritten
+    // the poses (and moved the camera model into the frames).
+    let transforms_path = match dataset.join("transforms.import.json") {
+        p if p.is_file() => p,
+        _ => dataset.join("transforms.json"),
+    };
     let transforms: serde_json::Value = read_json(&transforms_path)?;
     let reference_band = transforms["reference_band"]
         .as_str()
