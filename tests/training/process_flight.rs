@@ -7,8 +7,11 @@
 //! - the panel capture was found and kept out of the flight, and the panel reflectance comes back;
 //! - the held-out views are far above a collapsed field (every band's PSNR above 25 dB);
 //! - the report parses: every section is present, every number in it is finite, every embedded PNG decodes;
+//! - a training interrupted as it starts fails its stage and writes no record; the rerun skips what is done and
+//!   resumes the training from its checkpoint;
 //! - a rerun skips every stage and rewrites nothing; an output edited by hand stops the run naming the file;
-//!   `--redo survey` makes the survey and the report again and nothing before them.
+//!   `--redo survey` makes the survey and the report again and nothing before them;
+//! - `--poses` takes another tool's model (the COLMAP model of the first project) instead of running COLMAP.
 //!
 //! The acceptance figures (registration, reflectance, cloud and DSM against the truth) are the benchmark's
 //! (`make flight-acceptance`, docs/results); this test proves the chain and its bookkeeping.
@@ -71,6 +74,11 @@ fn options(flight: &Path, project: &Path, panel: Vec<f64>) -> ProcessOptions {
     }
 }
 
+/// A stage's record.
+fn rec_of(project: &Path, st: Stage) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(project.join(format!("stages/{}.json", st.name()))).unwrap()).unwrap()
+}
+
 fn statuses(s: &msnerf::process::ProcessSummary) -> Vec<(Stage, String)> {
     s.stages.iter().map(|o| (o.stage, o.status.clone())).collect()
 }
@@ -112,15 +120,32 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     let flight = simulate(t.path());
     let project = t.path().join("project");
     let o = options(&flight, &project, panel_sheet(&flight));
+
+    // Interrupted as training starts (Ctrl-C): the stage fails, its checkpoint stays, and no record is written.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let interrupted = ProcessOptions { stop: Some(stop.clone()), ..o.clone() };
+    let e = process(&interrupted, &mut |l| {
+        if l.contains("] train: training") {
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("train") && e.contains("interrupted"), "{e}");
+    assert!(!project.join("stages/train.json").exists());
+
+    // The rerun skips what is done, resumes the training from its checkpoint and finishes.
     let mut lines = Vec::new();
     let s = process(&o, &mut |l| lines.push(l.to_string())).unwrap_or_else(|e| panic!("{e}\n{}", lines.join("\n")));
-    assert!(statuses(&s).iter().all(|(_, st)| st == "ran"), "{:?}", statuses(&s));
+    let st = statuses(&s);
+    for (stage, status) in &st {
+        let want = if *stage >= Stage::Train { "ran" } else { "current" };
+        assert_eq!(status, want, "{stage:?}: {st:?}");
+    }
+    assert!(lines.iter().any(|l| l.contains("resuming from the run's checkpoint")), "{}", lines.join("\n"));
 
     // The import found the panel capture, calibrated from it, and kept it out of the flight.
-    let rec = |st: Stage| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(project.join(format!("stages/{}.json", st.name()))).unwrap())
-            .unwrap()
-    };
+    let rec = |st: Stage| rec_of(&project, st);
     let import = &rec(Stage::Import)["summary"];
     assert_eq!(import["captures"], 30, "{import}");
     assert_eq!(import["calibration"], "panel");
@@ -189,6 +214,20 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     let e = process(&o, &mut |_| {}).unwrap_err().to_string();
     assert!(e.contains("check.json") && e.contains("check"), "{e}");
     std::fs::write(&check, original).unwrap();
+
+    // Poses from another tool (`--poses`): the COLMAP model this run made, imported instead of running COLMAP.
+    let other = t.path().join("project-poses");
+    let model = project.join("dataset/colmap/sparse/0");
+    let with_poses = ProcessOptions {
+        project: other.clone(),
+        poses: Some((msnerf::poses::PoseFormat::Colmap, model)),
+        stop_after: Some(Stage::Check),
+        ..o.clone()
+    };
+    let s = process(&with_poses, &mut |_| {}).unwrap();
+    assert!(statuses(&s).iter().all(|(st, status)| (*st <= Stage::Check) == (status == "ran")), "{:?}", statuses(&s));
+    let poses = rec_of(&other, Stage::Poses);
+    assert_eq!(poses["summary"]["registered"], 30, "{poses}");
 
     // --redo survey: the survey and the report again, nothing before them.
     let s = process(&Stage::Survey.redo_of(o), &mut |_| {}).unwrap();
