@@ -38,8 +38,8 @@ $bin export dsm "$out/direct-run" --gsd "$gsd" --out "$out/direct-products/dsm.t
 echo "== compare with the truth"
 json="docs/results/log/flight-acceptance-$size-$(date +%F).json"
 $bin bench flight --flight "$out/flight" --project "$out/project" --direct-run "$out/direct-run" \
-  --direct-products "$out/direct-products" --json > "$json.tmp"
-mv "$json.tmp" "$json"
+  --direct-products "$out/direct-products" --json > "$out/acceptance.json"
+cp "$out/acceptance.json" "$json"
 $bin bench flight --flight "$out/flight" --project "$out/project" --direct-run "$out/direct-run" \
   --direct-products "$out/direct-products"
 echo "wrote $json"

@@ -40,7 +40,7 @@ pub struct Batch {
     /// of its pixel triple.
     pub cameras: Vec<u32>,
     pub targets: Vec<f32>,
-    /// Empty unless `loss.depth` is set.
+    /// Empty unless `loss.depth` is set; then (distance, sigma) per ray, distance 0 where the ray has no target.
     pub depth: Vec<f32>,
 }
 

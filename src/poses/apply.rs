@@ -137,26 +137,31 @@ pub fn apply_poses_to(
             unknown_images.push(im.name.clone());
             continue;
         }
-        let cam = &im.camera;
         let c2w = im.c2w;
         let mut f = frames[fi].clone();
         let obj = f.as_object_mut().expect("frames are objects");
-        // Size check against what the frame (or the top level) says.
+        // Size check against what the frame (or the top level) says; a model made on the images scaled by one factor
+        // (full-size originals of a downscaled dataset, or images upsampled for feature detection) is scaled back.
         let size = |k: &str| obj.get(k).or_else(|| root.get(k)).and_then(|v| v.as_u64());
-        if let (Some(w), Some(h)) = (size("w"), size("h")) {
-            if (w, h) != (cam.width, cam.height) {
-                return Err(PoseError::parse(
-                    source,
-                    format!("image {}", im.name),
-                    format!(
-                        "COLMAP's camera is {}x{} but frame {:?} is {w}x{h}: run COLMAP on the dataset's own images",
-                        cam.width,
-                        cam.height,
-                        frame_name(&frames[fi]).unwrap_or_default()
-                    ),
-                ));
+        let cam = match (size("w"), size("h")) {
+            (Some(w), Some(h)) if (w, h) != (im.camera.width, im.camera.height) => {
+                im.camera.scaled_to(w, h).ok_or_else(|| {
+                    PoseError::parse(
+                        source,
+                        format!("image {}", im.name),
+                        format!(
+                            "{}'s camera is {}x{} but frame {:?} is {w}x{h} (not one scale factor on both axes): \
+                             run the tool on the dataset's own images",
+                            model.tool,
+                            im.camera.width,
+                            im.camera.height,
+                            frame_name(&frames[fi]).unwrap_or_default()
+                        ),
+                    )
+                })?
             }
-        }
+            _ => im.camera.clone(),
+        };
         for k in ["k1", "k2", "k3", "k4", "p1", "p2", "camera_model", "fl_x", "fl_y", "cx", "cy", "w", "h"] {
             obj.remove(k);
         }

@@ -10,6 +10,36 @@ pub struct PoseCamera {
     pub keys: Vec<(&'static str, f64)>,
 }
 
+impl PoseCamera {
+    /// This camera on the same images scaled to `w` x `h`: the focal lengths and principal point scale (pixel units,
+    /// the image's corner at 0), the distortion (normalised coordinates) does not. The factor is an integer or its
+    /// inverse when sizes round to one (an image downscaled by 3 with the remainder cropped, as nerfstudio and ODM
+    /// write them), else the width ratio; None when the height does not follow the same factor within a pixel.
+    pub fn scaled_to(&self, w: u64, h: u64) -> Option<PoseCamera> {
+        if w == 0 || h == 0 || self.width == 0 || self.height == 0 {
+            return None;
+        }
+        let ratio = w as f64 / self.width as f64;
+        let whole =
+            |r: f64| (r.round() >= 1.0 && (r - r.round()).abs() * w.min(self.width) as f64 <= 1.0).then(|| r.round());
+        let s = match (whole(ratio), whole(1.0 / ratio)) {
+            (Some(k), _) => k,
+            (None, Some(k)) => 1.0 / k,
+            _ => ratio,
+        };
+        let fits = |full: u64, small: u64| ((full as f64 * s) - small as f64).abs() < 1.0;
+        if !fits(self.width, w) || !fits(self.height, h) {
+            return None;
+        }
+        let keys = self
+            .keys
+            .iter()
+            .map(|&(k, v)| (k, if matches!(k, "fl_x" | "fl_y" | "cx" | "cy") { v * s } else { v }))
+            .collect();
+        Some(PoseCamera { width: w, height: h, model: self.model, keys })
+    }
+}
+
 /// One posed image.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PosedImage {

@@ -289,7 +289,7 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
     let cells = st["cells"].as_f64();
     let valid = st["valid"].as_f64();
     let unsupported = st["unsupported"].as_f64();
-    let frac = |a: Option<f64>| num(a.zip(cells).map(|(a, c)| 100.0 * a / c.max(1.0)), 1);
+    let frac = |a: Option<f64>| num(a.zip(cells).map(|(a, c)| 100.0 * a / c.max(1.0)), 1) + " %";
     let gsd = survey["gsd"].as_f64();
     let area = cells.zip(gsd).map(|(c, g)| c * g * g);
     let mut s = format!(

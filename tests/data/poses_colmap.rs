@@ -243,6 +243,31 @@ fn radial_cameras_become_opencv_and_bad_models_are_named() {
     assert!(e.contains(&format!("{}x{}", t.size.0 * 2, t.size.1)) && e.contains(stem(&t.names[0])), "{e}");
     assert_eq!(std::fs::read_to_string(d2.join("transforms.json")).unwrap(), before, "nothing written on error");
 
+    // A model made on the images at 3x (COLMAP on upsampled or full-size originals): the intrinsics come back at the
+    // dataset's size, the distortion untouched; 2x one way only stays refused (above).
+    let big = tmp.path().join("big");
+    let c3 = t.cam.map(|v| v * 3.0);
+    write_text(
+        &big,
+        &Truth { size: (t.size.0 * 3, t.size.1 * 3), cam: c3, names: t.names.clone(), c2w: t.c2w.clone() },
+        &[],
+        "RADIAL",
+    );
+    let d3 = tmp.path().join("d-big");
+    unposed_copy(&data, &d3);
+    apply_poses(&pm(&read_model(&big).unwrap(), &big), &big, &d3).unwrap();
+    let tj: Value = serde_json::from_str(&std::fs::read_to_string(d3.join("transforms.json")).unwrap()).unwrap();
+    for f in tj["frames"].as_array().unwrap() {
+        assert_eq!((f["w"].as_u64().unwrap(), f["h"].as_u64().unwrap()), t.size);
+        // RADIAL has one focal length (the test's fx) and k1, k2 as written.
+        let want = [t.cam[0], t.cam[0], t.cam[2], t.cam[3]];
+        for (k, w) in ["fl_x", "fl_y", "cx", "cy"].iter().zip(want) {
+            let got = f[*k].as_f64().unwrap();
+            assert!((got - w).abs() <= 1e-9 * w.abs(), "{k}: {got} vs {w}");
+        }
+        assert_eq!((f["k1"].as_f64(), f["k2"].as_f64()), (Some(0.1), Some(0.2)));
+    }
+
     // Numbers the reader accepts but that make no camera: a negative focal length, a NaN translation. The import
     // checks the dataset it would write with the dataset's own parser: the model, the frame and the key are named,
     // and nothing is written (no new transforms.json, no backup).

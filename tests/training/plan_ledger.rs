@@ -42,13 +42,19 @@ fn cameras(n: usize) -> Vec<GpuCamera> {
         .collect()
 }
 
-fn batch(rays: usize, bands: usize, n_cams: usize, seed: u64) -> Batch {
+/// Random rays; with `depth`, a (distance, sigma) column per ray (distance 0 = none, as the trainer's batches), since a profile that
+/// supervises depth (`loss.depth`) trains with them and its plan counts their buffers.
+fn batch(rays: usize, bands: usize, n_cams: usize, seed: u64, depth: bool) -> Batch {
     let mut r = rng(seed);
     let mut b = Batch::default();
     for _ in 0..rays {
         b.pixels.extend([r.random_range(0..n_cams as u32), r.random_range(0..H), r.random_range(0..W)]);
         b.targets.extend((0..bands).map(|_| r.random_range(0.0..1.0f32)));
         b.targets.push(1.0);
+        if depth {
+            let d = if r.random_range(0.0..1.0f32) < 0.5 { r.random_range(1.0..4.0f32) } else { 0.0 };
+            b.depth.extend([d, 0.1]);
+        }
     }
     b
 }
@@ -66,12 +72,12 @@ fn check(cfg: ModelConfig, bands: usize, n_cams: usize) {
     let cams = cameras(n_cams);
     let model = Model::new(&g, &cfg, bands, n_cams).expect("model");
     let mut pipe = Pipeline::new(&g, model, &cams).expect("pipeline");
-    let train = batch(t.rays_per_batch, bands, n_cams, 1);
+    let train = batch(t.rays_per_batch, bands, n_cams, 1, cfg.loss.depth.is_some());
     for _ in 0..2 {
         let s = pipe.train_step(&train).expect("train step");
         assert!(s.loss.is_finite() && !s.skipped, "{}: step {} loss {}", cfg.name, s.step, s.loss);
     }
-    let eval = batch(t.eval_rays_per_chunk + 7, bands, n_cams, 2);
+    let eval = batch(t.eval_rays_per_chunk + 7, bands, n_cams, 2, false);
     pipe.render(&eval.pixels).expect("render");
     let path =
         // Unique per call: two configurations with the same name and chunk run side by side in one process (16 test
