@@ -15,6 +15,7 @@ mod sim_support;
 mod export_surface;
 mod output_cog;
 mod output_compare;
+mod output_icp;
 mod output_lpips;
 mod output_metrics;
 mod output_pointcloud;

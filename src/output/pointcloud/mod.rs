@@ -1,10 +1,12 @@
 //! Multispectral point clouds: [`PointCloud`] (f64 positions, B float reflectances per point, optional normals
 //! and display colours, named per-point f32 [`ScalarField`] attributes such as export confidences), writers and
 //! readers for PLY ([`ply`]) and LAS 1.4 ([`las`]), filters ([`filter`]: statistical outlier removal, crop boxes,
-//! deterministic subsampling; [`thin`]: one point per grid cell) and the k-d tree they share ([`kdtree`]). Every
-//! filter picks points through [`PointCloud::select`], which keeps attributes aligned with their points.
+//! deterministic subsampling; [`thin`]: one point per grid cell), the k-d tree they share ([`kdtree`]) and
+//! trimmed ICP with a similarity ([`icp`]). Every filter picks points through [`PointCloud::select`], which keeps
+//! attributes aligned with their points.
 
 pub mod filter;
+pub mod icp;
 pub mod kdtree;
 pub mod las;
 pub mod local_plane;
