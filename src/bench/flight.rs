@@ -399,10 +399,24 @@ fn dsm_stats(dsm: &Path, truth: &Path, to_truth: ToTruth) -> Result<SurfaceStats
 }
 
 /// The similarity taking the project's SfM camera centres onto the true ones, and what it says (module doc).
-fn camera_similarity(truth: &Value, transforms: &Path, shift: [f64; 3]) -> Result<Value, FlightBenchError> {
+fn camera_similarity(
+    truth: &Value,
+    transforms: &Path,
+    shift: [f64; 3],
+    rig: &crate::sim::sensor::forward::RigPose,
+) -> Result<Value, FlightBenchError> {
     let t = read_json(transforms)?;
     let mut sfm = Vec::new();
     let mut real = Vec::new();
+    // Orientations: the SfM camera's and the true one of the dataset's reference band (the rig's reference camera
+    // turned by the band's rig rotation, OpenCV axes inside), both OpenGL camera-to-world.
+    let mut rotations: Vec<(String, glam::DMat3, glam::DMat3)> = Vec::new();
+    let g = glam::DMat3::from_diagonal(glam::DVec3::new(1.0, -1.0, -1.0));
+    let rot3 = |v: &Value| -> Option<glam::DMat3> {
+        let e = |i: usize, j: usize| v[i][j].as_f64();
+        let rows = [[e(0, 0)?, e(0, 1)?, e(0, 2)?], [e(1, 0)?, e(1, 1)?, e(1, 2)?], [e(2, 0)?, e(2, 1)?, e(2, 2)?]];
+        Some(glam::DMat3::from_cols_array_2d(&rows).transpose())
+    };
     for f in t["frames"].as_array().into_iter().flatten() {
         let file = f["file_path"].as_str().unwrap_or_default();
         let Some(n) = Path::new(file)
@@ -420,11 +434,15 @@ fn camera_similarity(truth: &Value, transforms: &Path, shift: [f64; 3]) -> Resul
         let m = &f["transform_matrix"];
         let r = &c["reference_c2w"];
         let at = |v: &Value, i: usize| v[i][3].as_f64();
-        if let (Some(a), Some(b), Some(c0), Some(d), Some(e), Some(g)) =
+        let (Some(rs), Some(rr)) = (rot3(m), rot3(r)) else { continue };
+        if let (Some(a), Some(b), Some(c0), Some(d), Some(e), Some(h)) =
             (at(m, 0), at(m, 1), at(m, 2), at(r, 0), at(r, 1), at(r, 2))
         {
+            // The band camera's true centre: the reference camera's plus its rig offset (OpenCV axes inside).
+            let off = rr * (g * rig.center);
             sfm.push([a, b, c0]);
-            real.push([d, e, g]);
+            real.push([d + off.x, e + off.y, h + off.z]);
+            rotations.push((file.to_string(), rs, rr * g * rig.ref_from_band * g));
         }
     }
     let sim = crate::maths::similarity::fit_similarity(&sfm, &real).ok_or_else(|| {
@@ -444,9 +462,22 @@ fn camera_similarity(truth: &Value, transforms: &Path, shift: [f64; 3]) -> Resul
         / n)
         .sqrt();
     let (angle, tilt) = crate::output::pointcloud::icp::rotation_angles(&sim);
+    // Each camera's orientation error once the similarity's rotation is applied.
+    let s_rot = glam::DMat3::from_cols_array_2d(&sim.rotation).transpose();
+    let errs: Vec<(String, f64)> = rotations
+        .iter()
+        .map(|(name, rs, rt)| {
+            let d = rt.transpose() * s_rot * *rs;
+            let cos = ((d.x_axis.x + d.y_axis.y + d.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+            (name.clone(), cos.acos().to_degrees())
+        })
+        .collect();
+    let rot_rms = (errs.iter().map(|e| e.1 * e.1).sum::<f64>() / errs.len().max(1) as f64).sqrt();
+    let worst = errs.iter().max_by(|a, b| a.1.total_cmp(&b.1));
     Ok(serde_json::json!({
         "frames": sfm.len(), "mean_offset_after_datum_shift_m": offset, "scale_error": 1.0 / sim.scale - 1.0,
         "rotation_deg": angle, "tilt_deg": tilt, "rms_after_similarity_m": rms,
+        "orientation_rms_deg": rot_rms, "orientation_worst": worst.map(|w| serde_json::json!({"frame": w.0, "deg": w.1})),
     }))
 }
 
@@ -530,7 +561,8 @@ pub fn flight_acceptance(
             })
         })
         .collect();
-    let georeferencing = camera_similarity(&truth, &project.join("dataset/transforms.json"), shift)?;
+    let rig = truth_geometry(flight, &project.join("dataset"), &truth)?.rig;
+    let georeferencing = camera_similarity(&truth, &project.join("dataset/transforms.json"), shift, &rig)?;
     let (rel, relative_transform) = relative_similarity(&products.join("cloud.las"), &truth_cloud, shift)?;
     let fidelity = image_fidelity(flight, &project.join("dataset"), &truth)?;
     let direct = match direct {

@@ -84,9 +84,8 @@ pub(super) fn poses(o: &ProcessOptions) -> Result<StageDone, Box<dyn std::error:
             let mut so = crate::sfm::SfmOptions::new(&ds);
             so.threads = o.threads.max(1);
             // COLMAP on the mean of the stretched bands: the sensor's noise is independent between bands, the scene's
-            // texture is not, so the mean has √B times less noise. On the simulated RedEdge flight the single most
-            // textured band (noise counts as texture) left COLMAP's points 0.24 m above the ground; the mean, 0.02 m
-            // (docs/flight.md).
+            // texture is not, so the mean has √B times less noise; the most textured single band counts noise as
+            // texture (docs/results/flight.md measures both).
             so.band = crate::sfm::images::BandChoice::Pan;
             // Each frame matched with its nearest neighbours by GPS, as OpenDroneMap does on a flight with GPS
             // (`spatial` falls back to sequential matching without fixes).

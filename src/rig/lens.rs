@@ -44,13 +44,14 @@ pub fn source_pixel(target: &Target, lens: Option<&Lens>, warp: &Warp, x: f64, y
     }
 }
 
-/// Resamples `src` into the target camera through `h` (bilinear; NaN where the source has no pixel).
+/// Resamples `src` into the target camera through `h` (bicubic, [`Plane::sample_cubic`]; NaN where the source has
+/// no pixel).
 pub fn resample(src: &Plane, target: &Target, lens: Option<&Lens>, warp: &Warp) -> Plane {
     let mut out = vec![f32::NAN; target.width * target.height];
     for y in 0..target.height {
         for x in 0..target.width {
             let (sx, sy) = source_pixel(target, lens, warp, x as f64, y as f64);
-            if let Some(v) = src.sample(sx, sy) {
+            if let Some(v) = src.sample_cubic(sx, sy) {
                 out[y * target.width + x] = v;
             }
         }

@@ -10,8 +10,14 @@ pub fn peak_rss_bytes() -> Option<u64> {
 }
 
 /// Resets the peak resident set size to the current one (Linux: `5` into `/proc/self/clear_refs`), so that a stage
-/// of a longer run can measure its own peak. Returns whether it could.
+/// of a longer run can measure its own peak. Memory an earlier stage freed is first handed back to the system
+/// (glibc's `malloc_trim`), or the allocator's kept pages would count as the next stage's. Returns whether it could.
 pub fn reset_peak_rss() -> bool {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free heap pages; any pad is valid.
+    unsafe {
+        libc::malloc_trim(0);
+    }
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 

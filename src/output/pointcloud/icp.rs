@@ -155,10 +155,11 @@ fn solve7(mut a: [[f64; 7]; 7], mut b: [f64; 7]) -> Option<[f64; 7]> {
         }
         a.swap(i, p);
         b.swap(i, p);
+        let pivot = a[i];
         for k in i + 1..7 {
-            let f = a[k][i] / a[i][i];
-            for j in i..7 {
-                a[k][j] -= f * a[i][j];
+            let f = a[k][i] / pivot[i];
+            for (akj, pj) in a[k][i..].iter_mut().zip(&pivot[i..]) {
+                *akj -= f * pj;
             }
             b[k] -= f * b[i];
         }
