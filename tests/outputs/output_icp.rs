@@ -70,16 +70,20 @@ fn noise(i: usize, k: usize) -> f64 {
     (h % 2_000_001) as f64 / 1_000_000.0 - 1.0
 }
 
+/// The other sampling, away from the border (so every point has terrain under it after the move).
+fn inner_sampling() -> Vec<[f64; 3]> {
+    terrain(0.37, 0.05)
+        .into_iter()
+        .filter(|p| (p[0] - ORIGIN[0] - 20.0).abs() < 17.0 && (p[1] - ORIGIN[1] - 20.0).abs() < 17.0)
+        .collect()
+}
+
 #[test]
 fn icp_recovers_a_known_similarity_on_terrain_with_relief_and_outliers() {
     let target = terrain(0.1, 0.0);
     let tree = KdTree::new(&target);
     let truth = known(1.002);
-    // The other sampling, away from the border (so every point has terrain under it after the move).
-    let on_surface: Vec<[f64; 3]> = terrain(0.37, 0.05)
-        .into_iter()
-        .filter(|p| (p[0] - ORIGIN[0] - 20.0).abs() < 17.0 && (p[1] - ORIGIN[1] - 20.0).abs() < 17.0)
-        .collect();
+    let on_surface = inner_sampling();
     let source: Vec<[f64; 3]> = on_surface
         .iter()
         .enumerate()
@@ -130,11 +134,7 @@ fn rigid_icp_recovers_a_turn_and_a_shift() {
     let target = terrain(0.1, 0.0);
     let tree = KdTree::new(&target);
     let truth = known(1.0);
-    let source: Vec<[f64; 3]> = terrain(0.37, 0.05)
-        .into_iter()
-        .filter(|p| (p[0] - ORIGIN[0] - 20.0).abs() < 17.0 && (p[1] - ORIGIN[1] - 20.0).abs() < 17.0)
-        .map(|p| inverse_apply(&truth, p))
-        .collect();
+    let source: Vec<[f64; 3]> = inner_sampling().into_iter().map(|p| inverse_apply(&truth, p)).collect();
     let r = icp_similarity(&source, &target, &tree, identity(), &IcpOptions::default()).expect("icp");
     assert_eq!(r.similarity.scale, 1.0);
     let worst = source
