@@ -25,7 +25,7 @@ use serde::Serialize;
 use serde_json::Value;
 
 use crate::output::compare::{compare_clouds_with, AccuracyOptions, CompareOptions};
-use crate::output::pointcloud::read_cloud;
+use crate::output::pointcloud::{read_cloud, PointCloud};
 use crate::output::raster::geotiff_read::read_geotiff;
 use crate::sim::sensor::flight::{prepare, RawRigOptions};
 use crate::sim::SceneDesc;
@@ -137,6 +137,7 @@ fn flight_options(truth: &Value) -> Result<RawRigOptions, FlightBenchError> {
 /// The flight's truth geometry rebuilt for a dataset imported from it: the prepared scene, the importer's reference
 /// band's pose in the rig, the dataset's transforms and band names.
 struct TruthGeometry {
+    desc: SceneDesc,
     prep: crate::sim::render::Prepared,
     rig: crate::sim::sensor::forward::RigPose,
     t: Value,
@@ -159,7 +160,7 @@ fn truth_geometry(flight: &Path, dataset: &Path, truth: &Value) -> Result<TruthG
     let rig = crate::sim::sensor::forward::RigPose::of(&profile, rb);
     let bands: Vec<String> =
         t["bands"].as_array().into_iter().flatten().filter_map(|b| b["name"].as_str().map(String::from)).collect();
-    Ok(TruthGeometry { prep, rig, t, bands })
+    Ok(TruthGeometry { desc, prep, rig, t, bands })
 }
 
 /// The capture number of an imported frame (`IMG_0007.tif` -> 7).
@@ -178,8 +179,8 @@ const FIDELITY_FRAMES: usize = 16;
 /// The imported images against the images the simulator wrote directly for the same captures (module doc): each
 /// imported pixel's ray, turned from the reference band's camera into the rig's, sampled bilinearly in the direct
 /// image. At most [`FIDELITY_FRAMES`] frames, about 320 pixels across each.
-fn image_fidelity(flight: &Path, dataset: &Path, truth: &Value) -> Result<Vec<BandFidelity>, FlightBenchError> {
-    let TruthGeometry { rig, t, bands, .. } = truth_geometry(flight, dataset, truth)?;
+fn image_fidelity(flight: &Path, dataset: &Path, geo: &TruthGeometry) -> Result<Vec<BandFidelity>, FlightBenchError> {
+    let TruthGeometry { rig, t, bands, .. } = geo;
     let direct = flight.join("truth/dataset");
     let dt = read_json(&direct.join("transforms.json"))?;
     let key = |v: &Value, k: &str| {
@@ -198,7 +199,7 @@ fn image_fidelity(flight: &Path, dataset: &Path, truth: &Value) -> Result<Vec<Ba
         let Some(dfile) = direct_files.get(view) else { continue };
         let (fx, fy, cx, cy) = (f["fl_x"].as_f64(), f["fl_y"].as_f64(), f["cx"].as_f64(), f["cy"].as_f64());
         let (Some(fx), Some(fy), Some(cx), Some(cy)) = (fx, fy, cx, cy) else { continue };
-        let (w, h, planes) = read_f32_planes(&dataset.join(file))?;
+        let (w, h, planes) = read_planes_normalised(&dataset.join(file))?;
         let (dw, dh, dplanes) = read_planes_normalised(&direct.join(dfile))?;
         if planes.len() != bands.len() || dplanes.len() < bands.len() {
             return Err(FlightBenchError::Other(format!(
@@ -237,18 +238,18 @@ fn image_fidelity(flight: &Path, dataset: &Path, truth: &Value) -> Result<Vec<Ba
         }
     }
     Ok(bands
-        .into_iter()
+        .iter()
         .enumerate()
         .map(|(b, band)| {
             let mse = sq[b] / n[b].max(1) as f64;
-            BandFidelity { band, mse, psnr_db: -10.0 * mse.log10(), pixels: n[b] }
+            BandFidelity { band: band.clone(), mse, psnr_db: -10.0 * mse.log10(), pixels: n[b] }
         })
         .collect())
 }
 
 /// Imported images against the scene (module doc).
-fn reflectance(flight: &Path, dataset: &Path, truth: &Value) -> Result<Vec<BandReflectance>, FlightBenchError> {
-    let TruthGeometry { prep, rig, t, bands } = truth_geometry(flight, dataset, truth)?;
+fn reflectance(dataset: &Path, geo: &TruthGeometry) -> Result<Vec<BandReflectance>, FlightBenchError> {
+    let TruthGeometry { prep, rig, t, bands, .. } = geo;
     // The scene's bands are the camera's in wavelength order, as the dataset's.
     let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); bands.len()];
     let (sun, brdf) = prep.light_model();
@@ -257,7 +258,7 @@ fn reflectance(flight: &Path, dataset: &Path, truth: &Value) -> Result<Vec<BandR
         let number = capture_number(file)?;
         let Some(view) = number.checked_sub(1).filter(|v| *v < prep.poses.len()) else { continue };
         let path = dataset.join(file);
-        let (w, h, planes) = read_f32_planes(&path)?;
+        let (w, h, planes) = read_planes_normalised(&path)?;
         let (fx, fy, cx, cy) = (f["fl_x"].as_f64(), f["fl_y"].as_f64(), f["cx"].as_f64(), f["cy"].as_f64());
         let (Some(fx), Some(fy), Some(cx), Some(cy)) = (fx, fy, cx, cy) else { continue };
         let c2w = prep.poses[view];
@@ -296,29 +297,16 @@ fn reflectance(flight: &Path, dataset: &Path, truth: &Value) -> Result<Vec<BandR
         }
     }
     Ok(bands
-        .into_iter()
+        .iter()
         .zip(ratios)
         .map(|(band, mut r)| BandReflectance {
-            band,
+            band: band.clone(),
             pixels: r.len(),
             p10_ratio: pct(&mut r, 0.1),
             p90_ratio: pct(&mut r, 0.9),
             median_ratio: pct(&mut r, 0.5),
         })
         .collect())
-}
-
-fn read_f32_planes(path: &Path) -> Result<(usize, usize, Vec<Vec<f32>>), FlightBenchError> {
-    use tiff::decoder::{Decoder, DecodingResult};
-    let f = std::fs::File::open(path).map_err(|e| file_err(path)(&e))?;
-    let mut d = Decoder::new(std::io::BufReader::new(f)).map_err(|e| file_err(path)(&e))?;
-    let (w, h) = d.dimensions().map_err(|e| file_err(path)(&e))?;
-    let DecodingResult::F32(v) = d.read_image().map_err(|e| file_err(path)(&e))? else {
-        return Err(file_err(path)(&"not float32"));
-    };
-    let (w, h) = (w as usize, h as usize);
-    let nb = v.len() / (w * h).max(1);
-    Ok((w, h, (0..nb).map(|b| (0..w * h).map(|i| v[i * nb + b]).collect()).collect()))
 }
 
 /// A TIFF's bands as floats in the dataset convention (integers over their type's maximum, floats as they are).
@@ -346,15 +334,24 @@ fn unshift(shift: [f64; 3]) -> impl Fn([f64; 3]) -> [f64; 3] {
     move |p| [p[0] - shift[0], p[1] - shift[1], p[2] - shift[2]]
 }
 
-/// A cloud (mapped by `to_truth`) against the truth's surface points.
-fn cloud_stats(cloud: &Path, truth: &Path, to_truth: ToTruth) -> Result<Value, FlightBenchError> {
-    let mut c = read_cloud(cloud).map_err(|e| file_err(cloud)(&e))?;
+/// A cloud file, its path named on error.
+fn load_cloud(path: &Path) -> Result<PointCloud, FlightBenchError> {
+    read_cloud(path).map_err(|e| file_err(path)(&e))
+}
+
+/// A cloud read from `path` (mapped by `to_truth`) against the truth's surface points.
+fn cloud_stats(
+    cloud: &PointCloud,
+    path: &Path,
+    truth: &PointCloud,
+    to_truth: ToTruth,
+) -> Result<Value, FlightBenchError> {
+    let mut c = cloud.clone();
     for p in &mut c.positions {
         *p = to_truth(*p);
     }
-    let r = read_cloud(truth).map_err(|e| file_err(truth)(&e))?;
-    let rep = compare_clouds_with(&c, &r, &CompareOptions::default(), &AccuracyOptions::default())
-        .map_err(|e| file_err(cloud)(&e))?;
+    let rep = compare_clouds_with(&c, truth, &CompareOptions::default(), &AccuracyOptions::default())
+        .map_err(|e| file_err(path)(&e))?;
     Ok(serde_json::json!({
         "points": rep.pred_points, "accuracy_median_m": rep.accuracy.median, "accuracy_rmse_m": rep.accuracy.rmse,
         "completeness_median_m": rep.completeness.median, "f_score": rep.f_score, "position": rep.position,
@@ -419,14 +416,7 @@ fn camera_similarity(
     };
     for f in t["frames"].as_array().into_iter().flatten() {
         let file = f["file_path"].as_str().unwrap_or_default();
-        let Some(n) = Path::new(file)
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .and_then(|s| s.rsplit('_').next())
-            .and_then(|n| n.parse::<u64>().ok())
-        else {
-            continue;
-        };
+        let Ok(n) = capture_number(file).map(|n| n as u64) else { continue };
         let Some(c) = truth["captures"].as_array().into_iter().flatten().find(|c| c["number"].as_u64() == Some(n))
         else {
             continue;
@@ -486,18 +476,17 @@ const ICP_POINTS: usize = 20_000;
 
 /// The cloud's best similarity to the true surface after the datum shift (trimmed ICP) and what it says.
 fn relative_similarity(
-    cloud: &Path,
-    truth: &Path,
+    c: &PointCloud,
+    path: &Path,
+    r: &PointCloud,
     shift: [f64; 3],
 ) -> Result<(crate::maths::similarity::Similarity, Value), FlightBenchError> {
     use crate::output::pointcloud::icp::{icp_similarity, identity, rotation_angles, IcpOptions};
-    let c = read_cloud(cloud).map_err(|e| file_err(cloud)(&e))?;
-    let r = read_cloud(truth).map_err(|e| file_err(truth)(&e))?;
     let stride = c.positions.len().div_ceil(ICP_POINTS).max(1);
     let src: Vec<[f64; 3]> = c.positions.iter().step_by(stride).map(|&p| unshift(shift)(p)).collect();
     let tree = crate::output::pointcloud::kdtree::KdTree::new(&r.positions);
     let res = icp_similarity(&src, &r.positions, &tree, identity(), &IcpOptions::default())
-        .ok_or_else(|| file_err(cloud)(&"too few points to lay on the true surface"))?;
+        .ok_or_else(|| file_err(path)(&"too few points to lay on the true surface"))?;
     let s = res.similarity;
     let (angle, tilt) = rotation_angles(&s);
     // The translation at the cloud's centre (the similarity's own is about the CRS origin, far away).
@@ -561,10 +550,14 @@ pub fn flight_acceptance(
             })
         })
         .collect();
-    let rig = truth_geometry(flight, &project.join("dataset"), &truth)?.rig;
-    let georeferencing = camera_similarity(&truth, &project.join("dataset/transforms.json"), shift, &rig)?;
-    let (rel, relative_transform) = relative_similarity(&products.join("cloud.las"), &truth_cloud, shift)?;
-    let fidelity = image_fidelity(flight, &project.join("dataset"), &truth)?;
+    let dataset = project.join("dataset");
+    let geo = truth_geometry(flight, &dataset, &truth)?;
+    let georeferencing = camera_similarity(&truth, &dataset.join("transforms.json"), shift, &geo.rig)?;
+    let cloud_path = products.join("cloud.las");
+    let cloud = load_cloud(&cloud_path)?;
+    let truth_points = load_cloud(&truth_cloud)?;
+    let (rel, relative_transform) = relative_similarity(&cloud, &cloud_path, &truth_points, shift)?;
+    let fidelity = image_fidelity(flight, &dataset, &geo)?;
     let direct = match direct {
         None => None,
         Some((run, prods)) => {
@@ -581,10 +574,12 @@ pub fn flight_acceptance(
                     Some(serde_json::json!({"band": name, "psnr_db": -10.0 * mse.log10()}))
                 })
                 .collect();
+            let p = prods.join("cloud.las");
+            let direct_cloud = cloud_stats(&load_cloud(&p)?, &p, &truth_points, &unshift([0.0; 3]))?;
             Some(serde_json::json!({
                 "eval": e["bands"],
                 "expected_raw_psnr": expected,
-                "cloud": cloud_stats(&prods.join("cloud.las"), &truth_cloud, &unshift([0.0; 3]))?,
+                "cloud": direct_cloud,
                 "dsm": dsm_stats(&prods.join("dsm.tif"), &truth_dsm, &unshift([0.0; 3]))?,
             }))
         }
@@ -598,21 +593,20 @@ pub fn flight_acceptance(
         crs: truth["crs"].as_str().unwrap_or_default().to_string(),
         products_crs,
         datum_shift_m: shift,
-        reflectance: reflectance(flight, &project.join("dataset"), &truth)?,
+        reflectance: reflectance(&dataset, &geo)?,
         image_fidelity: fidelity,
         registration: {
-            let scene_path = flight.join("truth/scene.yaml");
-            let text = std::fs::read_to_string(&scene_path).map_err(|e| file_err(&scene_path)(&e))?;
-            let desc = SceneDesc::from_yaml(&text, &scene_path.display().to_string())
-                .map_err(|e| FlightBenchError::Other(e.to_string()))?;
-            let o = crate::sim::sensor::registration_truth::RegistrationTruthOptions { grid: 20, scene: Some(desc) };
-            crate::sim::sensor::registration_truth::evaluate_registration(flight, &project.join("dataset"), &o)
+            let o = crate::sim::sensor::registration_truth::RegistrationTruthOptions {
+                grid: 20,
+                scene: Some(geo.desc.clone()),
+            };
+            crate::sim::sensor::registration_truth::evaluate_registration(flight, &dataset, &o)
                 .map_err(|e| FlightBenchError::Other(format!("registration against the truth: {e}")))?
         },
         eval,
-        cloud: cloud_stats(&products.join("cloud.las"), &truth_cloud, &unshift(shift))?,
+        cloud: cloud_stats(&cloud, &cloud_path, &truth_points, &unshift(shift))?,
         dsm: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &unshift(shift))?,
-        cloud_relative: cloud_stats(&products.join("cloud.las"), &truth_cloud, &|p| rel.apply(unshift(shift)(p)))?,
+        cloud_relative: cloud_stats(&cloud, &cloud_path, &truth_points, &|p| rel.apply(unshift(shift)(p)))?,
         dsm_relative: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &|p| rel.apply(unshift(shift)(p)))?,
         relative_transform,
         georeferencing,

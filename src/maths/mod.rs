@@ -1,9 +1,11 @@
-//! Maths shared by production code and the CPU twins in `crate::reference`, generic over f32 and f64: the scene
-//! contraction and hash-grid input ([`field`]) and the SO(3) exp map of pose refinement ([`so3`]). Production code
-//! (normals, refined camera poses) imports these from here, never from `reference/`, and each function mirrors one
-//! GLSL helper, whose kernels the twins check.
+//! Maths shared by production code and the CPU twins in `crate::reference`: the scene contraction and hash-grid
+//! input ([`field`]) and the SO(3) exp map of pose refinement ([`so3`]), generic over f32 and f64, each mirroring one
+//! GLSL helper whose kernels the twins check; and, for the CPU only, small dense solves ([`linear`]) and similarity
+//! fits ([`similarity`]). Production code (normals, refined camera poses) imports these from here, never from
+//! `reference/`.
 
 pub mod field;
+pub mod linear;
 pub mod similarity;
 pub mod so3;
 

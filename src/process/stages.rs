@@ -17,22 +17,15 @@ use crate::nerf::run::LoadedRun;
 pub(super) fn import(o: &ProcessOptions) -> Result<StageDone, crate::rig::RigError> {
     let out = o.project.join(paths::dataset());
     let opts = crate::rig::ImportOptions {
-        input: o.flight.clone(),
-        out: out.clone(),
-        panel_files: vec![],
         panel_reflectance: o.panel_reflectance.clone(),
-        panel_corners: None,
         irradiance: o.irradiance,
         units: o.units,
-        undistort: true,
-        registration: crate::rig::Registration::Auto,
-        register_sample: crate::rig::import::REGISTER_SAMPLE,
         reference_band: o.reference_band.clone(),
         crs: o.crs.clone(),
         overwrite: true,
         threads: o.threads,
         progress: true,
-        rig_cameras: false,
+        ..crate::rig::ImportOptions::new(&o.flight, &out)
     };
     let s = crate::rig::import_rig(&opts)?;
     let t = out.join("transforms.json");

@@ -128,6 +128,32 @@ pub struct ImportOptions {
     pub rig_cameras: bool,
 }
 
+impl ImportOptions {
+    /// An import of `input` into `out` with the command's defaults: irradiance from the panel or the light sensor,
+    /// reflectance, undistorted and registered bands (warps shared over [`REGISTER_SAMPLE`] captures when the rig
+    /// allows), the reference band nearest 560 nm, the UTM zone of the GPS, one thread, no overwrite, no progress.
+    pub fn new(input: impl Into<PathBuf>, out: impl Into<PathBuf>) -> ImportOptions {
+        ImportOptions {
+            input: input.into(),
+            out: out.into(),
+            panel_files: Vec::new(),
+            panel_reflectance: Vec::new(),
+            panel_corners: None,
+            irradiance: IrradianceSource::Auto,
+            units: Units::Reflectance,
+            undistort: true,
+            registration: Registration::Auto,
+            register_sample: REGISTER_SAMPLE,
+            reference_band: None,
+            crs: None,
+            overwrite: false,
+            threads: 1,
+            progress: false,
+            rig_cameras: false,
+        }
+    }
+}
+
 /// The summary of an import.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct ImportSummary {

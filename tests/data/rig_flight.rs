@@ -17,7 +17,7 @@ use crate::common::TempDir;
 use crate::rig_support::{micasense_xmp, write_rig_tiff, FixtureExif, MsXmp};
 use msnerf::rig::calib::interpret;
 use msnerf::rig::meta::read_meta;
-use msnerf::rig::{import_rig, ImportOptions, IrradianceSource, Registration, Units};
+use msnerf::rig::{import_rig, ImportOptions};
 use std::path::{Path, PathBuf};
 
 /// The DLS2 tags of a real Altum Red edge file (exifr's test of `MicaSense_Altum_MSP.tif`).
@@ -121,24 +121,7 @@ fn flight_captures(flight: &Path) -> usize {
 }
 
 fn import_options(input: &Path, out: &Path) -> ImportOptions {
-    ImportOptions {
-        input: input.to_path_buf(),
-        out: out.to_path_buf(),
-        panel_files: vec![],
-        panel_reflectance: vec![],
-        panel_corners: None,
-        irradiance: IrradianceSource::Auto,
-        units: Units::Reflectance,
-        undistort: true,
-        registration: Registration::Auto,
-        register_sample: 8,
-        reference_band: None,
-        crs: None,
-        overwrite: true,
-        threads: 2,
-        progress: false,
-        rig_cameras: false,
-    }
+    ImportOptions { overwrite: true, threads: 2, ..ImportOptions::new(input, out) }
 }
 
 /// Mean of every band over a dataset's images (f32 chunky TIFFs) against the truth dataset's, band by band.

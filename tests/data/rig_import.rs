@@ -13,7 +13,7 @@ use common::TempDir;
 use msnerf::rig::calib::{interpret, Vendor};
 use msnerf::rig::meta::{read_meta, read_pixels};
 use msnerf::rig::radiometry::to_radiance;
-use msnerf::rig::{import_rig, ImportOptions, IrradianceSource, Registration, RigError, Units};
+use msnerf::rig::{import_rig, ImportOptions, IrradianceSource, Registration, RigError};
 use rig_support::{dji_xmp, micasense_xmp, read_f32_bands, write_rig_tiff, DjiXmp, FixtureExif, MsXmp};
 
 const W: u32 = 160;
@@ -168,22 +168,10 @@ fn flight(dir: &Path, n: usize) -> PathBuf {
 
 fn opts(input: &Path, out: &Path) -> ImportOptions {
     ImportOptions {
-        input: input.to_path_buf(),
-        out: out.to_path_buf(),
         panel_files: vec![input.join("IMG_0000_2.tif")],
         panel_reflectance: vec![0.5],
-        panel_corners: None,
-        irradiance: IrradianceSource::Auto,
-        units: Units::Reflectance,
-        undistort: true,
-        registration: Registration::Auto,
-        register_sample: 8,
-        reference_band: None,
-        crs: None,
-        overwrite: false,
         threads: 2,
-        progress: false,
-        rig_cameras: false,
+        ..ImportOptions::new(input, out)
     }
 }
 

@@ -11,7 +11,7 @@ use msnerf::rig::calib::interpret;
 use msnerf::rig::meta::read_meta;
 use msnerf::rig::panel::{detect_panel, order_corners, region_stats, scale_quad, PANEL_INNER};
 use msnerf::rig::radiometry::to_radiance;
-use msnerf::rig::{import_rig, ImportOptions, IrradianceSource, Registration, Units};
+use msnerf::rig::{import_rig, ImportOptions, IrradianceSource, Registration};
 use rig_support::{grad_mag, phase_shift, read_f32_bands, real_dir};
 
 /// MicaSense's panel corners for IMG_0000_1 (test_panel.py `test_panel_corners`).
@@ -158,22 +158,10 @@ fn panel_is_found_where_micasense_finds_it() {
 
 fn import_opts(input: &Path, out: &Path) -> ImportOptions {
     ImportOptions {
-        input: input.to_path_buf(),
-        out: out.to_path_buf(),
         panel_files: vec![input.join("0000SET_IMG_0000_1.tif")],
         panel_reflectance: vec![0.67],
-        panel_corners: None,
-        irradiance: IrradianceSource::Auto,
-        units: Units::Reflectance,
-        undistort: true,
-        registration: Registration::Auto,
-        register_sample: 8,
-        reference_band: None,
-        crs: None,
-        overwrite: false,
         threads: 2,
-        progress: false,
-        rig_cameras: false,
+        ..ImportOptions::new(input, out)
     }
 }
 

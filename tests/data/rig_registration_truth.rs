@@ -10,7 +10,7 @@ use crate::common;
 use std::path::{Path, PathBuf};
 
 use common::TempDir;
-use msnerf::rig::{import_rig, ImportOptions, IrradianceSource, Registration, Units};
+use msnerf::rig::{import_rig, ImportOptions, IrradianceSource, Registration};
 use msnerf::sim::sensor::registration_truth::{
     evaluate_registration, RegistrationAccuracy, RegistrationTruthError, RegistrationTruthOptions,
 };
@@ -39,22 +39,10 @@ fn flight(dir: &Path, scene: &str, sensor: SensorKind, views: usize) -> PathBuf 
 /// Imports the card with the light sensor's irradiance.
 fn import(raw: &Path, out: &Path, registration: Registration) {
     let opts = ImportOptions {
-        input: raw.join("card"),
-        out: out.to_path_buf(),
-        panel_files: Vec::new(),
-        panel_reflectance: Vec::new(),
-        panel_corners: None,
         irradiance: IrradianceSource::Dls,
-        units: Units::Reflectance,
-        undistort: true,
         registration,
-        register_sample: 8,
-        reference_band: None,
-        crs: None,
-        overwrite: false,
         threads: 2,
-        progress: false,
-        rig_cameras: false,
+        ..ImportOptions::new(raw.join("card"), out)
     };
     import_rig(&opts).expect("import");
 }

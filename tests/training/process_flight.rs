@@ -182,6 +182,31 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     // itself is the benchmark's (and issue 51's) to measure.
     assert!(valid > 0.1 * cells, "DSM cells with a height: {valid} of {cells}: {survey}");
 
+    // `bench flight` on the same project (no direct flight): every figure present and plausible for a young field.
+    // The acceptance's own thresholds are the benchmark's to report (docs/results/flight.md); here the
+    // measurement itself is checked: the truth it reads, and figures any working chain stays within.
+    let acc = msnerf::bench::flight::flight_acceptance(&flight, &project, None).expect("bench flight");
+    assert_eq!((acc.captures, acc.crs.as_str()), (30, "EPSG:32632"));
+    assert!(acc.registered >= 29, "{}", acc.registered);
+    assert_eq!(acc.reflectance.len(), 5);
+    for r in &acc.reflectance {
+        assert!(r.pixels > 1000 && (r.median_ratio - 1.0).abs() < 0.03, "{r:?}");
+    }
+    for f in &acc.image_fidelity {
+        assert!(f.pixels > 10_000 && f.psnr_db > 30.0 && f.psnr_db.is_finite(), "{f:?}");
+    }
+    assert!(acc.registration.failures(0.1, 0.3).is_empty(), "{:?}", acc.registration.failures(0.1, 0.3));
+    let tilt = acc.georeferencing["tilt_deg"].as_f64().unwrap();
+    let icp_tilt = acc.relative_transform["tilt_deg"].as_f64().unwrap();
+    // The GPS fit's tilt is the noise's; the cloud's rigid fit to the surface finds about the same one.
+    assert!(tilt < 2.0 && (icp_tilt - tilt).abs() < 0.5, "{tilt} vs {icp_tilt}: {}", acc.relative_transform);
+    let (abs_m, rel_m) =
+        (acc.cloud["accuracy_median_m"].as_f64().unwrap(), acc.cloud_relative["accuracy_median_m"].as_f64().unwrap());
+    assert!(rel_m <= abs_m + 1e-9 && rel_m < 0.5, "cloud median {abs_m} m absolute, {rel_m} m relative");
+    assert!(acc.dsm.count > 0 && acc.dsm_relative.count > 0);
+    assert_eq!(acc.stages.len(), Stage::ALL.len());
+    assert!(acc.direct.is_none());
+
     // The report: every section, every number finite, every image decodes.
     let html = std::fs::read_to_string(project.join("report.html")).unwrap();
     let (images, sections, words) = parse_report(&html);

@@ -122,7 +122,7 @@ pub fn icp_similarity(
         for (k, r) in ata.iter_mut().enumerate() {
             r[k] += damping;
         }
-        let x = solve7(ata, atb)?;
+        let x = crate::maths::linear::solve(ata.iter().flatten().copied().collect(), atb.to_vec())?;
         let w = DVec3::new(x[0], x[1], x[2]);
         let (t, d) = (DVec3::new(x[3], x[4], x[5]), x[6]);
         let r = if w.length() > 0.0 { DMat3::from_axis_angle(w.normalize(), w.length()) } else { DMat3::IDENTITY };
@@ -144,31 +144,6 @@ pub fn icp_similarity(
         }
     }
     Some(IcpResult { similarity: sim, iterations: o.iterations.max(1), rms })
-}
-
-/// Solves the 7x7 system by Gaussian elimination with partial pivoting; None when singular.
-fn solve7(mut a: [[f64; 7]; 7], mut b: [f64; 7]) -> Option<[f64; 7]> {
-    for i in 0..7 {
-        let p = (i..7).max_by(|&x, &y| a[x][i].abs().total_cmp(&a[y][i].abs()))?;
-        if a[p][i].abs() < 1e-300 || !a[p][i].is_finite() {
-            return None;
-        }
-        a.swap(i, p);
-        b.swap(i, p);
-        let pivot = a[i];
-        for k in i + 1..7 {
-            let f = a[k][i] / pivot[i];
-            for (akj, pj) in a[k][i..].iter_mut().zip(&pivot[i..]) {
-                *akj -= f * pj;
-            }
-            b[k] -= f * b[i];
-        }
-    }
-    let mut x = [0.0; 7];
-    for i in (0..7).rev() {
-        x[i] = (b[i] - (i + 1..7).map(|j| a[i][j] * x[j]).sum::<f64>()) / a[i][i];
-    }
-    Some(x)
 }
 
 /// The rotation angle of a similarity (degrees) and the tilt of its z axis from vertical (degrees).
