@@ -3,8 +3,8 @@
 //! - [`BackgroundGuard`]: after the `random` warm-up (`rendering.random_background_steps`) the `last_sample`
 //!   background lets a field that stays transparent cost nothing, and on some flights and seeds the field collapses
 //!   right at the switch: every ray's weight moves behind the ground, the distortion loss falls to 0 and the colour
-//!   loss doubles within a hundred steps, then stays (a nadir grid flight of `flight-rural`: 1 of 6 images-only
-//!   runs stayed there; the bisection of issue 50's importer keys was this, not a key). A switch is often followed
+//!   loss doubles within a hundred steps, then stays (issue 50's bisection of the importer's keys was this, not a
+//!   key; docs/results/flight.md, "Training into nothing"). A switch is often followed
 //!   by a dip that recovers within a few hundred steps (the colour loss doubles too, but the weights stay on a
 //!   surface: the distortion loss keeps its size), which must be left alone. So the guard compares the
 //!   [`WINDOW`] steps after the switch with the [`WINDOW`] steps before it, over the [`WATCH`] steps after it: the
