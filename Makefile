@@ -5,7 +5,7 @@ export MSNERF_REQUIRE_VALIDATION ?= 1
 # Fresh GPU buffers hold NaN bits, so a read of memory nobody wrote fails a test on lavapipe as it would on NVIDIA.
 export MSNERF_POISON_BUFFERS ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-paper
+.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-gcp flight-acceptance-paper
 
 setup:
 	@bash tools/setup-debian.sh
@@ -86,6 +86,10 @@ scale-acceptance: build
 # written directly by the simulator, every product against the truth (docs/results/flight.md; ~15 min on 2 cores).
 flight-acceptance: build
 	bash tools/flight-acceptance.sh ci flight-acceptance-ci 300
+
+# The same with five ground control points (OpenDroneMap's gcp_list.txt): the products judged as delivered.
+flight-acceptance-gcp: build
+	GCP=5 bash tools/flight-acceptance.sh ci flight-acceptance-ci-gcp 300
 
 # The paper's size: 300 captures of 1280x960 (hours on a CPU: the stages' time and host memory are the figures).
 flight-acceptance-paper: build

@@ -4,8 +4,10 @@
 # shift) through `msnerf process` from its card, the same flight written directly by the simulator trained and
 # exported the same way, and every product of both compared with the truth (`msnerf bench flight`).
 #
-#   [MSNERF=binary] tools/flight-acceptance.sh [ci|paper] [OUT] [TRAIN_SECONDS]
+#   [MSNERF=binary] [GCP=n] tools/flight-acceptance.sh [ci|paper] [OUT] [TRAIN_SECONDS]
 #
+# GCP=n (default 0): n ground control points in the flight's gcp_list.txt, given to `process` (the products are then
+# judged as delivered; without them after removing the GPS's stated datum shift).
 # ci: flight-rural, 30 captures of 320x240 (about 15 minutes on 2 cores with lavapipe), and the same flight written
 # directly by the simulator beside it; paper: flight-rural-large, 300 captures of 1280x960 (an hour or more on a
 # CPU; the time and host memory of every stage are the point there, so the DSM and ortho are made at the CI
@@ -17,6 +19,7 @@ size=${1:-ci}
 out=${2:-flight-acceptance-$size}
 budget=${3:-300}
 bin=${MSNERF:-target/release/msnerf}
+gcp=${GCP:-0}
 case "$size" in
   ci) sim=(--width 320) ; scene=flight-rural ; extra=() ; direct=1 ;;
   paper) sim=() ; scene=configs/scenes/flight-rural-large.yaml ; extra=(--gsd "${SURVEY_GSD:-0.11}") ; direct=0 ;;
@@ -24,7 +27,8 @@ case "$size" in
 esac
 mkdir -p "$out" docs/results/log
 echo "== simulate (${sim[*]})"
-$bin simulate --scene "$scene" --raw-rig micasense-rededge "${sim[@]}" --out "$out/flight" --overwrite
+$bin simulate --scene "$scene" --raw-rig micasense-rededge "${sim[@]}" --gcp "$gcp" --out "$out/flight" --overwrite
+if [ "$gcp" -gt 0 ]; then extra+=(--gcp "$out/flight/gcp_list.txt"); fi
 # The panel's calibration sheet, band reflectances in wavelength order.
 panel=$(python3 -c 'import json,sys; b=json.load(open(sys.argv[1]))["bands"]; print(",".join(str(x["reflectance"]) for x in sorted(b, key=lambda x: x["center_nm"])))' "$out/flight/truth/panel.json")
 echo "== process (panel reflectance $panel, $budget s of training)"
@@ -42,7 +46,7 @@ if [ "$direct" = 1 ]; then
   args+=(--direct-run "$out/direct-run" --direct-products "$out/direct-products")
 fi
 echo "== compare with the truth"
-json="docs/results/log/flight-acceptance-$size-$(date +%F).json"
+json="docs/results/log/flight-acceptance-$size$([ "$gcp" -gt 0 ] && echo "-gcp")-$(date +%F).json"
 $bin bench flight "${args[@]}" --json > "$out/acceptance.json"
 cp "$out/acceptance.json" "$json"
 $bin bench flight "${args[@]}"

@@ -10,7 +10,9 @@
 //!   datum shift the simulation stated (no method without ground control can know it; the rest of the GPS error
 //!   stays in the figures: the tilt and scale a fit to noisy GPS leaves); and both again after the best similarity
 //!   of the cloud to the true surface (trimmed ICP, [`crate::output::pointcloud::icp`]): the relative accuracy,
-//!   what ground control would leave;
+//!   what ground control would leave; and the products as delivered, nothing removed (with ground control,
+//!   `process --gcp`, the shift is not removed by the bench: the control points took it away, and the figures
+//!   "after the datum shift" are the absolute ones);
 //! - held-out PSNR and SSIM per band, each stage's time and peak memory against the planner's host figure;
 //! - the imported images against the images the simulator wrote directly for the same captures (PSNR per band:
 //!   sensor noise, resampling, radiometric error), mapped through the reference band's rotation in the rig (its
@@ -88,6 +90,7 @@ pub struct FlightAcceptance {
     pub registered: usize,
     pub crs: String,
     pub products_crs: Vec<(String, Option<u16>)>,
+    /// The shift removed before the "after the datum shift" figures (zero with ground control).
     pub datum_shift_m: [f64; 3],
     pub reflectance: Vec<BandReflectance>,
     /// The imported images against the directly simulated ones of the same captures.
@@ -104,6 +107,11 @@ pub struct FlightAcceptance {
     pub cloud_relative: Value,
     pub dsm: SurfaceStats,
     pub dsm_relative: SurfaceStats,
+    /// The products as delivered, nothing removed: with ground control the datum shift is gone without being told.
+    pub cloud_absolute: Value,
+    pub dsm_absolute: SurfaceStats,
+    /// The SfM stage's ground-control report (residuals and check residuals), when the flight had ground control.
+    pub ground_control: Option<Value>,
     /// That similarity (after the datum shift): rotation and tilt (degrees), scale error, translation (m), ICP RMS.
     pub relative_transform: Value,
     pub stages: Vec<Value>,
@@ -511,10 +519,15 @@ pub fn flight_acceptance(
     direct: Option<(&Path, &Path)>,
 ) -> Result<FlightAcceptance, FlightBenchError> {
     let truth = read_json(&flight.join("truth/flight.json"))?;
-    let shift: [f64; 3] = serde_json::from_value(truth["gps"]["datum_shift_m"].clone())
-        .map_err(|e| FlightBenchError::Other(format!("truth/flight.json gps.datum_shift_m: {e}")))?;
     let stage = |s: &str| read_json(&project.join(format!("stages/{s}.json")));
     let poses = stage("poses")?;
+    // The GPS's datum shift, which georeferencing by GPS alone keeps and ground control removes.
+    let shift: [f64; 3] = if poses["summary"]["georef"]["control"].is_object() {
+        [0.0; 3]
+    } else {
+        serde_json::from_value(truth["gps"]["datum_shift_m"].clone())
+            .map_err(|e| FlightBenchError::Other(format!("truth/flight.json gps.datum_shift_m: {e}")))?
+    };
     let captures = truth["captures"].as_array().map_or(0, |c| c.iter().filter(|c| c["kind"] == "flight").count());
     let products = project.join("products");
     let products_crs = ["dsm.tif", "ortho.tif"]
@@ -608,6 +621,9 @@ pub fn flight_acceptance(
         dsm: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &unshift(shift))?,
         cloud_relative: cloud_stats(&cloud, &cloud_path, &truth_points, &|p| rel.apply(unshift(shift)(p)))?,
         dsm_relative: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &|p| rel.apply(unshift(shift)(p)))?,
+        cloud_absolute: cloud_stats(&cloud, &cloud_path, &truth_points, &unshift([0.0; 3]))?,
+        dsm_absolute: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &unshift([0.0; 3]))?,
+        ground_control: Some(poses["summary"]["georef"]["control"].clone()).filter(|c| c.is_object()),
         relative_transform,
         georeferencing,
         stages,
@@ -664,6 +680,22 @@ impl FlightAcceptance {
             100.0 * d.within_0_25,
             100.0 * d.within_0_50
         );
+        s += &format!(
+            "absolute (the products as delivered, no shift removed): cloud median {:.3} m; DSM median |dz| {:.3} m, \
+             bias {:+.3} m, within 0.10 m {:.1} %\n",
+            self.cloud_absolute["accuracy_median_m"].as_f64().unwrap_or(f64::NAN),
+            self.dsm_absolute.median_abs_m,
+            self.dsm_absolute.bias_m,
+            100.0 * self.dsm_absolute.within_0_10
+        );
+        if let Some(c) = &self.ground_control {
+            s += &format!(
+                "ground control: {} point(s), residual RMS {:.3} m, check RMS {:.3} m\n",
+                c["points"].as_array().map_or(0, |p| p.len()),
+                c["rms_m"].as_f64().unwrap_or(f64::NAN),
+                c["check_rms_m"].as_f64().unwrap_or(f64::NAN)
+            );
+        }
         for st in &self.stages {
             s += &format!(
                 "stage {}: {:.1} s, peak host {} MiB, GPU {} MiB\n",

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use crate::rig::capture::{list_tiffs, scan_files};
 use crate::rig::frame::{estimate_warps, load, valid_rect, write_frame};
-use crate::rig::{import_rig, ImportOptions, IrradianceSource, Registration, RigError, Units};
+use crate::rig::{import_rig, ImportOptions, Registration, RigError, Units};
 
 /// The numbers `bench import` prints.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -119,22 +119,12 @@ pub fn run(dir: &Path, replicate_n: usize, threads: usize) -> Result<ImportBench
         let resample_write_s = t.elapsed().as_secs_f64();
         let whole = |registration: Registration, name: &str| -> Result<f64, RigError> {
             let opts = ImportOptions {
-                input: flight.clone(),
-                out: work.join(name),
-                panel_files: vec![],
-                panel_reflectance: vec![],
-                panel_corners: None,
-                irradiance: IrradianceSource::Auto,
                 units: Units::Radiance,
-                undistort: true,
                 registration,
                 register_sample: 8,
-                reference_band: None,
-                crs: None,
                 overwrite: true,
                 threads,
-                progress: false,
-                rig_cameras: false,
+                ..ImportOptions::new(flight.clone(), work.join(name))
             };
             Ok(import_rig(&opts)?.seconds)
         };

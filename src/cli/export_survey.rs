@@ -10,7 +10,7 @@ use super::refine_args::RefineArgs;
 use super::Cli;
 use crate::gpu::Context;
 use crate::nerf::run::LoadedRun;
-use crate::nerf::survey::{seen_bounds, SurveyGrid, SurveyOptions};
+use crate::nerf::survey::{seen_bounds, DsmFill, SurveyGrid, SurveyOptions};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
 use crate::output::raster::geotiff_read::read_grid;
 use crate::output::raster::indices::VegetationIndex;
@@ -61,10 +61,14 @@ pub struct SurveyArgs {
     pub keep_outside_box: bool,
     #[command(flatten)]
     pub refine: RefineArgs,
-    /// DSM: nodata where the images give no photometric support (uniform surfaces such as water, occlusions), as
-    /// MVS fusion drops such pixels; by default those cells keep the field's height
-    #[arg(long)]
-    pub drop_unsupported: bool,
+    /// DSM: cells the images give no photometric support (uniform surfaces such as water, occlusions) and surfaces
+    /// the filters turned down: interpolated from the measured cells around them, the field's height, or nodata;
+    /// `<stem>_quality.tif` beside the DSM says which each cell is
+    #[arg(long, value_enum, default_value_t = DsmFill::default())]
+    pub fill: DsmFill,
+    /// DSM: how far --fill interpolate reaches, in world units (default: 100 cells)
+    #[arg(long, value_parser = super::positive_f64)]
+    pub fill_max_distance: Option<f64>,
     /// Rays rendered per block (bounds host memory: about 100 bytes per ray)
     #[arg(long, default_value_t = 1 << 20)]
     pub block_rays: usize,
@@ -105,7 +109,8 @@ impl SurveyArgs {
         if let Some(t) = self.top {
             anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
         }
-        let refine = self.refine.options(dsm, consistency.is_some(), self.min_agree, !self.drop_unsupported)?;
+        // Unsupported cells keep a height through the refinement; --fill decides what the DSM makes of them.
+        let refine = self.refine.options(dsm, consistency.is_some(), self.min_agree, true)?;
         Ok(SurveyOptions {
             min_accumulation: self.min_accumulation,
             max_spread_cells,
@@ -114,6 +119,8 @@ impl SurveyArgs {
             block_rays: self.block_rays,
             refine,
             consistency,
+            fill: self.fill,
+            fill_max_distance: self.fill_max_distance,
         })
     }
 
@@ -231,6 +238,9 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
         s.rays,
         s.seconds
     );
+    if s.measured + s.interpolated + s.field_only > 0 {
+        println!("{}", s.quality_line());
+    }
     for n in &report.notes {
         println!("note: {n}");
     }

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use crate::rig::ground_control::GroundControl;
 use crate::rig::{import_rig, ImportOptions, IrradianceSource, Registration, Units};
 
 #[derive(clap::Args, Debug)]
@@ -82,6 +83,13 @@ pub struct RigArgs {
     /// zone of the first capture with GPS)
     #[arg(long)]
     pub crs: Option<String>,
+    /// Ground control points in OpenDroneMap's gcp_list.txt layout, pixels in the raw band files (default: DIR's
+    /// gcp_list.txt when there is one)
+    #[arg(long, conflicts_with = "no_gcp")]
+    pub gcp: Option<PathBuf>,
+    /// Ignore DIR's gcp_list.txt
+    #[arg(long)]
+    pub no_gcp: bool,
     /// Replace an existing output folder
     #[arg(long)]
     pub overwrite: bool,
@@ -160,6 +168,7 @@ pub fn run(a: &ImportArgs) -> anyhow::Result<()> {
         threads,
         progress: true,
         rig_cameras: r.rig_cameras,
+        ground_control: GroundControl::from_flags(r.gcp.as_ref(), r.no_gcp),
     };
     let s = import_rig(&opts)?;
     println!("wrote {} ({} captures, bands {})", r.out.display(), s.captures, s.bands.join(", "));

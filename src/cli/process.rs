@@ -34,6 +34,13 @@ pub struct ProcessArgs {
     /// Projected CRS of the outputs (EPSG:n; default: the flight's WGS 84 UTM zone)
     #[arg(long)]
     pub crs: Option<String>,
+    /// Ground control points in OpenDroneMap's gcp_list.txt layout, pixels in the raw band files (default: the
+    /// flight folder's gcp_list.txt when there is one); they fix the georeferencing, their residuals go in the report
+    #[arg(long, conflicts_with = "no_gcp")]
+    pub gcp: Option<PathBuf>,
+    /// Ignore the flight folder's gcp_list.txt
+    #[arg(long)]
+    pub no_gcp: bool,
     /// Poses from another tool instead of COLMAP: its model (with --poses-from)
     #[arg(long, requires = "poses_from")]
     pub poses: Option<PathBuf>,
@@ -65,6 +72,10 @@ pub struct ProcessArgs {
     /// Vegetation indices written beside the ortho (comma-separated)
     #[arg(long, value_delimiter = ',', default_values_t = ["ndvi".to_string(), "ndre720".to_string()])]
     pub indices: Vec<String>,
+    /// DSM cells without photometric support: the field's height, interpolated from the measured cells around them,
+    /// or nodata (dsm_quality.tif says which each cell is)
+    #[arg(long, value_enum, default_value_t = crate::nerf::survey::DsmFill::default())]
+    pub fill: crate::nerf::survey::DsmFill,
     /// Stop after this stage
     #[arg(long, value_enum)]
     pub stop_after: Option<Stage>,
@@ -90,6 +101,7 @@ pub fn run(cli: &Cli, a: &ProcessArgs) -> anyhow::Result<()> {
         units: a.units,
         reference_band: a.reference_band.clone(),
         crs,
+        ground_control: crate::rig::ground_control::GroundControl::from_flags(a.gcp.as_ref(), a.no_gcp),
         poses: a.poses_from.zip(a.poses.clone()),
         model: a.model.clone(),
         hardware: a.hardware.clone(),
@@ -100,6 +112,7 @@ pub fn run(cli: &Cli, a: &ProcessArgs) -> anyhow::Result<()> {
         gsd: a.gsd,
         cloud_rays: a.cloud_rays,
         indices,
+        fill: a.fill,
         stop_after: a.stop_after,
         redo: a.redo,
         threads: a.threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)),

@@ -98,12 +98,9 @@ pub fn run(a: &SfmArgs) -> anyhow::Result<()> {
     }
     match (&r.georef, &r.crs) {
         (Some(g), Some(c)) => {
-            println!(
-                "geo-registered to GPS in {c}: {} frames, scale {:.4}, rms {:.3} m, max {:.3} m",
-                g.pairs, g.scale, g.rms_m, g.max_m
-            );
-            for f in &g.rejected {
-                println!("  GPS disagrees with the model (left out of the fit): {f}");
+            println!("geo-registered in {c}:");
+            for l in g.describe() {
+                println!("  {l}");
             }
         }
         _ => println!("no GPS: the poses are in COLMAP's own frame (arbitrary scale; no crs)"),

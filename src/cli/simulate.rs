@@ -72,10 +72,15 @@ pub struct SimulateArgs {
     /// Raw rig: a second calibration-panel capture after the flight
     #[arg(long)]
     pub panel_after: bool,
+    /// Raw rig: this many ground control points, surveyed and clicked in the raw images, written as the flight's
+    /// gcp_list.txt (OpenDroneMap's layout)
+    #[arg(long, default_value_t = 0)]
+    pub gcp: usize,
 }
 
 pub fn run(_cli: &Cli, a: &SimulateArgs) -> anyhow::Result<()> {
     let scene = SceneDesc::load(&a.scene)?;
+    anyhow::ensure!(a.raw_rig.is_some() || a.gcp == 0, "--gcp: ground control is simulated with --raw-rig");
     if let Some(sensor) = a.raw_rig {
         anyhow::ensure!(
             a.sparse_points == 0 && !a.band_files && a.format == PixelFormat::F32,
@@ -96,6 +101,7 @@ pub fn run(_cli: &Cli, a: &SimulateArgs) -> anyhow::Result<()> {
             firmware: a.firmware.clone(),
             panel_after: a.panel_after,
             points: a.points,
+            gcp: a.gcp,
         };
         println!("{}", crate::sim::sensor::simulate_raw_rig(&scene, &opts, &a.out)?);
         return Ok(());

@@ -5,7 +5,9 @@
 //! - `EPSG:32650` (any case; also `urn:ogc:def:crs:EPSG::32650` and a bare `32650`);
 //! - OGC WKT (WKT1 `PROJCS[...]`, `GEOGCS[...]`, `COMPD_CS[...]` or WKT2 `PROJCRS[...]`, ...): kept as given; its
 //!   top-level `AUTHORITY["EPSG","n"]` / `ID["EPSG",n]` gives the code;
-//! - OpenDroneMap's `coords.txt` form `WGS84 UTM 32N` (WGS 84 UTM zones: EPSG 326zz north, 327zz south).
+//! - OpenDroneMap's `coords.txt` form `WGS84 UTM 32N` (WGS 84 UTM zones: EPSG 326zz north, 327zz south);
+//! - a PROJ string for WGS 84 UTM (`+proj=utm +zone=32 +datum=WGS84 +units=m +no_defs`, `+south`), as ODM's
+//!   `gcp_list.txt` headers carry it.
 
 use super::error::CrsError;
 
@@ -88,9 +90,13 @@ impl Crs {
         if let Some(code) = odm_utm(&upper) {
             return Self::from_epsg(code);
         }
+        if upper.starts_with("+PROJ=") {
+            return proj_utm(&upper).map_err(|r| CrsError::invalid(text, r)).and_then(Self::from_epsg);
+        }
         Err(CrsError::invalid(
             text,
-            "not an EPSG code (EPSG:32650), OGC WKT (PROJCS[...]) or a WGS84 UTM zone (WGS84 UTM 50N)",
+            "not an EPSG code (EPSG:32650), OGC WKT (PROJCS[...]), a WGS84 UTM zone (WGS84 UTM 50N) or a PROJ UTM \
+             string (+proj=utm +zone=50 +datum=WGS84)",
         ))
     }
 
@@ -205,6 +211,40 @@ fn odm_utm(upper: &str) -> Option<u32> {
         "N" => Some(32600 + zone),
         "S" => Some(32700 + zone),
         _ => None,
+    }
+}
+
+/// The EPSG code of a PROJ string for WGS84 UTM, as OpenDroneMap's `gcp_list.txt` headers and `proj.txt` carry
+/// it (`+proj=utm +zone=32 +datum=WGS84 +units=m +no_defs`, `+south` for the southern hemisphere). Other datums
+/// and projections are refused by name: give them as EPSG codes or WKT.
+fn proj_utm(upper: &str) -> Result<u32, String> {
+    let (mut utm, mut zone, mut south) = (false, None, false);
+    for term in upper.split_whitespace() {
+        let (k, v) = term.split_once('=').map_or((term, None), |(k, v)| (k, Some(v)));
+        match (k, v) {
+            ("+PROJ", Some("UTM")) => utm = true,
+            ("+PROJ", Some(p)) => return Err(format!("projection {p:?}: only UTM is read from PROJ strings")),
+            ("+ZONE", Some(z)) => {
+                zone = Some(
+                    z.parse::<u32>()
+                        .ok()
+                        .filter(|z| (1..=60).contains(z))
+                        .ok_or(format!("zone {z:?}: UTM zones are 1..=60"))?,
+                )
+            }
+            ("+SOUTH", None) => south = true,
+            ("+DATUM" | "+ELLPS", Some("WGS84")) => {}
+            ("+DATUM" | "+ELLPS", Some(d)) => return Err(format!("datum {d:?}: only WGS84 is read from PROJ strings")),
+            ("+UNITS", Some("M")) | ("+NO_DEFS" | "+TYPE=CRS", None) => {}
+            ("+UNITS", Some(u)) => return Err(format!("units {u:?}: metres only")),
+            ("+TOWGS84", Some(t)) if t.split(',').all(|c| c.parse::<f64>().is_ok_and(|c| c == 0.0)) => {}
+            _ => return Err(format!("term {term:?} is not read (give the CRS as an EPSG code)")),
+        }
+    }
+    match (utm, zone) {
+        (true, Some(z)) => Ok(if south { 32700 } else { 32600 } + z),
+        (true, None) => Err("+proj=utm without +zone".into()),
+        _ => Err("no +proj=utm".into()),
     }
 }
 

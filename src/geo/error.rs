@@ -13,3 +13,12 @@ impl CrsError {
         CrsError::Invalid { given: given.chars().take(120).collect(), reason: reason.into() }
     }
 }
+
+/// Errors reading or using a ground control file: each names the file, and the line where there is one.
+#[derive(Debug, thiserror::Error)]
+pub enum GcpError {
+    #[error("{}: {reason}", path.display())]
+    File { path: std::path::PathBuf, reason: String },
+    #[error("{}, line {line}: {reason}", path.display())]
+    Line { path: std::path::PathBuf, line: usize, reason: String },
+}

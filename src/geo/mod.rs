@@ -1,5 +1,6 @@
 //! Coordinate reference systems (issue 20): what `transforms.json`'s `crs` key holds ([`Crs`]), and projecting
-//! GPS (WGS84) or ECEF positions into a projected CRS ([`Projector`]).
+//! GPS (WGS84) or ECEF positions into a projected CRS ([`Projector`]), and ground control points in OpenDroneMap's
+//! `gcp_list.txt` ([`gcp`]).
 //!
 //! Crates, and why: `crs-definitions` (the EPSG table as PROJ.4 strings and OGC WKT1, no_std static data, the
 //! table `proj4rs`' own authors point to) gives every EPSG code a WKT for LAS and a PROJ.4 definition; `proj4rs`
@@ -9,8 +10,9 @@
 
 pub mod crs;
 pub mod error;
+pub mod gcp;
 pub mod project;
 
 pub use crs::{utm_epsg, Crs, CrsKind};
-pub use error::CrsError;
+pub use error::{CrsError, GcpError};
 pub use project::Projector;

@@ -72,23 +72,32 @@ fn jacobi4(mut a: [[f64; 4]; 4]) -> ([f64; 4], [[f64; 4]; 4]) {
 
 /// The similarity that best maps `src` onto `dst` (at least 3 pairs, not all on a line); None otherwise.
 pub fn fit_similarity(src: &[[f64; 3]], dst: &[[f64; 3]]) -> Option<Similarity> {
+    fit_similarity_weighted(src, dst, &vec![1.0; src.len()])
+}
+
+/// [`fit_similarity`] minimising `sum w_i |s(src_i) - dst_i|^2` (Horn's closed form with weighted centroids and
+/// cross-covariance; weights positive and finite).
+pub fn fit_similarity_weighted(src: &[[f64; 3]], dst: &[[f64; 3]], weights: &[f64]) -> Option<Similarity> {
     let n = src.len();
-    if n < 3 || dst.len() != n {
+    if n < 3 || dst.len() != n || weights.len() != n || weights.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
         return None;
     }
-    let mean = |p: &[[f64; 3]]| -> [f64; 3] { std::array::from_fn(|k| p.iter().map(|x| x[k]).sum::<f64>() / n as f64) };
+    let wsum: f64 = weights.iter().sum();
+    let mean = |p: &[[f64; 3]]| -> [f64; 3] {
+        std::array::from_fn(|k| p.iter().zip(weights).map(|(x, wi)| wi * x[k]).sum::<f64>() / wsum)
+    };
     let (ms, md) = (mean(src), mean(dst));
-    let mut m = [[0.0; 3]; 3]; // sum of s' d'^T
+    let mut m = [[0.0; 3]; 3]; // sum of w s' d'^T
     let mut ss = 0.0;
-    for (s, d) in src.iter().zip(dst) {
+    for ((s, d), wi) in src.iter().zip(dst).zip(weights) {
         let a: [f64; 3] = std::array::from_fn(|k| s[k] - ms[k]);
         let b: [f64; 3] = std::array::from_fn(|k| d[k] - md[k]);
         for i in 0..3 {
             for j in 0..3 {
-                m[i][j] += a[i] * b[j];
+                m[i][j] += wi * a[i] * b[j];
             }
         }
-        ss += a.iter().map(|x| x * x).sum::<f64>();
+        ss += wi * a.iter().map(|x| x * x).sum::<f64>();
     }
     if ss.is_nan() || ss <= 0.0 {
         return None;
@@ -115,10 +124,10 @@ pub fn fit_similarity(src: &[[f64; 3]], dst: &[[f64; 3]]) -> Option<Similarity> 
         [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z],
     ];
     let mut num = 0.0;
-    for (s, d) in src.iter().zip(dst) {
+    for ((s, d), wi) in src.iter().zip(dst).zip(weights) {
         let a: [f64; 3] = std::array::from_fn(|k| s[k] - ms[k]);
         let ra: [f64; 3] = std::array::from_fn(|i| r[i][0] * a[0] + r[i][1] * a[1] + r[i][2] * a[2]);
-        num += (0..3).map(|k| (d[k] - md[k]) * ra[k]).sum::<f64>();
+        num += wi * (0..3).map(|k| (d[k] - md[k]) * ra[k]).sum::<f64>();
     }
     let scale = num / ss;
     if !scale.is_finite() || scale <= 0.0 {

@@ -16,6 +16,10 @@
 //!   near-nadir, which is what the ortho shows. Nodata only where accumulation is below the floor (the colour of an
 //!   empty ray is the background's, not the surface's).
 //!
+//! Every DSM cell gets a [`quality`] code: measured (the refinement placed or confirmed its height), the field's
+//! height only, or a gap (a surface the filters turned down); [`DsmFill`] then decides what the DSM makes of the
+//! unsupported cells and gaps (`super::survey_products::finish_dsm`), and the codes are written beside it.
+//!
 //! The grid is rendered in blocks of whole rows (at most [`SurveyOptions::block_rays`] rays each, consistency rays
 //! included in the bound); each block goes to a sink (the GeoTIFF writers), so host memory stays bounded whatever the
 //! raster size.
@@ -110,6 +114,40 @@ impl SurveyGrid {
     }
 }
 
+/// What a DSM cell's height rests on: the codes of the quality raster written beside the DSM.
+pub mod quality {
+    /// No height (the raster's nodata).
+    pub const NODATA: u8 = 0;
+    /// The images support the height (the photometric refinement placed or confirmed it).
+    pub const MEASURED: u8 = 1;
+    /// Interpolated from measured cells around it ([`super::DsmFill::Interpolate`]).
+    pub const INTERPOLATED: u8 = 2;
+    /// The field's height, which no image confirmed (refinement off, or [`super::DsmFill::Field`]).
+    pub const FIELD_ONLY: u8 = 3;
+    /// A surface the DSM's filters turned down (spread, consistency): a gap to fill, never written as such.
+    pub const GAP: u8 = 4;
+}
+
+/// What the DSM does with cells the images do not support.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum DsmFill {
+    /// Interpolated from the measured cells around them (inverse distance, eight directions, up to a distance,
+    /// never across a step steeper than 45 degrees): a flat, textureless field comes out at the height of its
+    /// supported edges; farther cells and steps stay nodata.
+    Interpolate,
+    /// The field's own height (it may sit above a surface it could not see texture on). The default until the
+    /// geometry figures (docs/geometry.md) are measured again with `interpolate`, which drops the field's heights
+    /// wherever the images cannot confirm them (a young field's roofs included).
+    #[default]
+    Field,
+    /// Nodata.
+    None,
+}
+
+/// Default distance up to which [`DsmFill::Interpolate`] reaches, in cells.
+pub const FILL_MAX_CELLS: f64 = 100.0;
+
 /// What to render and how to judge it.
 #[derive(Debug, Clone)]
 pub struct SurveyOptions {
@@ -130,6 +168,10 @@ pub struct SurveyOptions {
     /// the field's height (a DSM with holes over every uniform surface is not what a survey wants); None: the
     /// field's heights everywhere.
     pub refine: Option<RefineOptions>,
+    /// Cells without photometric support (and surfaces the filters turned down) in the DSM.
+    pub fill: DsmFill,
+    /// How far [`DsmFill::Interpolate`] reaches, in world units (None: [`FILL_MAX_CELLS`] cells).
+    pub fill_max_distance: Option<f64>,
 }
 
 impl Default for SurveyOptions {
@@ -142,6 +184,8 @@ impl Default for SurveyOptions {
             top: None,
             block_rays: 1 << 20,
             refine: Some(RefineOptions { drop_unsupported: false, ..Default::default() }),
+            fill: DsmFill::default(),
+            fill_max_distance: None,
         }
     }
 }
@@ -164,11 +208,29 @@ pub struct SurveyStats {
     pub refined: usize,
     /// Cells without photometric support, nodata unless the refinement keeps them (DSM only).
     pub unsupported: usize,
+    /// Of the DSM's cells with a height: measured (photometric support), interpolated, the field's height only.
+    pub measured: usize,
+    pub interpolated: usize,
+    pub field_only: usize,
     /// Rays rendered, consistency rays included.
     pub rays: usize,
     /// World z the vertical rays started from.
     pub top: f64,
     pub seconds: f64,
+}
+
+impl SurveyStats {
+    /// The DSM's cells by what their heights rest on, as one line (the commands and the process report print it).
+    pub fn quality_line(&self) -> String {
+        let pct = |n: usize| 100.0 * n as f64 / self.cells.max(1) as f64;
+        format!(
+            "DSM cells: {:.1} % measured (photometric support), {:.1} % interpolated, {:.1} % field only, {:.1} % nodata",
+            pct(self.measured),
+            pct(self.interpolated),
+            pct(self.field_only),
+            pct(self.cells.saturating_sub(self.valid))
+        )
+    }
 }
 
 /// One block of whole grid rows, as the sinks receive it.
@@ -180,6 +242,8 @@ pub struct RowBlock {
     pub height: Vec<f32>,
     /// rows x width x B band values (pixel-interleaved), NaN where nodata.
     pub values: Vec<f32>,
+    /// rows x width [`quality`] codes of the heights.
+    pub quality: Vec<u8>,
 }
 
 /// The ground the training cameras saw, `[xmin, ymin, xmax, ymax]` in world units. The ground height is the median
@@ -336,6 +400,7 @@ pub fn render_survey(
         stats.rays += n;
         let mut height = vec![f32::NAN; n];
         let mut values = vec![f32::NAN; n * nb];
+        let mut q = vec![quality::NODATA; n];
         // Cells that pass the accumulation and spread filters: (cell, normalised point, world z).
         let mut kept: Vec<(usize, [f64; 3], f64)> = Vec::new();
         for i in 0..n {
@@ -355,6 +420,7 @@ pub fn render_survey(
                 let spread = (out.depth_q75[i] - out.depth_q25[i]) as f64;
                 if spread.is_nan() || spread > max_cells * field_cell_size(p, max_res, contraction) {
                     stats.spread += 1;
+                    q[i] = quality::GAP;
                     continue;
                 }
             }
@@ -371,6 +437,7 @@ pub fn render_survey(
         };
         // Photometric refinement along the vertical: the most nadir agreeing view is the reference.
         let mut z_of: Vec<Option<f64>> = kept.iter().map(|&(_, _, z)| Some(z)).collect();
+        let mut q_of = vec![quality::FIELD_ONLY; kept.len()];
         if let Some(r) = &opts.refine {
             if opts.consistency.is_none() {
                 return Err(SurveyError::invalid("photometric refinement", "needs the multi-view consistency check"));
@@ -397,26 +464,34 @@ pub fn render_survey(
                     if res.moved {
                         z_of[k] = Some(run.transform.to_world(pt.p)[2]);
                         stats.refined += 1;
-                    } else if !res.supported {
+                    }
+                    if res.supported {
+                        q_of[k] = quality::MEASURED;
+                    } else {
                         stats.unsupported += 1;
                         if r.drop_unsupported {
                             z_of[k] = None;
+                            q_of[k] = quality::GAP;
                         }
                     }
                 }
             }
         }
-        for ((&(i, _, _), ok), z) in kept.iter().zip(agree).zip(z_of) {
+        for (((&(i, _, _), ok), z), qk) in kept.iter().zip(agree).zip(z_of).zip(q_of) {
             match (ok, z) {
-                (false, _) => stats.inconsistent += 1,
+                (false, _) => {
+                    stats.inconsistent += 1;
+                    q[i] = quality::GAP;
+                }
                 (true, Some(z)) => {
                     height[i] = z as f32;
+                    q[i] = qk;
                     stats.valid += 1;
                 }
-                (true, None) => {}
+                (true, None) => q[i] = quality::GAP,
             }
         }
-        sink(&RowBlock { row0, rows, height, values })?;
+        sink(&RowBlock { row0, rows, height, values, quality: q })?;
         row0 += rows;
         progress(row0);
     }

@@ -12,7 +12,8 @@ use std::path::{Path, PathBuf};
 
 use super::run::LoadedRun;
 use super::survey::{
-    median_camera_height, render_survey, RowBlock, SurveyError, SurveyGrid, SurveyOptions, SurveyStats,
+    median_camera_height, quality, render_survey, DsmFill, RowBlock, SurveyError, SurveyGrid, SurveyOptions,
+    SurveyStats, FILL_MAX_CELLS,
 };
 use crate::output::image::{band, band_description};
 use crate::output::raster::cog::{CogOptions, CogPreview, CogWriter};
@@ -165,7 +166,7 @@ pub fn write_products(
         preview_max: PREVIEW_MAX,
     };
     let (w, h) = (grid.width, grid.height);
-    let mut dsm = match &outputs.dsm {
+    let dsm = match &outputs.dsm {
         Some(p) => Some(CogWriter::create(
             p,
             w,
@@ -203,10 +204,13 @@ pub fn write_products(
     }
     let nb = bands.len();
     let nd = NODATA as f32;
-    let stats = render(&opts, &mut |block: &RowBlock| {
-        if let Some(wr) = dsm.as_mut() {
-            let rows: Vec<f32> = block.height.iter().map(|&z| if z.is_finite() { z } else { nd }).collect();
-            wr.push_rows(&rows)?;
+    // The DSM is held whole (4 + 1 bytes a cell) until its gaps are filled, then written.
+    let mut dsm_cells: Vec<f32> = Vec::new();
+    let mut dsm_quality: Vec<u8> = Vec::new();
+    let mut stats = render(&opts, &mut |block: &RowBlock| {
+        if dsm.is_some() {
+            dsm_cells.extend_from_slice(&block.height);
+            dsm_quality.extend_from_slice(&block.quality);
         }
         if let Some(wr) = ortho.as_mut() {
             let rows: Vec<f32> = block.values.iter().map(|&v| if v.is_finite() { v } else { nd }).collect();
@@ -235,12 +239,19 @@ pub fn write_products(
     })?;
     let mut files = Vec::new();
     let mut notes = Vec::new();
-    if let (Some(wr), Some(path)) = (dsm, &outputs.dsm) {
+    if let (Some(mut wr), Some(path)) = (dsm, &outputs.dsm) {
+        let max_cells = opts.fill_max_distance.map_or(FILL_MAX_CELLS, |d| d / grid.gsd);
+        let rise = crate::output::raster::fill::MAX_SLOPE * grid.gsd;
+        let fill = (opts.fill, max_cells, rise);
+        finish_dsm(&mut dsm_cells, &mut dsm_quality, w, h, fill, opts.refine.is_some(), &mut stats);
+        let rows: Vec<f32> = dsm_cells.iter().map(|&z| if z.is_finite() { z } else { nd }).collect();
+        wr.push_rows(&rows)?;
         let pv = wr.finish()?;
         files.push(path.clone());
         if let Some(pv) = pv {
             files.extend(dsm_previews(path, &pv, grid.gsd)?);
         }
+        files.extend(write_quality(path, &dsm_quality, w, h, &georef, source)?);
     }
     if let (Some(wr), Some(path)) = (ortho, &outputs.ortho) {
         let pv = wr.finish()?;
@@ -262,6 +273,111 @@ pub fn write_products(
         }
     }
     Ok(SurveyReport { grid: *grid, stats, files, notes })
+}
+
+/// The DSM's final heights and quality codes: the cells without photometric support (when the refinement ran) and
+/// the surfaces the filters turned down are filled, kept or dropped as `fill` says (the mode, the distance in cells
+/// and the steepest rise per cell an interpolation may bridge, [`crate::output::raster::fill`]); `stats` counts the
+/// outcome.
+pub fn finish_dsm(
+    z: &mut [f32],
+    q: &mut [u8],
+    w: usize,
+    h: usize,
+    (fill, max_cells, max_rise_per_cell): (DsmFill, f64, f64),
+    refined: bool,
+    stats: &mut SurveyStats,
+) {
+    // Without the refinement nothing is measured photometrically: the field's consistent heights are what there is.
+    let source_code = if refined { quality::MEASURED } else { quality::FIELD_ONLY };
+    let unsupported = |c: u8| c == quality::GAP || (refined && c == quality::FIELD_ONLY);
+    match fill {
+        DsmFill::Field => {}
+        DsmFill::None => {
+            for (zi, qi) in z.iter_mut().zip(q.iter_mut()) {
+                if *qi == quality::FIELD_ONLY && refined {
+                    *zi = f32::NAN;
+                    *qi = quality::NODATA;
+                }
+            }
+        }
+        DsmFill::Interpolate => {
+            let source: Vec<bool> = q.iter().map(|&c| c == source_code).collect();
+            let want: Vec<bool> = q.iter().map(|&c| unsupported(c)).collect();
+            let filled = crate::output::raster::fill::fill_idw(z, &source, &want, w, h, max_cells, max_rise_per_cell);
+            for ((zi, qi), f) in z.iter_mut().zip(q.iter_mut()).zip(filled) {
+                if !unsupported(*qi) {
+                    continue;
+                }
+                match f {
+                    Some(v) => {
+                        *zi = v;
+                        *qi = quality::INTERPOLATED;
+                    }
+                    None => {
+                        *zi = f32::NAN;
+                        *qi = quality::NODATA;
+                    }
+                }
+            }
+        }
+    }
+    for (zi, qi) in z.iter_mut().zip(q.iter_mut()) {
+        if *qi == quality::GAP {
+            *zi = f32::NAN;
+            *qi = quality::NODATA;
+        }
+    }
+    let count = |c: u8| q.iter().filter(|&&x| x == c).count();
+    stats.measured = count(quality::MEASURED);
+    stats.interpolated = count(quality::INTERPOLATED);
+    stats.field_only = count(quality::FIELD_ONLY);
+    stats.valid = stats.measured + stats.interpolated + stats.field_only;
+}
+
+/// Colours of the quality preview: nodata, measured, interpolated, field only.
+pub const QUALITY_COLOURS: [[u8; 3]; 4] = [[0, 0, 0], [46, 160, 67], [240, 200, 40], [220, 90, 40]];
+
+/// `<dsm stem>_quality.tif` (the codes of [`quality`] as float32, nodata 0, on the DSM's grid; no overviews, as
+/// categories do not average) and its PNG preview.
+fn write_quality(
+    dsm: &Path,
+    q: &[u8],
+    w: usize,
+    h: usize,
+    georef: &GeoReference,
+    source: &SurveySource,
+) -> Result<Vec<PathBuf>, SurveyError> {
+    let path = sibling(dsm, "_quality.tif");
+    let img = SpectralImage {
+        width: w,
+        height: h,
+        bands: vec![band("quality", None, None)],
+        data: q.iter().map(|&c| f32::from(c)).collect(),
+    };
+    let opts = GeoTiffOptions {
+        nodata: Some(0.0),
+        georef: Some(*georef),
+        bigtiff: None,
+        metadata: vec![
+            ("msnerf_product".into(), "DSM quality: 1 measured, 2 interpolated, 3 field only, 0 nodata".into()),
+            ("msnerf_run".into(), source.label.clone()),
+        ],
+    };
+    crate::output::raster::geotiff::write_geotiff(&path, &img, &opts)?;
+    // A preview of at most PREVIEW_MAX on its longer side (nearest cell).
+    let step = w.max(h).div_ceil(PREVIEW_MAX).max(1);
+    let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));
+    let mut png = preview::Rgb8::filled(pw, ph, QUALITY_COLOURS[0]);
+    for y in 0..ph {
+        for x in 0..pw {
+            let c = q[(y * step) * w + x * step] as usize;
+            png.put(x, y, QUALITY_COLOURS[c.min(3)]);
+        }
+    }
+    let png_path = path.with_extension("png");
+    png.write_png(&png_path)?;
+    Ok(vec![path, png_path])
 }
 
 /// The preview image with nodata as NaN (the preview functions paint NaN black).

@@ -281,6 +281,38 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
         num((!res.is_empty()).then(|| crate::util::stats::median(&res)), 3),
         num(res.iter().copied().reduce(f64::max), 3)
     );
+    if let Some(c) = poses["georef"]["control"].as_object() {
+        let e = |v: &Value| {
+            v.as_array().map_or("n/a".into(), |a| a.iter().map(|x| num(x.as_f64(), 3)).collect::<Vec<_>>().join(" / "))
+        };
+        let rows: Vec<Vec<String>> = c
+            .get("points")
+            .and_then(Value::as_array)
+            .into_iter()
+            .flatten()
+            .map(|p| {
+                vec![
+                    esc(p["name"].as_str().unwrap_or("")),
+                    p["views"].as_u64().unwrap_or(0).to_string(),
+                    num(p["reprojection_px"].as_f64(), 2),
+                    e(&p["residual_m"]),
+                    e(&p["check_m"]),
+                ]
+            })
+            .collect();
+        let _ = write!(
+            s,
+            "<h3>Ground control</h3><p>{} point(s); residual RMS {} m; check RMS {} m (each point left out of the fit \
+             in turn: the absolute accuracy to expect between the points).</p>",
+            rows.len(),
+            num(c.get("rms_m").and_then(Value::as_f64), 3),
+            num(c.get("check_rms_m").and_then(Value::as_f64), 3)
+        );
+        s += &table(&["point", "views", "reprojection (px)", "residual E / N / U (m)", "check E / N / U (m)"], &rows);
+        for n in c.get("notes").and_then(Value::as_array).into_iter().flatten() {
+            let _ = write!(s, "<p>{}</p>", esc(n.as_str().unwrap_or("")));
+        }
+    }
     body += &section("poses", "Camera positions", &s);
 
     // Coverage and products.
@@ -288,7 +320,7 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
     let st = &survey["stats"];
     let cells = st["cells"].as_f64();
     let valid = st["valid"].as_f64();
-    let unsupported = st["unsupported"].as_f64();
+    let count = |k: &str| st[k].as_f64();
     let frac = |a: Option<f64>| num(a.zip(cells).map(|(a, c)| 100.0 * a / c.max(1.0)), 1) + " %";
     let gsd = survey["gsd"].as_f64();
     let area = cells.zip(gsd).map(|(c, g)| c * g * g);
@@ -302,8 +334,9 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
     s += &table(
         &["DSM cells", "share"],
         &[
-            vec!["photometrically supported".into(), frac(valid.zip(unsupported).map(|(v, u)| v - u))],
-            vec!["field only (no photometric support)".into(), frac(unsupported)],
+            vec!["measured (photometric support)".into(), frac(count("measured"))],
+            vec!["interpolated from measured cells".into(), frac(count("interpolated"))],
+            vec!["field only (no photometric support)".into(), frac(count("field_only"))],
             vec!["nodata".into(), frac(cells.zip(valid).map(|(c, v)| c - v))],
         ],
     );
@@ -314,6 +347,10 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
     }
     for (file, caption) in [
         ("products/dsm_hillshade.png", "DSM hillshade"),
+        (
+            "products/dsm_quality.png",
+            "DSM quality: measured (green), interpolated (yellow), field only (orange), nodata (black)",
+        ),
         ("products/ortho_rgb.png", "true ortho, natural colour"),
         ("products/ortho_ndvi.png", "NDVI"),
     ] {

@@ -39,6 +39,8 @@ pub struct ProcessOptions {
     pub units: Units,
     pub reference_band: Option<String>,
     pub crs: Option<crate::geo::Crs>,
+    /// Ground control points (default: the flight folder's `gcp_list.txt` when it has one).
+    pub ground_control: crate::rig::ground_control::GroundControl,
     /// Poses from another tool instead of COLMAP: its format and its model.
     pub poses: Option<(crate::poses::PoseFormat, PathBuf)>,
     /// Training: a profile name or file, or `auto` (multispectral-nerf on a GPU, demo on a CPU device).
@@ -56,6 +58,8 @@ pub struct ProcessOptions {
     pub gsd: Option<f64>,
     pub cloud_rays: usize,
     pub indices: Vec<VegetationIndex>,
+    /// What the DSM makes of cells without photometric support.
+    pub fill: crate::nerf::survey::DsmFill,
     /// Stop after this stage.
     pub stop_after: Option<Stage>,
     /// Run this stage and every later one again even where current.
@@ -233,11 +237,25 @@ fn validate(o: &ProcessOptions) -> Result<(), ProcessError> {
 }
 
 /// What a stage depends on: its options and its upstream stages' outputs.
+/// The ground control file's path and content hash (None without one): an edited `gcp_list.txt` imports again.
+fn gcp_fingerprint(o: &ProcessOptions) -> Option<(String, String)> {
+    use crate::rig::ground_control::GroundControl;
+    let path = match &o.ground_control {
+        GroundControl::Auto => o.flight.join(crate::geo::gcp::GCP_FILE_NAME),
+        GroundControl::File(p) => p.clone(),
+        GroundControl::Off => return None,
+    };
+    // A missing file given by name fails in the import, which names it.
+    let bytes = std::fs::read(&path).ok()?;
+    Some((path.display().to_string(), super::stage::sha256_hex(&bytes)))
+}
+
 fn stage_inputs(o: &ProcessOptions, stage: Stage, flight_fp: &str, upstream: &[(Stage, String)]) -> String {
     let opts = match stage {
         Stage::Import => json!({
             "flight": flight_fp, "panel_reflectance": o.panel_reflectance, "irradiance": o.irradiance,
             "units": o.units, "reference_band": o.reference_band, "crs": o.crs.as_ref().map(|c| c.key()),
+            "gcp": gcp_fingerprint(o),
         }),
         Stage::Poses => json!({"poses": o.poses.as_ref().map(|(f, p)| (f, p.display().to_string()))}),
         Stage::Check => json!({}),
@@ -247,7 +265,9 @@ fn stage_inputs(o: &ProcessOptions, stage: Stage, flight_fp: &str, upstream: &[(
         }),
         Stage::Eval => json!({}),
         Stage::Cloud => json!({"rays": o.cloud_rays}),
-        Stage::Survey => json!({"gsd": o.gsd, "indices": o.indices.iter().map(|i| i.name()).collect::<Vec<_>>()}),
+        Stage::Survey => json!({
+            "gsd": o.gsd, "indices": o.indices.iter().map(|i| i.name()).collect::<Vec<_>>(), "fill": o.fill,
+        }),
         Stage::Report => json!({}),
     };
     let deps: Vec<&(Stage, String)> = upstream

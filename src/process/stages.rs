@@ -22,6 +22,7 @@ pub(super) fn import(o: &ProcessOptions) -> Result<StageDone, crate::rig::RigErr
         units: o.units,
         reference_band: o.reference_band.clone(),
         crs: o.crs.clone(),
+        ground_control: o.ground_control.clone(),
         overwrite: true,
         threads: o.threads,
         progress: true,
@@ -101,7 +102,8 @@ pub(super) fn poses(o: &ProcessOptions) -> Result<StageDone, Box<dyn std::error:
                 r.mean_reprojection_error_px.map_or("n/a".into(), |e| format!("{e:.3} px"))
             )];
             if let Some(g) = &r.georef {
-                notes.push(format!("geo-registered to GPS: {}", serde_json::to_string(g)?));
+                notes.push(format!("geo-registered in {}:", r.crs.as_deref().unwrap_or("the dataset's CRS")));
+                notes.extend(g.describe().into_iter().map(|l| format!("  {l}")));
             }
             notes.extend(r.unregistered.iter().map(|f| format!("not registered: {f}")));
             Ok(done(
@@ -321,7 +323,8 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
         ortho: Some(dir.join("ortho.tif")),
         indices: o.indices.clone(),
     };
-    let rep = export_survey(&mut run, &grid, &SurveyOptions::default(), &outputs, |_| {}).map_err(|e| fail(&e))?;
+    let opts = SurveyOptions { fill: o.fill, ..SurveyOptions::default() };
+    let rep = export_survey(&mut run, &grid, &opts, &outputs, |_| {}).map_err(|e| fail(&e))?;
     let s = &rep.stats;
     if s.valid == 0 {
         return Err(fail(&format!(
@@ -330,14 +333,17 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
             grid.width, grid.height, s.no_surface, s.inconsistent
         )));
     }
-    let notes = vec![format!(
-        "{} cells: {} with a height ({:.1} %), {} refined photometrically, {} without photometric support",
-        s.cells,
-        s.valid,
-        100.0 * s.valid as f64 / s.cells.max(1) as f64,
-        s.refined,
-        s.unsupported
-    )];
+    let notes = vec![
+        format!(
+            "{} cells: {} with a height ({:.1} %), {} refined photometrically, {} without photometric support",
+            s.cells,
+            s.valid,
+            100.0 * s.valid as f64 / s.cells.max(1) as f64,
+            s.refined,
+            s.unsupported
+        ),
+        s.quality_line(),
+    ];
     let files: Vec<PathBuf> = rep.files.iter().map(|f| f.strip_prefix(&o.project).unwrap_or(f).to_path_buf()).collect();
     let summary = json!({"gsd": gsd, "grid": {"width": grid.width, "height": grid.height, "origin": grid.origin}, "stats": s, "notes": rep.notes});
     with_gpu(done(files, summary, notes), &ctx)

@@ -24,6 +24,7 @@ use super::frame::{
     BandRegistration,
 };
 use super::geo::nadir_pose;
+use super::ground_control::{dataset_ground_control, GroundControl};
 use super::panel::Quad;
 use super::radiometry::radiance_units;
 use crate::geo::Projector;
@@ -126,12 +127,15 @@ pub struct ImportOptions {
     /// Keep every band in its own camera and write `rig_cameras` (rig-aware training) instead of registering the
     /// bands ([`super::rig_model`]).
     pub rig_cameras: bool,
+    /// Ground control points ([`super::ground_control`]).
+    pub ground_control: GroundControl,
 }
 
 impl ImportOptions {
     /// An import of `input` into `out` with the command's defaults: irradiance from the panel or the light sensor,
     /// reflectance, undistorted and registered bands (warps shared over [`REGISTER_SAMPLE`] captures when the rig
-    /// allows), the reference band nearest 560 nm, the UTM zone of the GPS, one thread, no overwrite, no progress.
+    /// allows), the reference band nearest 560 nm, the UTM zone of the GPS, the input folder's `gcp_list.txt` when it
+    /// has one, one thread, no overwrite, no progress.
     pub fn new(input: impl Into<PathBuf>, out: impl Into<PathBuf>) -> ImportOptions {
         ImportOptions {
             input: input.into(),
@@ -150,6 +154,7 @@ impl ImportOptions {
             threads: 1,
             progress: false,
             rig_cameras: false,
+            ground_control: GroundControl::Auto,
         }
     }
 }
@@ -207,6 +212,22 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
         return Err(RigError::option("DIR", format!("{} is not a folder", opts.input.display())));
     }
     let files = list_tiffs(&opts.input)?;
+    // Ground control, read before any work so that a bad file stops the import at once.
+    let gcp_path = match &opts.ground_control {
+        GroundControl::Auto => Some(opts.input.join(crate::geo::gcp::GCP_FILE_NAME)).filter(|p| p.is_file()),
+        GroundControl::File(p) => Some(p.clone()),
+        GroundControl::Off => None,
+    };
+    let gcp_list = gcp_path
+        .map(|p| crate::geo::gcp::read_gcp_list(&p))
+        .transpose()
+        .map_err(|e| RigError::option("--gcp", e.to_string()))?;
+    if gcp_list.is_some() && opts.rig_cameras {
+        return Err(RigError::option(
+            "--gcp",
+            "ground control is carried into registered frames only: leave out --rig-cameras or pass --no-gcp",
+        ));
+    }
     // Panel files given by path: the whole capture of each, whether inside DIR or not.
     let mut panels = panel_captures(&opts.panel_files)?;
     if !panels.is_empty() {
@@ -537,6 +558,20 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     }
     if opts.rig_cameras {
         transforms["rig_cameras"] = super::rig_model::rig_cameras_json(first, ref_idx, opts.undistort);
+    }
+    if let Some(list) = &gcp_list {
+        // The dataset's CRS is the GPS's; without GPS, the GCPs' own (their UTM zone when they are geographic).
+        let crs = match &projector {
+            Some(p) => p.crs.clone(),
+            None if list.crs.kind == crate::geo::CrsKind::Projected => list.crs.clone(),
+            None => {
+                let p = &list.points[0].xyz;
+                crate::geo::Crs::utm_for(p[1], p[0]).map_err(|e| RigError::option("--gcp", e.to_string()))?
+            }
+        };
+        transforms["ground_control"] =
+            dataset_ground_control(list, &crs, &scan.captures, &frames, ref_idx, opts.undistort, &mut warnings)?;
+        transforms["crs"] = json!(crs.key());
     }
     let tpath = staging.path.join("transforms.json");
     // What is written must load: the dataset's own parser checks it (intrinsics, poses, bands) first.

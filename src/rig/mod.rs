@@ -20,6 +20,7 @@ pub mod error;
 pub mod flight_checks;
 pub mod frame;
 pub mod geo;
+pub mod ground_control;
 pub mod import;
 pub mod lens;
 pub mod meta;

@@ -192,9 +192,10 @@ pub fn merge_survey(
                 &sub,
                 opts,
                 |blk: &RowBlock| {
-                    let mut bytes = Vec::with_capacity(blk.height.len() * (1 + nb) * 4);
+                    let mut bytes = Vec::with_capacity(blk.height.len() * (2 + nb) * 4);
                     for (i, z) in blk.height.iter().enumerate() {
                         bytes.extend_from_slice(&z.to_le_bytes());
+                        bytes.extend_from_slice(&f32::from(blk.quality[i]).to_le_bytes());
                         for v in &blk.values[i * nb..(i + 1) * nb] {
                             bytes.extend_from_slice(&v.to_le_bytes());
                         }
@@ -230,7 +231,8 @@ fn merge_rows(
     blocks: &[super::partition::Block],
     sink: &mut RowSink<'_>,
 ) -> Result<SurveyStats, SurveyError> {
-    let per_cell = 1 + nb;
+    // Per cell: height, quality code, the bands.
+    let per_cell = 2 + nb;
     let mut readers: Vec<Option<BlockRows>> = Vec::new();
     for f in files {
         readers.push(match f {
@@ -259,6 +261,7 @@ fn merge_rows(
             rows,
             height: vec![f32::NAN; rows * grid.width],
             values: vec![f32::NAN; rows * grid.width * nb],
+            quality: vec![crate::nerf::survey::quality::NODATA; rows * grid.width],
         };
         for i in 0..rows {
             let r = row0 + i;
@@ -282,8 +285,9 @@ fn merge_rows(
                 let src = &row[(c - rect[2]) * per_cell..(c - rect[2] + 1) * per_cell];
                 let cell = i * grid.width + c;
                 block.height[cell] = src[0];
-                block.values[cell * nb..(cell + 1) * nb].copy_from_slice(&src[1..]);
-                let valid = if dsm { src[0].is_finite() } else { src[1..].iter().all(|v| v.is_finite()) };
+                block.quality[cell] = src[1] as u8;
+                block.values[cell * nb..(cell + 1) * nb].copy_from_slice(&src[2..]);
+                let valid = if dsm { src[0].is_finite() } else { src[2..].iter().all(|v| v.is_finite()) };
                 if valid {
                     stats.valid += 1;
                     if let Some(p) = part_of[k] {

@@ -5,9 +5,47 @@
 //! `min_error_m`)`, refit; three rounds. A pair dropped is a GPS glitch or a misregistered camera: both are listed by
 //! frame name. At least 3 pairs must remain and they must not lie on a line (a straight single-strip flight
 //! leaves the roll about the strip free: refused, named).
+//!
+//! With ground control ([`super::control`]) the final fit weighs every kept GPS pair by `1 / gps_error^2` and every
+//! placed control point by `1 / CONTROL_SIGMA_M^2`, and estimates the GPS's datum shift alongside (a constant
+//! offset of every fix, reported): three control points fix the similarity (the datum shift and the tilt of noisy
+//! fixes vanish), one or two pin its translation while the GPS still gives rotation and scale. Each point's
+//! residual is reported, and its check residual: the fit made without it, as Metashape's check points measure.
 
-use crate::maths::similarity::{fit_similarity, Similarity};
+use super::control::Placed;
+use crate::maths::similarity::{fit_similarity, fit_similarity_weighted, Similarity};
 use crate::poses::model::PoseModel;
+
+/// The standard deviation assumed for a control point (surveyed and placed in the images), metres; it weighs the
+/// points against the GPS.
+pub const CONTROL_SIGMA_M: f64 = 0.02;
+
+/// One control point after the fit.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ControlResidual {
+    pub name: String,
+    pub views: usize,
+    pub reprojection_px: f64,
+    /// Fitted minus surveyed (east, north, up; metres).
+    pub residual_m: [f64; 3],
+    /// The same with the point left out of the fit (None when the rest do not fix a similarity).
+    pub check_m: Option<[f64; 3]>,
+}
+
+/// How the model sits on the ground control.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ControlReport {
+    pub points: Vec<ControlResidual>,
+    /// RMS of the residuals' lengths (metres).
+    pub rms_m: f64,
+    /// RMS of the check residuals' lengths (metres): the absolute accuracy to expect between the points.
+    pub check_rms_m: Option<f64>,
+    /// The GPS's datum shift the control points reveal (the fixes' mean offset from the fitted frame; east, north,
+    /// up, metres), when there are both.
+    pub gps_shift_m: Option<[f64; 3]>,
+    /// Observations and points left out, each named.
+    pub notes: Vec<String>,
+}
 
 /// The fit and how well the GPS agrees with it.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -20,6 +58,46 @@ pub struct GeoFit {
     pub rejected: Vec<String>,
     pub rms_m: f64,
     pub max_m: f64,
+    /// Ground control, when the dataset has it.
+    pub control: Option<ControlReport>,
+}
+
+impl GeoFit {
+    /// What the fit says, one line per fact (the commands print them, the process report lists them).
+    pub fn describe(&self) -> Vec<String> {
+        let mut v = vec![format!(
+            "GPS: {} fixes used, scale {:.4}, residual rms {:.3} m, max {:.3} m",
+            self.pairs, self.scale, self.rms_m, self.max_m
+        )];
+        v.extend(self.rejected.iter().map(|f| format!("GPS disagrees with the model (left out of the fit): {f}")));
+        if let Some(c) = &self.control {
+            v.push(format!(
+                "ground control: {} point(s), residual rms {:.3} m, check rms {}",
+                c.points.len(),
+                c.rms_m,
+                c.check_rms_m.map_or("n/a".into(), |r| format!("{r:.3} m (each point left out of the fit in turn)"))
+            ));
+            if let Some(g) = c.gps_shift_m {
+                v.push(format!(
+                    "GPS datum shift found by the control points: E {:+.3}, N {:+.3}, U {:+.3} m",
+                    g[0], g[1], g[2]
+                ));
+            }
+            let e = |r: [f64; 3]| format!("({:+.3}, {:+.3}, {:+.3}) m", r[0], r[1], r[2]);
+            for p in &c.points {
+                v.push(format!(
+                    "  {}: {} views, reprojection {:.2} px, residual E/N/U {}, check {}",
+                    p.name,
+                    p.views,
+                    p.reprojection_px,
+                    e(p.residual_m),
+                    p.check_m.map_or("n/a".into(), e)
+                ));
+            }
+            v.extend(c.notes.iter().map(|n| format!("  {n}")));
+        }
+        v
+    }
 }
 
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -64,6 +142,115 @@ pub fn robust_fit(names: &[String], model: &[[f64; 3]], gps: &[[f64; 3]], min_er
         rejected: (0..names.len()).filter(|i| !keep.contains(i)).map(|i| names[i].clone()).collect(),
         rms_m: rms,
         max_m: res.iter().copied().fold(0.0, f64::max),
+        control: None,
+    })
+}
+
+fn rms(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+    if n == 0 {
+        0.0
+    } else {
+        (s / n as f64).sqrt()
+    }
+}
+
+/// The fit with ground control: GPS pairs (`names`, `model`, `gps`; robustly filtered as [`robust_fit`] when there
+/// are three or more) and the `control` points placed in the model's frame, weighted as the module doc says.
+/// `notes` are the placing's (carried into the report).
+pub fn fit_with_control(
+    names: &[String],
+    model: &[[f64; 3]],
+    gps: &[[f64; 3]],
+    min_error_m: f64,
+    control: &[Placed],
+    notes: Vec<String>,
+) -> Result<GeoFit, String> {
+    let gps_fit = if names.len() >= 3 { Some(robust_fit(names, model, gps, min_error_m)?) } else { None };
+    let kept: Vec<usize> = match &gps_fit {
+        Some(f) => (0..names.len()).filter(|&i| !f.rejected.contains(&names[i])).collect(),
+        None => Vec::new(),
+    };
+    let w_gps = 1.0 / min_error_m.max(1e-3).powi(2);
+    let w_gcp = 1.0 / (CONTROL_SIGMA_M * CONTROL_SIGMA_M);
+    let fit = |skip: Option<usize>, bias: [f64; 3]| {
+        let (mut src, mut dst, mut w) = (Vec::new(), Vec::new(), Vec::new());
+        for &i in &kept {
+            src.push(model[i]);
+            dst.push([gps[i][0] - bias[0], gps[i][1] - bias[1], gps[i][2] - bias[2]]);
+            w.push(w_gps);
+        }
+        for (j, c) in control.iter().enumerate() {
+            if Some(j) != skip {
+                src.push(c.model);
+                dst.push(c.xyz);
+                w.push(w_gcp);
+            }
+        }
+        fit_similarity_weighted(&src, &dst, &w)
+    };
+    // The GPS's datum shift is a parameter here: the control points fix the frame, the fixes' mean offset from it
+    // is the shift, and only what varies between fixes (rotation, scale) is taken from them. Alternating the two
+    // converges by the weights' ratio per round.
+    let solve = |skip: Option<usize>| -> Option<(Similarity, [f64; 3])> {
+        let used = control.len() - usize::from(skip.is_some());
+        let mut bias = [0.0; 3];
+        let mut s = fit(skip, bias)?;
+        if used == 0 || kept.is_empty() {
+            return Some((s, bias));
+        }
+        for _ in 0..100 {
+            let next: [f64; 3] = std::array::from_fn(|k| {
+                kept.iter().map(|&i| gps[i][k] - s.apply(model[i])[k]).sum::<f64>() / kept.len() as f64
+            });
+            let moved = dist(next, bias);
+            bias = next;
+            s = fit(skip, bias)?;
+            if moved < 1e-6 {
+                break;
+            }
+        }
+        Some((s, bias))
+    };
+    let (s, gps_shift) = solve(None).ok_or_else(|| {
+        format!(
+            "{} control point(s) and {} GPS fix(es) do not fix a similarity: at least 3 positions that are not on \
+             one line are needed{}",
+            control.len(),
+            kept.len(),
+            if notes.is_empty() { String::new() } else { format!(" ({})", notes.join("; ")) }
+        )
+    })?;
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let len = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let points: Vec<ControlResidual> = control
+        .iter()
+        .enumerate()
+        .map(|(j, c)| ControlResidual {
+            name: c.name.clone(),
+            views: c.views,
+            reprojection_px: c.reprojection_px,
+            residual_m: sub(s.apply(c.model), c.xyz),
+            check_m: solve(Some(j)).map(|(t, _)| sub(t.apply(c.model), c.xyz)),
+        })
+        .collect();
+    let checks: Vec<f64> = points.iter().filter_map(|p| p.check_m.map(len)).collect();
+    // The GPS residuals as the user sees them: against the final frame, the datum shift included.
+    let res: Vec<f64> = kept.iter().map(|&i| dist(s.apply(model[i]), gps[i])).collect();
+    Ok(GeoFit {
+        similarity: s,
+        scale: s.scale,
+        pairs: kept.len(),
+        rejected: gps_fit.map(|f| f.rejected).unwrap_or_default(),
+        rms_m: rms(res.iter().copied()),
+        max_m: res.iter().copied().fold(0.0, f64::max),
+        control: Some(ControlReport {
+            gps_shift_m: (!control.is_empty() && !kept.is_empty()).then_some(gps_shift),
+            rms_m: rms(points.iter().map(|p| len(p.residual_m))),
+            check_rms_m: (!checks.is_empty()).then(|| rms(checks.iter().copied())),
+            points,
+            notes,
+        }),
     })
 }
 

@@ -8,11 +8,13 @@
 //!    `DATASET/colmap/`, a failing step is named with its log;
 //! 3. the largest model is read back (`crate::poses::colmap`), its cameras scaled back to the dataset's pixels;
 //! 4. [`georef`]: with GPS fixes (or GPS pose priors) in the frames, a robust similarity fit puts the model in the
-//!    dataset's projected CRS (its UTM zone by default);
+//!    dataset's projected CRS (its UTM zone by default); with ground control in the dataset ([`control`]) the points
+//!    fix the fit and their residuals are reported;
 //! 5. `crate::poses::apply_poses` writes the poses, intrinsics and sparse points into the dataset (the old
 //!    `transforms.json` kept as a backup, unregistered frames listed in `unregistered_frames`).
 
 pub mod colmap;
+pub mod control;
 pub mod georef;
 pub mod images;
 pub mod run;

@@ -149,7 +149,10 @@ fn dataset_err(path: &Path, reason: impl Into<String>) -> SfmError {
 fn frames_of(root: &Value, tpath: &Path) -> Result<Vec<SfmFrame>, SfmError> {
     let dir = tpath.parent().unwrap_or(Path::new("."));
     let top = root.as_object().ok_or_else(|| dataset_err(tpath, "top level is not an object"))?;
-    let has_prior = top.contains_key("pose_prior") && top.contains_key("crs");
+    // GPS pose priors (an import without GPS writes every camera at the origin and says so with a null origin).
+    let has_prior = top.contains_key("pose_prior")
+        && top.contains_key("crs")
+        && !matches!(top.get("pose_prior").and_then(|p| p.get("origin")), Some(Value::Null));
     let mut all: Vec<&Value> = Vec::new();
     for key in ["frames", "unregistered_frames"] {
         if let Some(v) = top.get(key) {
@@ -486,16 +489,36 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
         .map_err(|e| dataset_err(&tpath, format!("crs: {e}")))?;
     let by_stem: HashMap<&str, usize> = stems.iter().enumerate().map(|(i, s)| (s.as_str(), i)).collect();
     let has_gps = frames.iter().any(|f| f.gps.is_some() || f.prior.is_some());
-    if has_gps && !o.no_georef {
+    let control = super::control::read_ground_control(&root).map_err(|e| dataset_err(&tpath, e))?;
+    if (has_gps || control.is_some()) && !o.no_georef {
         let first_fix = frames.iter().find_map(|f| f.gps);
-        let crs = match (&o.crs, &dataset_crs, first_fix) {
-            (Some(c), _, _) => c.clone(),
-            (None, Some(c), _) => c.clone(),
-            (None, None, Some(g)) => Crs::utm_for(g[0], g[1]).map_err(|e| dataset_err(&tpath, format!("GPS: {e}")))?,
-            (None, None, None) => {
+        let control_crs = control
+            .as_ref()
+            .map(|c| Crs::parse(&c.crs))
+            .transpose()
+            .map_err(|e| dataset_err(&tpath, format!("ground_control.crs: {e}")))?;
+        let crs = match (&o.crs, &dataset_crs, &control_crs, first_fix) {
+            (Some(c), _, _, _) => c.clone(),
+            (None, Some(c), _, _) => c.clone(),
+            (None, None, Some(c), _) => c.clone(),
+            (None, None, None, Some(g)) => {
+                Crs::utm_for(g[0], g[1]).map_err(|e| dataset_err(&tpath, format!("GPS: {e}")))?
+            }
+            (None, None, None, None) => {
                 return Err(dataset_err(&tpath, "pose priors without a `crs` cannot be geo-registered"))
             }
         };
+        if let Some(c) = control_crs.as_ref().filter(|c| c.key() != crs.key()) {
+            return Err(SfmError::Option {
+                key: "--crs".into(),
+                reason: format!(
+                    "{} differs from the ground control's {} in {}: import the flight again with this --crs",
+                    crs.describe(),
+                    c.describe(),
+                    tpath.display()
+                ),
+            });
+        }
         let proj = Projector::new(&crs).map_err(|e| SfmError::Option { key: "--crs".into(), reason: e.to_string() })?;
         let (mut names, mut src, mut dst) = (Vec::new(), Vec::new(), Vec::new());
         for im in &model.images {
@@ -512,7 +535,14 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
             src.push([im.c2w[0][3], im.c2w[1][3], im.c2w[2][3]]);
             dst.push(target);
         }
-        let fit = georef::robust_fit(&names, &src, &dst, o.gps_error_m).map_err(|e| {
+        let fit = match &control {
+            None => georef::robust_fit(&names, &src, &dst, o.gps_error_m),
+            Some(gc) => {
+                let (placed, notes) = super::control::place(&model, gc, &tpath);
+                georef::fit_with_control(&names, &src, &dst, o.gps_error_m, &placed, notes)
+            }
+        }
+        .map_err(|e| {
             dataset_err(&tpath, format!("geo-registration to GPS: {e}; pass --no-georef to keep COLMAP's frame"))
         })?;
         georef::apply(&mut model, &fit.similarity);

@@ -22,6 +22,7 @@ mod data_pose_camera;
 mod data_real;
 mod data_roundtrip;
 mod geo_crs;
+mod ground_control;
 mod poses_colmap;
 mod poses_colmap_rigs;
 mod poses_metashape;

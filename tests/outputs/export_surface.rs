@@ -261,15 +261,49 @@ fn survey_products(tmp: &std::path::Path, data: &std::path::Path, run: &str) {
     eprintln!("DSM --no-refine: ground {rn} cells, median |dz| {:.2} fp (median {:+.2})", rabs / fp, rmed / fp);
     assert!(rn > 500, "{rn} ground cells compared");
     assert!(ground_abs < rabs, "refined ground |dz| {ground_abs:.3} m against {rabs:.3} m without");
-    // `--drop-unsupported`: the cells the images do not support become nodata (fewer cells, none new).
-    let dropped = tmp.join("dsm-drop.tif");
+    // The quality raster beside the DSM: a code for every cell, nodata exactly where the DSM has none.
+    let quality = read_geotiff(&tmp.join("dsm_quality.tif")).unwrap();
+    let heights = read_geotiff(&dsm).unwrap();
+    assert!(tmp.join("dsm_quality.png").is_file());
+    assert_eq!((quality.grid.width, quality.grid.height), (heights.grid.width, heights.grid.height));
+    let mut codes = [0usize; 4];
+    for r in 0..heights.grid.height {
+        for c in 0..heights.grid.width {
+            let (z, q) = (heights.value(0, c, r), quality.value(0, c, r));
+            assert!(q == 0.0 || q == 1.0 || q == 2.0 || q == 3.0, "code {q} at ({c}, {r})");
+            assert_eq!(heights.is_nodata(z), q == 0.0, "height {z}, code {q} at ({c}, {r})");
+            codes[q as usize] += 1;
+        }
+    }
+    eprintln!("DSM quality codes (nodata, measured, interpolated, field only): {codes:?}");
+    assert!(codes[1] > 500 && codes[3] > 0 && codes[2] == 0, "by default the field's heights stay: {codes:?}");
+    assert!(text.contains("measured (photometric support)"), "{text}");
+    // `--fill none`: only measured cells (fewer, none new); `--fill interpolate`: the cells the images do not support
+    // interpolated from the measured ones around them, and on the flat ground they stay on the ground.
     let align = truth.join("dsm.tif");
-    let args = ["export", "dsm", run, "--drop-unsupported", "--align-to", align.to_str().unwrap(), "--out"];
-    common::msnerf(env!("CARGO_BIN_EXE_msnerf"), &[&args[..], &[dropped.to_str().unwrap()]].concat());
+    let fill_codes = |mode: &str| {
+        let out = tmp.join(format!("dsm-fill-{mode}.tif"));
+        let args = ["export", "dsm", run, "--fill", mode, "--align-to", align.to_str().unwrap(), "--out"];
+        common::msnerf(env!("CARGO_BIN_EXE_msnerf"), &[&args[..], &[out.to_str().unwrap()]].concat());
+        let q = read_geotiff(&tmp.join(format!("dsm-fill-{mode}_quality.tif"))).unwrap();
+        let mut k = [0usize; 4];
+        for v in &q.data {
+            k[*v as usize] += 1;
+        }
+        (out, k)
+    };
+    let (dropped, none) = fill_codes("none");
+    assert!(none[2] == 0 && none[3] == 0 && none[1] == codes[1], "{none:?} against {codes:?}");
     let hd = compare(&dropped, "dsm.tif", &[]);
     let dc = hd["completeness"].as_f64().unwrap();
-    eprintln!("DSM --drop-unsupported: completeness {:.1} %", 100.0 * dc);
+    eprintln!("DSM --fill none: completeness {:.1} %", 100.0 * dc);
     assert!(dc > 0.0 && dc < completeness, "completeness {dc:.3} against {completeness:.3} by default");
+    let (interpolated, k) = fill_codes("interpolate");
+    assert!(k[2] > 0 && k[3] == 0 && k[1] == codes[1], "{k:?} against {codes:?}");
+    let hi = compare(&interpolated, "dsm.tif", &[]);
+    let (gn, gabs, gmed) = class_stats(&hi, "ground");
+    eprintln!("DSM --fill interpolate: {k:?}; ground {gn} cells, median |dz| {:.2} fp ({:+.2})", gabs / fp, gmed / fp);
+    assert!(gn > 500 && gabs / fp < MAX_DSM_GROUND_FP, "interpolated ground: median |dz| {:.2} footprints", gabs / fp);
 
     // Flatness: the spread (interquartile range) of the ground's interior heights.
     let (pred, tr) = (read_geotiff(&dsm).unwrap(), read_geotiff(&truth.join("dsm.tif")).unwrap());

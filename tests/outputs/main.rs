@@ -12,6 +12,7 @@ mod rig_support;
 #[path = "../sim_support/mod.rs"]
 mod sim_support;
 
+mod dsm_fill;
 mod export_surface;
 mod output_cog;
 mod output_compare;

@@ -7,6 +7,7 @@ pub mod cog;
 pub mod colormap;
 pub mod contact;
 pub mod exr;
+pub mod fill;
 pub mod geotiff;
 pub mod geotiff_read;
 pub mod hillshade;

@@ -65,6 +65,9 @@ pub struct RawRigOptions {
     pub panel_after: bool,
     /// Ground-truth points of the truth dataset.
     pub points: usize,
+    /// Ground control points surveyed and clicked in the images, written as `gcp_list.txt` ([`super::gcp`]);
+    /// 0: none.
+    pub gcp: usize,
 }
 
 impl Default for RawRigOptions {
@@ -80,6 +83,7 @@ impl Default for RawRigOptions {
             gps_noise_m: DEFAULT_GPS_NOISE_M,
             gps_shift_m: DEFAULT_GPS_SHIFT_M,
             start: DEFAULT_START.into(),
+            gcp: 0,
             interval_s: 2.0,
             firmware: None,
             panel_after: false,
@@ -585,6 +589,9 @@ pub fn simulate_raw_rig(desc: &SceneDesc, opts: &RawRigOptions, out: &Path) -> R
             return Err(opt_err(k, format!("{v:?}: metres, finite, at most 1000 (noise not negative)")));
         }
     }
+    if opts.gcp > 100 {
+        return Err(opt_err("gcp", format!("{} control points: at most 100", opts.gcp)));
+    }
     if !(opts.interval_s > 0.0 && opts.interval_s <= 3600.0) {
         return Err(opt_err("capture-interval", format!("{} s: must be in (0, 3600]", opts.interval_s)));
     }
@@ -741,6 +748,16 @@ pub fn simulate_raw_rig(desc: &SceneDesc, opts: &RawRigOptions, out: &Path) -> R
             "corners_px": panel_quad(profile.width as usize, profile.height as usize),
         }),
     )?;
+    if opts.gcp > 0 {
+        let points = super::gcp::place(&prep, opts.gcp, seed)?;
+        let captures: Vec<(usize, usize)> = plans.iter().filter_map(|p| Some((p.number, p.view?))).collect();
+        let file = |number: usize, bi: usize| {
+            let f = band_file(&profile, number, profile.bands[bi].suffix);
+            crate::geo::gcp::image_base_name(&f).to_string()
+        };
+        let (list, exact) = super::gcp::observations(&prep, &profile, &captures, &points, seed, &file);
+        super::gcp::write(&root, &list, &exact)?;
+    }
     super::truth::write_readme(&root, &profile, opts, desc, nv)?;
     stage.commit()?;
     Ok(RawRigReport {

@@ -8,6 +8,7 @@
 //! - [`tags`]: EXIF, GPS and XMP as each maker writes them;
 //! - [`flight`]: the captures (rendered band by band through each band's own distorted, rotated, offset
 //!   camera), the calibration-panel captures, the card's folders and file names;
+//! - [`gcp`]: ground control points and OpenDroneMap's `gcp_list.txt` (`--gcp N`);
 //! - [`truth`]: what the files should give back: reflectance, poses, the rig, band correspondences;
 //! - [`registration_truth`]: an import's band registration measured against those correspondences.
 //!
@@ -17,6 +18,7 @@
 
 pub mod flight;
 pub mod forward;
+pub mod gcp;
 pub mod light;
 pub mod profile;
 pub mod registration_truth;
