@@ -698,10 +698,11 @@ impl FlightAcceptance {
         }
         for st in &self.stages {
             s += &format!(
-                "stage {}: {:.1} s, peak host {} MiB, GPU {} MiB\n",
+                "stage {}: {:.1} s, peak host {} MiB{}, GPU {} MiB\n",
                 st["stage"].as_str().unwrap_or(""),
                 st["seconds"].as_f64().unwrap_or(0.0),
                 st["peak_host_bytes"].as_f64().map_or("n/a".into(), |b| format!("{:.0}", b / 1048576.0)),
+                st["planned_host_bytes"].as_f64().map_or(String::new(), |b| format!(" (planned {:.0})", b / 1048576.0)),
                 st["peak_gpu_bytes"].as_f64().map_or("n/a".into(), |b| format!("{:.0}", b / 1048576.0)),
             );
         }

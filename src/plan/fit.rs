@@ -50,6 +50,15 @@ pub struct Plan {
 }
 
 impl Plan {
+    /// The training process's planned peak host memory: the image cache's peak, the process's own
+    /// ([`super::host::PROCESS_OVERHEAD_BYTES`]), and the GPU buffers when the device's memory is host memory (a CPU
+    /// device such as lavapipe). What a stage's measured peak is compared with.
+    pub fn process_host_bytes(&self, device_memory_is_host: bool) -> u64 {
+        self.host.peak_bytes
+            + super::host::PROCESS_OVERHEAD_BYTES
+            + if device_memory_is_host { self.vram.total_bytes } else { 0 }
+    }
+
     /// Why the plan does not fit, one line per reason (empty when it fits).
     pub fn problems(&self) -> Vec<String> {
         let mut out = self.vram.problems.clone();

@@ -101,6 +101,14 @@ pub fn text(p: &Plan) -> String {
         h.peak_bytes as f64 / GIB,
         if h.fits() { "fits" } else { "DOES NOT FIT" }
     );
+    let _ = writeln!(
+        s,
+        "  the training process: {:.2} GiB with its own {:.0} MiB ({:.2} GiB on a CPU device, whose GPU buffers are \
+         host memory)",
+        p.process_host_bytes(false) as f64 / GIB,
+        super::host::PROCESS_OVERHEAD_BYTES as f64 / MIB,
+        p.process_host_bytes(true) as f64 / GIB
+    );
     if let Some(f) = &p.fit {
         let _ = writeln!(s, "\nfit (multiples of {} rays)", super::fit::FIT_STEP);
         match f.max_rays_per_chunk {

@@ -150,13 +150,21 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
         .iter()
         .filter(|s| **s != Stage::Report)
         .map(|s| match rec(*s) {
-            Some(r) => {
-                vec![s.name().into(), format!("{:.1} s", r.seconds), mib(r.peak_host_bytes), mib(r.peak_gpu_bytes)]
-            }
-            None => vec![s.name().into(), "not run".into(), "n/a".into(), "n/a".into()],
+            Some(r) => vec![
+                s.name().into(),
+                format!("{:.1} s", r.seconds),
+                mib(r.peak_host_bytes),
+                r.summary["planned_host_bytes"].as_u64().map_or("-".into(), |b| mib(Some(b))),
+                mib(r.peak_gpu_bytes),
+            ],
+            None => vec![s.name().into(), "not run".into(), "n/a".into(), "-".into(), "n/a".into()],
         })
         .collect();
-    body += &section("stages", "Stages", &table(&["stage", "time", "peak host memory", "peak GPU memory"], &rows));
+    body += &section(
+        "stages",
+        "Stages",
+        &table(&["stage", "time", "peak host memory", "planned host memory", "peak GPU memory"], &rows),
+    );
 
     // Import.
     let import = rec(Stage::Import).map(|r| r.summary).unwrap_or(Value::Null);

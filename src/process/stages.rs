@@ -224,7 +224,8 @@ pub(super) fn train(o: &ProcessOptions, inputs: &str, progress: Progress) -> Res
         "model": fitted.model.name, "hardware": fitted.plan.profile, "steps": s.steps, "seconds": s.elapsed_s,
         "rays_per_s": s.rays_per_s, "best_sampled_eval_psnr": s.best_eval_psnr, "eval_history": s.eval_history,
         "depth_supervision": s.depth_supervision, "device": s.device, "planned_vram_bytes": fitted.plan.vram.total_bytes,
-        "planned_host_bytes": fitted.plan.host.peak_bytes, "peak_gpu_bytes": s.peak_gpu_bytes,
+        "planned_host_bytes": fitted.plan.process_host_bytes(ctx.caps().is_cpu),
+        "planned_cache_bytes": fitted.plan.host.peak_bytes, "peak_gpu_bytes": s.peak_gpu_bytes,
         "peak_cache_bytes": s.peak_cache_bytes, "stopped_early": s.stopped_early, "notes": s.notes,
     });
     with_gpu(
