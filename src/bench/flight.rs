@@ -112,6 +112,8 @@ pub struct FlightAcceptance {
     pub dsm_absolute: SurfaceStats,
     /// The SfM stage's ground-control report (residuals and check residuals), when the flight had ground control.
     pub ground_control: Option<Value>,
+    /// The datum shift the simulation put into every GPS fix.
+    pub simulated_shift_m: [f64; 3],
     /// That similarity (after the datum shift): rotation and tilt (degrees), scale error, translation (m), ICP RMS.
     pub relative_transform: Value,
     pub stages: Vec<Value>,
@@ -522,12 +524,9 @@ pub fn flight_acceptance(
     let stage = |s: &str| read_json(&project.join(format!("stages/{s}.json")));
     let poses = stage("poses")?;
     // The GPS's datum shift, which georeferencing by GPS alone keeps and ground control removes.
-    let shift: [f64; 3] = if poses["summary"]["georef"]["control"].is_object() {
-        [0.0; 3]
-    } else {
-        serde_json::from_value(truth["gps"]["datum_shift_m"].clone())
-            .map_err(|e| FlightBenchError::Other(format!("truth/flight.json gps.datum_shift_m: {e}")))?
-    };
+    let simulated_shift_m: [f64; 3] = serde_json::from_value(truth["gps"]["datum_shift_m"].clone())
+        .map_err(|e| FlightBenchError::Other(format!("truth/flight.json gps.datum_shift_m: {e}")))?;
+    let shift = if poses["summary"]["georef"]["control"].is_object() { [0.0; 3] } else { simulated_shift_m };
     let captures = truth["captures"].as_array().map_or(0, |c| c.iter().filter(|c| c["kind"] == "flight").count());
     let products = project.join("products");
     let products_crs = ["dsm.tif", "ortho.tif"]
@@ -624,6 +623,7 @@ pub fn flight_acceptance(
         cloud_absolute: cloud_stats(&cloud, &cloud_path, &truth_points, &unshift([0.0; 3]))?,
         dsm_absolute: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &unshift([0.0; 3]))?,
         ground_control: Some(poses["summary"]["georef"]["control"].clone()).filter(|c| c.is_object()),
+        simulated_shift_m,
         relative_transform,
         georeferencing,
         stages,
@@ -690,10 +690,13 @@ impl FlightAcceptance {
         );
         if let Some(c) = &self.ground_control {
             s += &format!(
-                "ground control: {} point(s), residual RMS {:.3} m, check RMS {:.3} m\n",
+                "ground control: {} point(s), residual RMS {:.3} m, check RMS {:.3} m; GPS datum shift found {} m \
+                 (simulated {:?} m)\n",
                 c["points"].as_array().map_or(0, |p| p.len()),
                 c["rms_m"].as_f64().unwrap_or(f64::NAN),
-                c["check_rms_m"].as_f64().unwrap_or(f64::NAN)
+                c["check_rms_m"].as_f64().unwrap_or(f64::NAN),
+                c["gps_shift_m"],
+                self.simulated_shift_m
             );
         }
         for st in &self.stages {

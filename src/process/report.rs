@@ -317,6 +317,14 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
             num(c.get("check_rms_m").and_then(Value::as_f64), 3)
         );
         s += &table(&["point", "views", "reprojection (px)", "residual E / N / U (m)", "check E / N / U (m)"], &rows);
+        if let Some(g) = c.get("gps_shift_m").filter(|g| g.is_array()) {
+            let _ = write!(
+                s,
+                "<p>The GPS's datum shift, found by the points from the fixes (E / N / U): {} m. GPS alone would have \
+                 left it in every product.</p>",
+                e(g)
+            );
+        }
         for n in c.get("notes").and_then(Value::as_array).into_iter().flatten() {
             let _ = write!(s, "<p>{}</p>", esc(n.as_str().unwrap_or("")));
         }

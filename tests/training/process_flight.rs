@@ -1,6 +1,6 @@
 //! `msnerf process` end to end at CI size: a raw flight written by the sensor in the simulator (MicaSense
 //! RedEdge-MX files of the `flight-rural` scene, 30 captures of 240x180 and a panel capture, GPS with noise and a
-//! datum shift) becomes a dataset, COLMAP poses, a trained run, a LAS cloud, a DSM, a true ortho, an NDVI raster and
+//! datum shift, five ground control points) becomes a dataset, COLMAP poses, a trained run, a LAS cloud, a DSM, a true ortho, an NDVI raster and
 //! an HTML report in one call; then the stage records do their job:
 //!
 //! - every stage ran; the products carry the flight's UTM CRS (read back by GDAL and from the LAS bytes);
@@ -11,7 +11,9 @@
 //!   resumes the training from its checkpoint;
 //! - a rerun skips every stage and rewrites nothing; an output edited by hand stops the run naming the file;
 //!   `--redo survey` makes the survey and the report again and nothing before them;
-//! - `--poses` takes another tool's model (the COLMAP model of the first project) instead of running COLMAP.
+//! - `--poses` takes another tool's model (the COLMAP model of the first project) instead of running COLMAP;
+//! - the flight's five ground control points (`gcp_list.txt`) fix the georeferencing: every point placed, its check
+//!   residual small, the report's ground-control section present, the products judged as delivered.
 //!
 //! The acceptance figures (registration, reflectance, cloud and DSM against the truth) are the benchmark's
 //! (`make flight-acceptance`, docs/results); this test proves the chain and its bookkeeping.
@@ -24,7 +26,8 @@ use msnerf::process::{process, ProcessOptions, Stage};
 
 fn simulate(dir: &Path) -> PathBuf {
     let scene = msnerf::sim::SceneDesc::load("flight-rural").expect("built-in scene");
-    let o = msnerf::sim::sensor::RawRigOptions { width: Some(240), ..Default::default() };
+    // Five ground control points in the flight folder's gcp_list.txt (OpenDroneMap's layout).
+    let o = msnerf::sim::sensor::RawRigOptions { width: Some(240), gcp: 5, ..Default::default() };
     msnerf::sim::sensor::simulate_raw_rig(&scene, &o, &dir.join("flight")).expect("raw flight");
     dir.join("flight")
 }
@@ -56,7 +59,7 @@ fn options(flight: &Path, project: &Path, panel: Vec<f64>) -> ProcessOptions {
         units: msnerf::rig::Units::Reflectance,
         reference_band: None,
         crs: None,
-        ground_control: msnerf::rig::ground_control::GroundControl::Auto,
+        ground_control: msnerf::rig::ground_control::GroundControl::File(flight.join("gcp_list.txt")),
         poses: None,
         model: "demo".into(),
         hardware: "auto".into(),
@@ -156,10 +159,13 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
         let got = b["reflectance_back"].as_f64().unwrap();
         assert!((got - want).abs() < 1e-9, "{b}");
     }
-    // COLMAP registered the flight and geo-registered it to the GPS.
+    // COLMAP registered the flight and geo-registered it on the control points, the GPS giving the rest.
     let poses = &rec(Stage::Poses)["summary"];
     assert!(poses["registered"].as_u64().unwrap() >= 29, "{poses}");
     assert!(poses["georef"]["rms_m"].as_f64().unwrap() < 3.0, "{poses}");
+    let control = &poses["georef"]["control"];
+    assert_eq!(control["points"].as_array().map(|p| p.len()), Some(5), "{poses}");
+    assert!(control["check_rms_m"].as_f64().unwrap() < 0.5, "{control}");
 
     // Held-out views: a field that collapsed (transparent, or stuck at a constant) scores below 30 dB here.
     let eval: serde_json::Value =
@@ -208,6 +214,11 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     assert!(acc.dsm.count > 0 && acc.dsm_relative.count > 0);
     assert_eq!(acc.stages.len(), Stage::ALL.len());
     assert!(acc.direct.is_none());
+    // With ground control the products are judged as delivered: no shift is removed, and the points took the
+    // simulated datum shift out (about a metre in every fix).
+    assert!(acc.ground_control.is_some() && acc.datum_shift_m == [0.0; 3]);
+    let delivered = acc.cloud_absolute["accuracy_median_m"].as_f64().unwrap();
+    assert!(delivered < 0.5, "cloud as delivered: median {delivered} m from the true surface");
 
     // The report: every section, every number finite, every image decodes.
     let html = std::fs::read_to_string(project.join("report.html")).unwrap();
@@ -227,6 +238,8 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
         }
     }
     assert!(words.iter().any(|w| w == "PSNR"), "the held-out table");
+    assert!(html.contains("Ground control") && html.contains("datum shift, found by the points"), "GCP section");
+    assert!(html.contains("planned host memory") && html.contains("measured (photometric support)"));
 
     // A rerun: every stage current, nothing rewritten.
     let stamp = std::fs::metadata(products.join("dsm.tif")).unwrap().modified().unwrap();
