@@ -131,6 +131,7 @@ impl PointcloudArgs {
             scene_box: !self.keep_outside_box,
             refine: self.refine.options(true, consistency.is_some(), self.min_agree, self.keep_unsupported)?,
             consistency,
+            image_budget_bytes: crate::nerf::export::REFINE_IMAGE_BUDGET,
         })
     }
 }

@@ -121,6 +121,7 @@ impl SurveyArgs {
             consistency,
             fill: self.fill,
             fill_max_distance: self.fill_max_distance,
+            image_budget_bytes: crate::nerf::export::REFINE_IMAGE_BUDGET,
         })
     }
 

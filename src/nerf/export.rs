@@ -72,9 +72,12 @@ pub struct ExportOptions {
     /// ([`super::refine`]; needs `consistency`, whose agreeing views are the partners). On by default; None keeps
     /// the field's surface, which sits up to a metre above flat ground on the campus (docs/geometry.md).
     pub refine: Option<RefineOptions>,
+    /// Host bytes of decoded training images the refinement may hold (`process` passes the training's cache
+    /// budget from the planner, so every stage of a flight stays within one host budget).
+    pub image_budget_bytes: u64,
 }
 
-/// Host memory the refinement may hold in decoded training images.
+/// Host memory the refinement may hold in decoded training images unless the caller says otherwise.
 pub const REFINE_IMAGE_BUDGET: u64 = 4 << 30;
 
 impl Default for ExportOptions {
@@ -88,6 +91,7 @@ impl Default for ExportOptions {
             consistency: Some(Consistency::default()),
             scene_box: true,
             refine: Some(RefineOptions::default()),
+            image_budget_bytes: REFINE_IMAGE_BUDGET,
         }
     }
 }
@@ -104,6 +108,7 @@ impl ExportOptions {
             consistency: None,
             scene_box: false,
             refine: None,
+            image_budget_bytes: REFINE_IMAGE_BUDGET,
         }
     }
 }
@@ -228,7 +233,7 @@ pub fn export_points_with_stats(run: &mut LoadedRun, opts: &ExportOptions) -> Ne
                 partners: agreeing[k].clone(),
             })
             .collect();
-        let (res, rs) = refine_points(run, &mut pts, r, &mut FrameStore::new(REFINE_IMAGE_BUDGET))?;
+        let (res, rs) = refine_points(run, &mut pts, r, &mut FrameStore::new(opts.image_budget_bytes))?;
         // A skipped refinement (no band through the frame camera) leaves every point as the field put it.
         if rs.skipped.is_none() {
             for ((&k, pt), res) in keep.iter().zip(&pts).zip(&res) {

@@ -172,6 +172,8 @@ pub struct SurveyOptions {
     pub fill: DsmFill,
     /// How far [`DsmFill::Interpolate`] reaches, in world units (None: [`FILL_MAX_CELLS`] cells).
     pub fill_max_distance: Option<f64>,
+    /// Host bytes of decoded training images the refinement may hold (as [`super::export::ExportOptions`]).
+    pub image_budget_bytes: u64,
 }
 
 impl Default for SurveyOptions {
@@ -186,6 +188,7 @@ impl Default for SurveyOptions {
             refine: Some(RefineOptions { drop_unsupported: false, ..Default::default() }),
             fill: DsmFill::default(),
             fill_max_distance: None,
+            image_budget_bytes: REFINE_IMAGE_BUDGET,
         }
     }
 }
@@ -385,7 +388,7 @@ pub fn render_survey(
     let block_rows = (opts.block_rays / (grid.width * rays_per_cell)).clamp(1, grid.height);
     let c2w = view.c2w;
     let mut stats = SurveyStats { cells: grid.cells(), top, ..Default::default() };
-    let store = &mut FrameStore::new(REFINE_IMAGE_BUDGET);
+    let store = &mut FrameStore::new(opts.image_budget_bytes);
     // The refinement's search line is the DSM's own vertical (world -z), and its reference view per cell the most
     // nadir agreeing one, judged from the camera centres.
     let down = (run.transform.rotation() * -glam::DVec3::Z).normalize().to_array();

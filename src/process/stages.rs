@@ -225,7 +225,8 @@ pub(super) fn train(o: &ProcessOptions, inputs: &str, progress: Progress) -> Res
         "rays_per_s": s.rays_per_s, "best_sampled_eval_psnr": s.best_eval_psnr, "eval_history": s.eval_history,
         "depth_supervision": s.depth_supervision, "device": s.device, "planned_vram_bytes": fitted.plan.vram.total_bytes,
         "planned_host_bytes": fitted.plan.process_host_bytes(ctx.caps().is_cpu),
-        "planned_cache_bytes": fitted.plan.host.peak_bytes, "peak_gpu_bytes": s.peak_gpu_bytes,
+        "planned_cache_bytes": fitted.plan.host.peak_bytes, "host_budget_bytes": fitted.host_budget_bytes,
+        "peak_gpu_bytes": s.peak_gpu_bytes,
         "peak_cache_bytes": s.peak_cache_bytes, "stopped_early": s.stopped_early, "notes": s.notes,
     });
     with_gpu(
@@ -261,12 +262,25 @@ pub(super) fn eval(o: &ProcessOptions) -> Result<StageDone, ProcessError> {
     with_gpu(done(vec![paths::run().join("eval.json")], serde_json::to_value(&rep).expect("json"), notes), &ctx)
 }
 
+/// The host bytes of decoded training images an export may hold: the training's cache budget from the planner (the
+/// train stage's record), so every stage of the flight stays within one host budget; the export's own default when
+/// the record lacks it.
+fn image_budget(o: &ProcessOptions) -> u64 {
+    super::stage::read_record(&o.project, Stage::Train)
+        .ok()
+        .flatten()
+        .and_then(|r| r.summary["host_budget_bytes"].as_u64())
+        .unwrap_or(crate::nerf::export::REFINE_IMAGE_BUDGET)
+}
+
 /// Cloud: the careful export with the photometric refinement and the default filters, as LAS in the dataset's CRS.
 pub(super) fn cloud(o: &ProcessOptions) -> Result<StageDone, ProcessError> {
     let fail = ProcessError::stage(Stage::Cloud);
     let ctx = Context::new(&o.device).map_err(|e| fail(&e))?;
     let mut run = LoadedRun::load(&ctx, &o.project.join(paths::run())).map_err(|e| fail(&e))?;
-    let opts = crate::nerf::export::ExportOptions { rays: o.cloud_rays, ..Default::default() };
+    let budget = image_budget(o);
+    let opts =
+        crate::nerf::export::ExportOptions { rays: o.cloud_rays, image_budget_bytes: budget, ..Default::default() };
     let (raw, stats) = crate::nerf::export::export_points_with_stats(&mut run, &opts).map_err(|e| fail(&e))?;
     let cloud = crate::products::cloud::CloudFilter::default().apply(raw).map_err(|e| fail(&e))?;
     let dir = o.project.join(paths::products());
@@ -279,6 +293,7 @@ pub(super) fn cloud(o: &ProcessOptions) -> Result<StageDone, ProcessError> {
         "points": cloud.len(), "rays": stats.rays, "below_accumulation": stats.below_accumulation,
         "outside_box": stats.outside_box, "spread": stats.spread, "inconsistent": stats.inconsistent, "kept": stats.kept,
         "unsupported": stats.unsupported, "refine": stats.refine.as_ref().map(|r| json!({"points": r.points, "moved": r.moved, "kept": r.kept})),
+        "image_budget_bytes": budget,
         "crs": run.ds.crs.as_ref().map(|c| c.key()),
     });
     with_gpu(done(vec![paths::products().join("cloud.las")], summary, notes), &ctx)
@@ -324,7 +339,7 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
         ortho: Some(dir.join("ortho.tif")),
         indices: o.indices.clone(),
     };
-    let opts = SurveyOptions { fill: o.fill, ..SurveyOptions::default() };
+    let opts = SurveyOptions { fill: o.fill, image_budget_bytes: image_budget(o), ..SurveyOptions::default() };
     let rep = export_survey(&mut run, &grid, &opts, &outputs, |_| {}).map_err(|e| fail(&e))?;
     let s = &rep.stats;
     if s.valid == 0 {
@@ -346,7 +361,10 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
         s.quality_line(),
     ];
     let files: Vec<PathBuf> = rep.files.iter().map(|f| f.strip_prefix(&o.project).unwrap_or(f).to_path_buf()).collect();
-    let summary = json!({"gsd": gsd, "grid": {"width": grid.width, "height": grid.height, "origin": grid.origin}, "stats": s, "notes": rep.notes});
+    let summary = json!({
+        "gsd": gsd, "grid": {"width": grid.width, "height": grid.height, "origin": grid.origin}, "stats": s,
+        "notes": rep.notes, "image_budget_bytes": opts.image_budget_bytes,
+    });
     with_gpu(done(files, summary, notes), &ctx)
 }
 

@@ -167,6 +167,12 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     assert_eq!(control["points"].as_array().map(|p| p.len()), Some(5), "{poses}");
     assert!(control["check_rms_m"].as_f64().unwrap() < 0.5, "{control}");
 
+    // One host budget for the flight: the exports hold decoded training images within the training cache's budget.
+    let budget = rec(Stage::Train)["summary"]["host_budget_bytes"].as_u64().expect("the train stage's host budget");
+    for st in [Stage::Cloud, Stage::Survey] {
+        assert_eq!(rec(st)["summary"]["image_budget_bytes"].as_u64(), Some(budget), "{st:?}");
+    }
+
     // Held-out views: a field that collapsed (transparent, or stuck at a constant) scores below 30 dB here.
     let eval: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(project.join("run/eval.json")).unwrap()).unwrap();
