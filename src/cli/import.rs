@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::rig::ground_control::GroundControl;
+use crate::rig::ground_control::GcpSource;
 use crate::rig::{import_rig, ImportOptions, IrradianceSource, Registration, Units};
 
 #[derive(clap::Args, Debug)]
@@ -168,7 +168,7 @@ pub fn run(a: &ImportArgs) -> anyhow::Result<()> {
         threads,
         progress: true,
         rig_cameras: r.rig_cameras,
-        ground_control: GroundControl::from_flags(r.gcp.as_ref(), r.no_gcp),
+        ground_control: GcpSource::from_flags(r.gcp.as_ref(), r.no_gcp),
     };
     let s = import_rig(&opts)?;
     println!("wrote {} ({} captures, bands {})", r.out.display(), s.captures, s.bands.join(", "));

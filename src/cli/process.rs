@@ -101,7 +101,7 @@ pub fn run(cli: &Cli, a: &ProcessArgs) -> anyhow::Result<()> {
         units: a.units,
         reference_band: a.reference_band.clone(),
         crs,
-        ground_control: crate::rig::ground_control::GroundControl::from_flags(a.gcp.as_ref(), a.no_gcp),
+        ground_control: crate::rig::ground_control::GcpSource::from_flags(a.gcp.as_ref(), a.no_gcp),
         poses: a.poses_from.zip(a.poses.clone()),
         model: a.model.clone(),
         hardware: a.hardware.clone(),

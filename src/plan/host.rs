@@ -6,13 +6,13 @@
 //! N 2000 / M 4000 on 512 GB). A profile may fix N or M; a fixed N must fit the budget.
 
 use super::hardware::{HostProfile, TABLE8_M_PER_N};
+use crate::data::{cache::plan_cache, Dataset, Split};
+use serde::Serialize;
 
 /// The training process's own host memory besides the image cache: the binary, the Vulkan loader and driver (on
 /// lavapipe its LLVM shader compiler), the dataset's tables and sparse points, the trainer's host-side batches.
-/// Measured at 160-270 MiB on lavapipe from 30 to 300 captures (docs/results/flight.md); planned with a margin.
+/// Planned with a margin over what docs/results/flight.md measures.
 pub const PROCESS_OVERHEAD_BYTES: u64 = 384 << 20;
-use crate::data::{cache::plan_cache, Dataset, Split};
-use serde::Serialize;
 
 /// What the plans need to know about a dataset.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]

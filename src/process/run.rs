@@ -40,7 +40,7 @@ pub struct ProcessOptions {
     pub reference_band: Option<String>,
     pub crs: Option<crate::geo::Crs>,
     /// Ground control points (default: the flight folder's `gcp_list.txt` when it has one).
-    pub ground_control: crate::rig::ground_control::GroundControl,
+    pub ground_control: crate::rig::ground_control::GcpSource,
     /// Poses from another tool instead of COLMAP: its format and its model.
     pub poses: Option<(crate::poses::PoseFormat, PathBuf)>,
     /// Training: a profile name or file, or `auto` (multispectral-nerf on a GPU, demo on a CPU device).
@@ -236,20 +236,15 @@ fn validate(o: &ProcessOptions) -> Result<(), ProcessError> {
     Ok(())
 }
 
-/// What a stage depends on: its options and its upstream stages' outputs.
 /// The ground control file's path and content hash (None without one): an edited `gcp_list.txt` imports again.
 fn gcp_fingerprint(o: &ProcessOptions) -> Option<(String, String)> {
-    use crate::rig::ground_control::GroundControl;
-    let path = match &o.ground_control {
-        GroundControl::Auto => o.flight.join(crate::geo::gcp::GCP_FILE_NAME),
-        GroundControl::File(p) => p.clone(),
-        GroundControl::Off => return None,
-    };
+    let path = o.ground_control.path(&o.flight)?;
     // A missing file given by name fails in the import, which names it.
     let bytes = std::fs::read(&path).ok()?;
     Some((path.display().to_string(), super::stage::sha256_hex(&bytes)))
 }
 
+/// What a stage depends on: its options and its upstream stages' outputs.
 fn stage_inputs(o: &ProcessOptions, stage: Stage, flight_fp: &str, upstream: &[(Stage, String)]) -> String {
     let opts = match stage {
         Stage::Import => json!({

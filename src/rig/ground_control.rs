@@ -19,20 +19,29 @@ use crate::geo::Crs;
 
 /// Where GCPs come from.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum GroundControl {
+pub enum GcpSource {
     /// The input folder's `gcp_list.txt` when there is one (as OpenDroneMap finds it in a project folder).
     Auto,
     File(std::path::PathBuf),
     Off,
 }
 
-impl GroundControl {
+impl GcpSource {
     /// From the commands' `--gcp FILE` and `--no-gcp`.
-    pub fn from_flags(file: Option<&std::path::PathBuf>, off: bool) -> GroundControl {
+    pub fn from_flags(file: Option<&std::path::PathBuf>, off: bool) -> GcpSource {
         match (file, off) {
-            (_, true) => GroundControl::Off,
-            (Some(f), false) => GroundControl::File(f.clone()),
-            (None, false) => GroundControl::Auto,
+            (_, true) => GcpSource::Off,
+            (Some(f), false) => GcpSource::File(f.clone()),
+            (None, false) => GcpSource::Auto,
+        }
+    }
+
+    /// The file to read for a flight in `input`: the one given, or `input`'s `gcp_list.txt` when it exists.
+    pub fn path(&self, input: &std::path::Path) -> Option<std::path::PathBuf> {
+        match self {
+            GcpSource::Auto => Some(input.join(crate::geo::gcp::GCP_FILE_NAME)).filter(|p| p.is_file()),
+            GcpSource::File(p) => Some(p.clone()),
+            GcpSource::Off => None,
         }
     }
 }

@@ -24,7 +24,7 @@ use super::frame::{
     BandRegistration,
 };
 use super::geo::nadir_pose;
-use super::ground_control::{dataset_ground_control, GroundControl};
+use super::ground_control::{dataset_ground_control, GcpSource};
 use super::panel::Quad;
 use super::radiometry::radiance_units;
 use crate::geo::Projector;
@@ -128,7 +128,7 @@ pub struct ImportOptions {
     /// bands ([`super::rig_model`]).
     pub rig_cameras: bool,
     /// Ground control points ([`super::ground_control`]).
-    pub ground_control: GroundControl,
+    pub ground_control: GcpSource,
 }
 
 impl ImportOptions {
@@ -154,7 +154,7 @@ impl ImportOptions {
             threads: 1,
             progress: false,
             rig_cameras: false,
-            ground_control: GroundControl::Auto,
+            ground_control: GcpSource::Auto,
         }
     }
 }
@@ -213,12 +213,7 @@ pub fn import_rig(opts: &ImportOptions) -> Result<ImportSummary, RigError> {
     }
     let files = list_tiffs(&opts.input)?;
     // Ground control, read before any work so that a bad file stops the import at once.
-    let gcp_path = match &opts.ground_control {
-        GroundControl::Auto => Some(opts.input.join(crate::geo::gcp::GCP_FILE_NAME)).filter(|p| p.is_file()),
-        GroundControl::File(p) => Some(p.clone()),
-        GroundControl::Off => None,
-    };
-    let gcp_list = gcp_path
+    let gcp_list = (opts.ground_control.path(&opts.input))
         .map(|p| crate::geo::gcp::read_gcp_list(&p))
         .transpose()
         .map_err(|e| RigError::option("--gcp", e.to_string()))?;

@@ -6,7 +6,6 @@
 //! whose rays meet at [`MIN_ANGLE_DEG`] or more. [`super::georef`] fits the model to the points.
 
 use std::collections::HashMap;
-use std::path::Path;
 
 use serde_json::Value;
 
@@ -134,7 +133,7 @@ pub fn nearest_to_rays(rays: &[([f64; 3], [f64; 3])]) -> Option<[f64; 3]> {
         }
     }
     let x = crate::maths::linear::solve(a, b)?;
-    x.iter().all(|v| v.is_finite()).then(|| [x[0], x[1], x[2]])
+    Some([x[0], x[1], x[2]])
 }
 
 fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -143,7 +142,7 @@ fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 /// Places every point of `gc` in the model's frame from the observations in the model's registered images (matched
 /// by file stem). Returns the placed points and, for each observation or point left out, a note naming it.
-pub fn place(model: &PoseModel, gc: &GroundControl, tpath: &Path) -> (Vec<Placed>, Vec<String>) {
+pub fn place(model: &PoseModel, gc: &GroundControl) -> (Vec<Placed>, Vec<String>) {
     let by_stem: HashMap<String, &PosedImage> = model.images.iter().map(|im| (stem(&im.name), im)).collect();
     let mut placed = Vec::new();
     let mut notes = Vec::new();
@@ -203,10 +202,9 @@ pub fn place(model: &PoseModel, gc: &GroundControl, tpath: &Path) -> (Vec<Placed
                 errs.iter().sum::<f64>() / errs.len() as f64
             )),
             None => notes.push(format!(
-                "point {}: {} registered view(s) whose rays meet at under {MIN_ANGLE_DEG} degrees; not used ({})",
+                "point {}: {} registered view(s) whose rays meet at under {MIN_ANGLE_DEG} degrees; not used",
                 p.name,
-                obs.len(),
-                tpath.display()
+                obs.len()
             )),
         }
     }

@@ -134,13 +134,12 @@ pub fn robust_fit(names: &[String], model: &[[f64; 3]], gps: &[[f64; 3]], min_er
     let dst: Vec<[f64; 3]> = keep.iter().map(|&i| gps[i]).collect();
     let s = fit_similarity(&src, &dst).unwrap_or(s);
     let res: Vec<f64> = keep.iter().map(|&i| dist(s.apply(model[i]), gps[i])).collect();
-    let rms = (res.iter().map(|r| r * r).sum::<f64>() / res.len() as f64).sqrt();
     Ok(GeoFit {
         similarity: s,
         scale: s.scale,
         pairs: keep.len(),
         rejected: (0..names.len()).filter(|i| !keep.contains(i)).map(|i| names[i].clone()).collect(),
-        rms_m: rms,
+        rms_m: rms(res.iter().copied()),
         max_m: res.iter().copied().fold(0.0, f64::max),
         control: None,
     })
@@ -222,7 +221,7 @@ pub fn fit_with_control(
         )
     })?;
     let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let len = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let len = |v: [f64; 3]| dist(v, [0.0; 3]);
     let points: Vec<ControlResidual> = control
         .iter()
         .enumerate()

@@ -538,7 +538,7 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
         let fit = match &control {
             None => georef::robust_fit(&names, &src, &dst, o.gps_error_m),
             Some(gc) => {
-                let (placed, notes) = super::control::place(&model, gc, &tpath);
+                let (placed, notes) = super::control::place(&model, gc);
                 georef::fit_with_control(&names, &src, &dst, o.gps_error_m, &placed, notes)
             }
         }

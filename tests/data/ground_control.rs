@@ -103,15 +103,11 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// A deterministic spread of standard-normal-ish values (sum of uniforms from a linear congruential sequence).
+/// A deterministic standard-normal-ish value for (i, k): the sum of 12 uniforms minus 6.
 fn noise(i: usize, k: usize) -> f64 {
-    let mut x = (i as u64 * 7919 + k as u64 * 104_729 + 17).wrapping_mul(6_364_136_223_846_793_005);
-    let mut s = 0.0;
-    for _ in 0..12 {
-        x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-        s += (x >> 11) as f64 / (1u64 << 53) as f64;
-    }
-    s - 6.0
+    use rand::Rng;
+    let mut r = crate::common::rng((3 * i + k) as u64);
+    (0..12).map(|_| r.random::<f64>()).sum::<f64>() - 6.0
 }
 
 #[test]
@@ -294,7 +290,7 @@ fn a_point_is_placed_from_its_pixels_and_a_misclick_is_dropped() {
         crs: "EPSG:32632".into(),
         points: vec![ControlPoint { name: "p1".into(), xyz: [0.0; 3], observations: obs }],
     };
-    let (placed, notes) = place(&model, &gc, Path::new("transforms.json"));
+    let (placed, notes) = place(&model, &gc);
     assert_eq!(placed.len(), 1, "{notes:?}");
     assert!(dist(placed[0].model, truth) < 1e-6, "{:?}", placed[0]);
     assert_eq!(placed[0].views, 4);
@@ -329,7 +325,7 @@ fn import_carries_clicks_in_raw_band_files_into_the_frames_pixels() {
 
     let out = t.path().join("dataset");
     let opts = msnerf::rig::ImportOptions {
-        ground_control: msnerf::rig::ground_control::GroundControl::File(exact_file.clone()),
+        ground_control: msnerf::rig::ground_control::GcpSource::File(exact_file.clone()),
         threads: 2,
         ..msnerf::rig::ImportOptions::new(flight.join("card"), &out)
     };
@@ -385,7 +381,7 @@ fn import_carries_clicks_in_raw_band_files_into_the_frames_pixels() {
     let edited = t.path().join("gcp_edited.txt");
     std::fs::write(&edited, &text).unwrap();
     let s = msnerf::rig::import_rig(&msnerf::rig::ImportOptions {
-        ground_control: msnerf::rig::ground_control::GroundControl::File(edited),
+        ground_control: msnerf::rig::ground_control::GcpSource::File(edited),
         overwrite: true,
         ..opts.clone()
     })
@@ -396,7 +392,7 @@ fn import_carries_clicks_in_raw_band_files_into_the_frames_pixels() {
     std::fs::write(&useless, "EPSG:32632\n307100 5341000 330 10 10 IMG_9999_1.tif p\n").unwrap();
     let out2 = t.path().join("dataset2");
     let e = msnerf::rig::import_rig(&msnerf::rig::ImportOptions {
-        ground_control: msnerf::rig::ground_control::GroundControl::File(useless.clone()),
+        ground_control: msnerf::rig::ground_control::GcpSource::File(useless.clone()),
         ..msnerf::rig::ImportOptions::new(flight.join("card"), &out2)
     })
     .unwrap_err()
@@ -406,7 +402,7 @@ fn import_carries_clicks_in_raw_band_files_into_the_frames_pixels() {
     // A broken file stops the import at once, naming the line.
     std::fs::write(&useless, "EPSG:32632\n307100 5341000 330 10\n").unwrap();
     let e = msnerf::rig::import_rig(&msnerf::rig::ImportOptions {
-        ground_control: msnerf::rig::ground_control::GroundControl::File(useless),
+        ground_control: msnerf::rig::ground_control::GcpSource::File(useless),
         ..msnerf::rig::ImportOptions::new(flight.join("card"), &out2)
     })
     .unwrap_err()
@@ -433,7 +429,7 @@ fn sfm_fixes_a_raw_flight_on_its_control_points_and_finds_the_gps_datum_shift() 
     msnerf::sim::sensor::simulate_raw_rig(&scene, &o, &flight).unwrap();
     let data = t.path().join("dataset");
     let opts = msnerf::rig::ImportOptions {
-        ground_control: msnerf::rig::ground_control::GroundControl::File(flight.join("gcp_list.txt")),
+        ground_control: msnerf::rig::ground_control::GcpSource::File(flight.join("gcp_list.txt")),
         threads: 2,
         ..msnerf::rig::ImportOptions::new(flight.join("card"), &data)
     };

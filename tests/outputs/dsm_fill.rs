@@ -57,11 +57,9 @@ fn reference(
 #[test]
 fn idw_fill_matches_its_definition() {
     let (w, h) = (37, 23);
-    let mut x = 12345u64;
-    let mut rnd = || {
-        x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-        (x >> 11) as f64 / (1u64 << 53) as f64
-    };
+    use rand::Rng;
+    let mut r = crate::common::rng(12345);
+    let mut rnd = || r.random::<f64>();
     let values: Vec<f32> = (0..w * h).map(|_| (100.0 + 10.0 * rnd()) as f32).collect();
     let source: Vec<bool> = (0..w * h).map(|_| rnd() < 0.15).collect();
     let fill: Vec<bool> = source.iter().map(|s| !s).collect();

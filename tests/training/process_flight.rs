@@ -59,7 +59,7 @@ fn options(flight: &Path, project: &Path, panel: Vec<f64>) -> ProcessOptions {
         units: msnerf::rig::Units::Reflectance,
         reference_band: None,
         crs: None,
-        ground_control: msnerf::rig::ground_control::GroundControl::File(flight.join("gcp_list.txt")),
+        ground_control: msnerf::rig::ground_control::GcpSource::File(flight.join("gcp_list.txt")),
         poses: None,
         model: "demo".into(),
         hardware: "auto".into(),

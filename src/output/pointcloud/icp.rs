@@ -4,7 +4,7 @@
 //! Point-to-plane (Chen & Medioni 1992) rather than point-to-point (Besl & McKay 1992): on terrain, most of the
 //! surface is near-horizontal and point-to-point pairs slide along it for hundreds of iterations. Each iteration
 //! pairs every moved source point with its nearest target point ([`KdTree`]), whose normal is the local plane of its
-//! `NORMAL_NEIGHBOURS` nearest targets ([`smallest_eigenvector`]), keeps the `keep` fraction of pairs closest to
+//! `NORMAL_NEIGHBOURS` nearest targets ([`fit_plane`]), keeps the `keep` fraction of pairs closest to
 //! their planes (trimmed ICP, Chetverikov et al. 2002), and solves the linearised step (small rotation `w`,
 //! translation `t`, scale change `d` about the kept points' centroid `c`: residual `n . (m - q) + (p x n) . w +
 //! n . t + d (n . p)` with `p = m - c`) by least squares; the step is applied as an exact rotation. It stops when
@@ -18,7 +18,7 @@
 use glam::{DMat3, DVec3};
 
 use super::kdtree::KdTree;
-use super::local_plane::smallest_eigenvector;
+use super::local_plane::fit_plane;
 use crate::maths::similarity::Similarity;
 
 /// Target points whose plane gives a target point's normal.
@@ -68,18 +68,9 @@ pub fn icp_similarity(
     let mut normals: Vec<Option<Option<DVec3>>> = vec![None; target.len()];
     let mut normal = |j: usize| -> Option<DVec3> {
         *normals[j].get_or_insert_with(|| {
-            let nb = tree.knn(&target[j], NORMAL_NEIGHBOURS);
-            if nb.len() < 3 {
-                return None;
-            }
-            let pts: Vec<DVec3> = nb.iter().map(|&(i, _)| DVec3::from(target[i])).collect();
-            let c = pts.iter().copied().sum::<DVec3>() / pts.len() as f64;
-            let mut m = DMat3::ZERO;
-            for p in &pts {
-                let d = *p - c;
-                m += DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-            }
-            smallest_eigenvector(&m)
+            let pts: Vec<DVec3> =
+                tree.knn(&target[j], NORMAL_NEIGHBOURS).iter().map(|&(i, _)| DVec3::from(target[i])).collect();
+            fit_plane(&pts).map(|(_, n)| n)
         })
     };
     let mut sim = init;

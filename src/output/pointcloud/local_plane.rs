@@ -59,17 +59,8 @@ pub fn surface_offset(tree: &KdTree, points: &[[f64; 3]], q: &[f64; 3], k: usize
         return Some(fallback);
     }
     let nbrs: Vec<DVec3> = nn.iter().map(|&(i, _)| DVec3::from(points[i])).collect();
-    let n = nbrs.len() as f64;
-    let c = nbrs.iter().sum::<DVec3>() / n;
-    let mut cov = DMat3::ZERO;
-    let mut radius2: f64 = 0.0;
-    for p in &nbrs {
-        let d = *p - c;
-        // Outer product d d^T, column by column.
-        cov += DMat3::from_cols(d * d.x, d * d.y, d * d.z) / n;
-        radius2 = radius2.max(d.length_squared());
-    }
-    let Some(normal) = smallest_eigenvector(&cov) else { return Some(fallback) };
+    let Some((c, normal)) = fit_plane(&nbrs) else { return Some(fallback) };
+    let radius2 = nbrs.iter().map(|p| (*p - c).length_squared()).fold(0.0, f64::max);
     let d = qv - c;
     let h = d.dot(normal);
     let offset = normal * h;
@@ -78,6 +69,23 @@ pub fn surface_offset(tree: &KdTree, points: &[[f64; 3]], q: &[f64; 3], k: usize
     } else {
         Some(fallback)
     }
+}
+
+/// The least-squares plane of `points` (at least 3): their centroid and the unit normal, the eigenvector of the
+/// smallest eigenvalue of their covariance; `None` where [`smallest_eigenvector`] finds no plane.
+pub fn fit_plane(points: &[DVec3]) -> Option<(DVec3, DVec3)> {
+    if points.len() < 3 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let c = points.iter().sum::<DVec3>() / n;
+    let mut cov = DMat3::ZERO;
+    for p in points {
+        let d = *p - c;
+        // Outer product d d^T, column by column.
+        cov += DMat3::from_cols(d * d.x, d * d.y, d * d.z) / n;
+    }
+    Some((c, smallest_eigenvector(&cov)?))
 }
 
 /// The unit eigenvector of the smallest eigenvalue of the symmetric matrix `m` (the normal of a least-squares plane

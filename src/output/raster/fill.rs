@@ -40,7 +40,9 @@ pub fn fill_idw(
                 continue;
             }
             let (mut sw, mut swv) = (0.0f64, 0.0f64);
-            let mut found: Vec<(i64, i64, f64)> = Vec::with_capacity(8);
+            // The nearest source along each direction: (row, column, value); no allocation per cell.
+            let mut found = [(0i64, 0i64, 0.0f64); 8];
+            let mut nf = 0;
             for (dr, dc) in DIRS {
                 let step = if dr != 0 && dc != 0 { std::f64::consts::SQRT_2 } else { 1.0 };
                 let (mut rr, mut cc, mut d) = (r as i64, c as i64, 0.0);
@@ -56,11 +58,13 @@ pub fn fill_idw(
                         let w = 1.0 / (d * d);
                         sw += w;
                         swv += w * values[j] as f64;
-                        found.push((rr, cc, values[j] as f64));
+                        found[nf] = (rr, cc, values[j] as f64);
+                        nf += 1;
                         break;
                     }
                 }
             }
+            let found = &found[..nf];
             let step = found.iter().enumerate().any(|(k, a)| {
                 found[k + 1..].iter().any(|b| {
                     let run = (((a.0 - b.0).pow(2) + (a.1 - b.1).pow(2)) as f64).sqrt();
