@@ -112,6 +112,10 @@ pub struct FlightAcceptance {
     pub dsm_absolute: SurfaceStats,
     /// The SfM stage's ground-control report (residuals and check residuals), when the flight had ground control.
     pub ground_control: Option<Value>,
+    /// The DTM against the true bare earth, after the datum shift (None when the project has no `dtm.tif`).
+    pub dtm: Option<SurfaceStats>,
+    /// The trees found against the scene's (`compare-trees`' figures, positions after the datum shift).
+    pub trees: Option<Value>,
     /// The datum shift the simulation put into every GPS fix.
     pub simulated_shift_m: [f64; 3],
     /// That similarity (after the datum shift): rotation and tilt (degrees), scale error, translation (m), ICP RMS.
@@ -342,6 +346,22 @@ type ToTruth<'a> = &'a dyn Fn([f64; 3]) -> [f64; 3];
 /// The map that removes a constant shift.
 fn unshift(shift: [f64; 3]) -> impl Fn([f64; 3]) -> [f64; 3] {
     move |p| [p[0] - shift[0], p[1] - shift[1], p[2] - shift[2]]
+}
+
+/// `products/trees.geojson` against the truth's trees (positions after removing `shift`), with the truth's classes
+/// telling which false trees stand on open ground; None when either table is missing.
+fn trees_against_truth(products: &Path, truth: &Path, shift: [f64; 3]) -> Result<Option<Value>, FlightBenchError> {
+    use crate::products::trees::compare::{compare_trees, read_tree_table};
+    let (p, t) = (products.join("trees.geojson"), truth.join("trees.geojson"));
+    if !(p.is_file() && t.is_file()) {
+        return Ok(None);
+    }
+    let mut found = read_tree_table(&p).map_err(|e| file_err(&p)(&e))?;
+    found.iter_mut().for_each(|f| (f.x, f.y) = (f.x - shift[0], f.y - shift[1]));
+    let known = read_tree_table(&t).map_err(|e| file_err(&t)(&e))?;
+    let classes_path = truth.join("classes.tif");
+    let classes = read_geotiff(&classes_path).map_err(|e| file_err(&classes_path)(&e))?;
+    Ok(Some(compare_trees(&found, &known, Some(&classes), 0.5).to_json()))
 }
 
 /// A cloud file, its path named on error.
@@ -623,6 +643,11 @@ pub fn flight_acceptance(
         cloud_absolute: cloud_stats(&cloud, &cloud_path, &truth_points, &unshift([0.0; 3]))?,
         dsm_absolute: dsm_stats(&products.join("dsm.tif"), &truth_dsm, &unshift([0.0; 3]))?,
         ground_control: Some(poses["summary"]["georef"]["control"].clone()).filter(|c| c.is_object()),
+        dtm: {
+            let (p, t) = (products.join("dtm.tif"), flight.join("truth/dataset/truth/dtm.tif"));
+            (p.is_file() && t.is_file()).then(|| dsm_stats(&p, &t, &unshift(shift))).transpose()?
+        },
+        trees: trees_against_truth(&products, &flight.join("truth/dataset/truth"), shift)?,
         simulated_shift_m,
         relative_transform,
         georeferencing,
@@ -688,6 +713,30 @@ impl FlightAcceptance {
             self.dsm_absolute.bias_m,
             100.0 * self.dsm_absolute.within_0_10
         );
+        if let Some(d) = &self.dtm {
+            s += &format!(
+                "DTM against the true bare earth: {} cells, median |dz| {:.3} m, bias {:+.3} m, within 0.10/0.25 m \
+                 {:.1}/{:.1} %\n",
+                d.count,
+                d.median_abs_m,
+                d.bias_m,
+                100.0 * d.within_0_10,
+                100.0 * d.within_0_25
+            );
+        }
+        if let Some(t) = &self.trees {
+            s += &format!(
+                "trees: {} known, {} found, {} matched, {} false ({} on open ground); heights within 0.5 m {:.1} % \
+                 (median |error| {:.3} m)\n",
+                t["known"],
+                t["found"],
+                t["matched"],
+                t["false_trees"].as_array().map_or(0, |a| a.len()),
+                t["false_on_ground"],
+                100.0 * t["within_tolerance"].as_f64().unwrap_or(0.0),
+                t["median_abs_height_error"].as_f64().unwrap_or(f64::NAN)
+            );
+        }
         if let Some(c) = &self.ground_control {
             s += &format!(
                 "ground control: {} point(s), residual RMS {:.3} m, check RMS {:.3} m; GPS datum shift found {} m \

@@ -5,7 +5,7 @@
 //! LAS Extra Bytes `NormalX/Y/Z`). By default the export is the careful one of `msnerf::nerf::export` (exact median
 //! crossing, spread filter, multi-view consistency, confidence scalar fields, optional `--gsd` thinning); `--legacy`
 //! is the accumulation-threshold export that came before it. `export dsm` and `export ortho` are in
-//! [`super::export_survey`].
+//! [`super::export_survey`]; `export dtm`, `chm` and `trees` in [`super::export_canopy`].
 
 use super::refine_args::RefineArgs;
 use super::Cli;
@@ -30,6 +30,12 @@ pub enum ExportWhat {
     Dsm(super::export_survey::DsmArgs),
     /// Multispectral true orthomosaic: every band seen straight down, a Cloud-Optimized GeoTIFF on the DSM's grid
     Ortho(super::export_survey::OrthoArgs),
+    /// Digital terrain model (bare earth) from a DSM by SMRF ground filtering, on the DSM's grid
+    Dtm(super::export_canopy::DtmArgs),
+    /// Canopy height model (DSM - DTM) on their grid
+    Chm(super::export_canopy::ChmArgs),
+    /// Tree tops, crowns, heights and per-crown band means and NDVI from a CHM (GeoJSON and CSV)
+    Trees(super::export_canopy::TreesArgs),
 }
 
 #[derive(clap::Args, Debug, Clone)]
@@ -160,6 +166,9 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
         ExportWhat::Pointcloud(a) => a,
         ExportWhat::Dsm(a) => return super::export_survey::run_dsm(cli, a),
         ExportWhat::Ortho(a) => return super::export_survey::run_ortho(cli, a),
+        ExportWhat::Dtm(a) => return super::export_canopy::run_dtm(a),
+        ExportWhat::Chm(a) => return super::export_canopy::run_chm(a),
+        ExportWhat::Trees(a) => return super::export_canopy::run_trees(a),
     };
     let ext_ok = matches!(a.out.extension().and_then(|e| e.to_str()), Some("ply" | "las" | "PLY" | "LAS"));
     anyhow::ensure!(ext_ok, "--out {}: the file must end in .ply or .las", a.out.display());

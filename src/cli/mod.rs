@@ -3,11 +3,13 @@
 pub mod bench;
 pub mod compare_cloud;
 pub mod compare_raster;
+pub mod compare_trees;
 pub mod dataset;
 pub mod demo;
 pub mod devices;
 pub mod eval;
 pub mod export;
+pub mod export_canopy;
 pub mod export_survey;
 pub mod import;
 pub mod partition;
@@ -74,6 +76,8 @@ pub enum Command {
     Preview(preview::PreviewArgs),
     /// Compare a DSM or orthomosaic GeoTIFF against a reference raster (per band, per class)
     CompareRaster(compare_raster::CompareRasterArgs),
+    /// Compare trees found by `export trees` against known trees (detection, false trees, heights)
+    CompareTrees(compare_trees::CompareTreesArgs),
     /// Train a grid of configurations under one budget: accuracy against time, CSV, plots and a report
     Sweep(sweep::SweepArgs),
     /// Split a large flight into a grid of overlapping blocks, each a dataset of its own (issue 23)
@@ -112,6 +116,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(&cli, a),
         Command::CompareCloud(a) => compare_cloud::run(a),
         Command::CompareRaster(a) => compare_raster::run(a),
+        Command::CompareTrees(a) => compare_trees::run(a),
         Command::Preview(a) => preview::run(a),
         Command::Plan(a) => plan::run(&cli, a),
         Command::Sweep(a) => sweep::run(&cli, a),
@@ -157,6 +162,16 @@ pub fn positive_f64(s: &str) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!("{v} is not positive"))
+    }
+}
+
+/// Clap value parser for a share: a number in [0, 1].
+pub fn unit_f64(s: &str) -> Result<f64, String> {
+    let v = finite_f64(s)?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not a share in [0, 1]"))
     }
 }
 

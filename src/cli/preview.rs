@@ -21,7 +21,7 @@ pub fn run(a: &PreviewArgs) -> anyhow::Result<()> {
     let mut data = r.data.clone();
     data.iter_mut().filter(|v| r.is_nodata(**v)).for_each(|v| *v = f32::NAN);
     let bands = if let Some(names) = (!g.descriptions.is_empty()).then_some(&g.descriptions) {
-        names.iter().map(|d| band_from_description(d)).collect()
+        names.iter().map(|d| crate::output::image::band_from_description(d)).collect()
     } else {
         (0..g.bands).map(|b| crate::output::image::band(&format!("band {}", b + 1), None, None)).collect()
     };
@@ -35,14 +35,4 @@ pub fn run(a: &PreviewArgs) -> anyhow::Result<()> {
     };
     files.iter().for_each(|f| println!("-> {}", f.display()));
     Ok(())
-}
-
-/// A band from a GDAL description such as `NIR 840nm` (name, then the centre wavelength when the last word is one).
-fn band_from_description(d: &str) -> crate::data::Band {
-    let mut words: Vec<&str> = d.split_whitespace().collect();
-    let nm = words.last().and_then(|w| w.strip_suffix("nm")).and_then(|v| v.parse::<f64>().ok());
-    if nm.is_some() {
-        words.pop();
-    }
-    crate::output::image::band(&words.join(" "), nm, None)
 }

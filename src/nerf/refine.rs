@@ -190,6 +190,35 @@ pub fn score(
     (Some(sum / partners as f64), partners)
 }
 
+/// Whether a view (`cam` at `origin`, rotation rows `rot`) holds the whole sweep of `p0` along the unit direction `u`
+/// as the reference: the corners of the patch (normal `n`, samples one footprint of this view apart) at both ends of
+/// the search range project inside its pixel centres' hull. A reference whose patch leaves its image scores
+/// nothing there, and the point is left unsupported for the view's sake, not the surface's.
+#[allow(clippy::too_many_arguments)]
+pub fn holds_sweep(
+    cam: &Camera,
+    origin: [f64; 3],
+    rot: &[[f64; 3]; 3],
+    p0: [f64; 3],
+    u: [f64; 3],
+    n: [f64; 3],
+    o: &RefineOptions,
+) -> bool {
+    let h = (glam::DVec3::from(p0) - glam::DVec3::from(origin)).length() / (0.5 * (cam.fx + cam.fy));
+    let axes = plane_axes(n);
+    let (k, r) = (o.range as f64 * h, o.half as f64 * h);
+    let inside = |q: [f64; 3]| {
+        project_point_subpixel(cam, origin, rot, q).is_some_and(|(x, y, _)| {
+            x >= 0.5 && y >= 0.5 && x <= cam.width as f64 - 0.5 && y <= cam.height as f64 - 0.5
+        })
+    };
+    [-k, k].iter().all(|&s| {
+        [(-r, -r), (-r, r), (r, -r), (r, r)]
+            .iter()
+            .all(|&(a, b)| inside([0, 1, 2].map(|i| p0[i] + s * u[i] + a * axes.0[i] + b * axes.1[i])))
+    })
+}
+
 /// Vertex of the parabola through (-1, a), (0, b), (1, c), clamped to [-1, 1] (0 when the three are not a peak).
 fn parabola_peak(a: f64, b: f64, c: f64) -> f64 {
     let den = a - 2.0 * b + c;

@@ -25,7 +25,7 @@
 //! raster size.
 
 use super::export::{consistency, field_cell_size, Consistency, REFINE_IMAGE_BUDGET};
-use super::refine::RefineOptions;
+use super::refine::{holds_sweep, RefineOptions};
 use super::refine_points::{normalised_poses, refine_points, FrameStore, RefinePoint};
 use super::run::LoadedRun;
 use super::views::NovelView;
@@ -389,10 +389,12 @@ pub fn render_survey(
     let c2w = view.c2w;
     let mut stats = SurveyStats { cells: grid.cells(), top, ..Default::default() };
     let store = &mut FrameStore::new(opts.image_budget_bytes);
-    // The refinement's search line is the DSM's own vertical (world -z), and its reference view per cell the most
-    // nadir agreeing one, judged from the camera centres.
+    // The refinement's search line is the DSM's own vertical (world -z), its patch horizontal, and its reference view
+    // per cell the most nadir agreeing one (judged from the camera centres) whose image holds the whole sweep.
     let down = (run.transform.rotation() * -glam::DVec3::Z).normalize().to_array();
-    let centres: Vec<[f64; 3]> = normalised_poses(run).iter().map(|&(centre, _)| centre).collect();
+    let up = down.map(|x| -x);
+    let poses = normalised_poses(run);
+    let centres: Vec<[f64; 3]> = poses.iter().map(|&(centre, _)| centre).collect();
     let mut row0 = 0;
     while row0 < grid.height {
         let rows = block_rows.min(grid.height - row0);
@@ -454,8 +456,17 @@ pub fn render_survey(
                 .map(|k| {
                     let p = kept[k].1;
                     let mut partners = agreeing[k].clone();
+                    // The most nadir view that holds the whole sweep in its image; the most nadir one if none does.
+                    let holds = |f: u32| {
+                        let (origin, rot) = poses[f as usize];
+                        holds_sweep(&run.ds.frames[f as usize].camera, origin, &rot, p, down, up, r)
+                    };
+                    let rank = |f: u32| (holds(f), nadir(p, f));
                     let best = (0..partners.len())
-                        .max_by(|&a, &b| nadir(p, partners[a]).total_cmp(&nadir(p, partners[b])))
+                        .max_by(|&a, &b| {
+                            let (x, y) = (rank(partners[a]), rank(partners[b]));
+                            x.0.cmp(&y.0).then(x.1.total_cmp(&y.1))
+                        })
                         .unwrap_or(0);
                     let frame = partners.swap_remove(best) as usize;
                     (k, RefinePoint { p, dir: down, frame, partners })

@@ -80,6 +80,73 @@ pub struct SurveySource {
     pub label: String,
     /// World z the vertical rays start from.
     pub top: f64,
+    /// The training cameras, for the DSM's view-count raster (none: no such raster).
+    pub views: Vec<ViewCamera>,
+}
+
+/// A training camera: intrinsics, centre and camera-to-world rotation (rows), world frame.
+#[derive(Debug, Clone)]
+pub struct ViewCamera {
+    pub camera: crate::data::Camera,
+    pub origin: [f64; 3],
+    pub rot: [[f64; 3]; 3],
+}
+
+/// The training views of `ds` as [`ViewCamera`]s.
+pub fn training_views(ds: &crate::data::Dataset) -> Vec<ViewCamera> {
+    ds.split_indices(crate::data::Split::Train)
+        .iter()
+        .map(|&f| {
+            let m = &ds.frames[f].c2w;
+            ViewCamera {
+                camera: ds.frames[f].camera,
+                origin: [m[0][3], m[1][3], m[2][3]],
+                rot: [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2]]),
+            }
+        })
+        .collect()
+}
+
+/// Per cell with a height, the number of `views` whose image holds the cell's surface point (its centre at that
+/// height; occlusion is not tested): how many training images could have seen it. NaN where there is no height.
+pub fn view_counts(z: &[f32], grid: &SurveyGrid, views: &[ViewCamera]) -> Vec<f32> {
+    z.iter()
+        .enumerate()
+        .map(|(i, &h)| {
+            if !h.is_finite() {
+                return f32::NAN;
+            }
+            let [x, y] = grid.centre(i / grid.width, i % grid.width);
+            let p = [x, y, h as f64];
+            views
+                .iter()
+                .filter(|v| crate::data::camera::project_point(&v.camera, v.origin, &v.rot, p).is_some())
+                .count() as f32
+        })
+        .collect()
+}
+
+/// `<dsm stem>_views.tif`: [`view_counts`] as float32 on the DSM's grid (nodata NaN).
+fn write_views(
+    dsm: &Path,
+    counts: Vec<f32>,
+    grid: &SurveyGrid,
+    georef: &GeoReference,
+    label: &str,
+) -> Result<PathBuf, SurveyError> {
+    let path = sibling(dsm, "_views.tif");
+    let img = SpectralImage::single(grid.width, grid.height, band("views", None, None), counts)?;
+    let opts = GeoTiffOptions {
+        nodata: Some(f64::NAN),
+        georef: Some(*georef),
+        bigtiff: None,
+        metadata: vec![
+            ("msnerf_product".into(), "training views whose image holds each DSM cell's surface point".into()),
+            ("msnerf_run".into(), label.into()),
+        ],
+    };
+    crate::output::raster::geotiff::write_geotiff(&path, &img, &opts)?;
+    Ok(path)
 }
 
 /// The row blocks' consumer handed to a survey renderer.
@@ -99,6 +166,7 @@ pub fn export_survey(
         crs: run.ds.crs.clone(),
         label: run.dir.display().to_string(),
         top,
+        views: training_views(&run.ds),
     };
     write_products(&source, grid, opts, outputs, |opts, sink| render_survey(run, grid, opts, sink, progress))
 }
@@ -251,7 +319,12 @@ pub fn write_products(
         if let Some(pv) = pv {
             files.extend(dsm_previews(path, &pv, grid.gsd)?);
         }
-        files.extend(write_quality(path, &dsm_quality, w, h, &georef, source)?);
+        let what = "DSM quality: 1 measured, 2 interpolated, 3 field only, 0 nodata";
+        files.extend(write_quality(path, &dsm_quality, w, h, &georef, what, &source.label)?);
+        if !source.views.is_empty() {
+            let counts = view_counts(&dsm_cells, grid, &source.views);
+            files.push(write_views(path, counts, grid, &georef, &source.label)?);
+        }
     }
     if let (Some(wr), Some(path)) = (ortho, &outputs.ortho) {
         let pv = wr.finish()?;
@@ -338,15 +411,16 @@ pub fn finish_dsm(
 /// Colours of the quality preview: nodata, measured, interpolated, field only.
 pub const QUALITY_COLOURS: [[u8; 3]; 4] = [[0, 0, 0], [46, 160, 67], [240, 200, 40], [220, 90, 40]];
 
-/// `<dsm stem>_quality.tif` (the codes of [`quality`] as float32, nodata 0, on the DSM's grid; no overviews, as
-/// categories do not average) and its PNG preview.
-fn write_quality(
+/// `<product stem>_quality.tif` (the codes of [`quality`] as float32, nodata 0, on the product's grid; no overviews,
+/// as categories do not average) and its PNG preview; `what` says what the codes mean, `label` names the source.
+pub fn write_quality(
     dsm: &Path,
     q: &[u8],
     w: usize,
     h: usize,
     georef: &GeoReference,
-    source: &SurveySource,
+    what: &str,
+    label: &str,
 ) -> Result<Vec<PathBuf>, SurveyError> {
     let path = sibling(dsm, "_quality.tif");
     let img = SpectralImage {
@@ -359,10 +433,7 @@ fn write_quality(
         nodata: Some(0.0),
         georef: Some(*georef),
         bigtiff: None,
-        metadata: vec![
-            ("msnerf_product".into(), "DSM quality: 1 measured, 2 interpolated, 3 field only, 0 nodata".into()),
-            ("msnerf_run".into(), source.label.clone()),
-        ],
+        metadata: vec![("msnerf_product".into(), what.into()), ("msnerf_run".into(), label.into())],
     };
     crate::output::raster::geotiff::write_geotiff(&path, &img, &opts)?;
     // A preview of at most PREVIEW_MAX on its longer side (nearest cell).

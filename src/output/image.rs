@@ -170,3 +170,13 @@ pub fn fmt_nm(nm: f64) -> String {
         format!("{nm}")
     }
 }
+
+/// A band from a GDAL description such as `NIR 840nm` (name, then the centre wavelength when the last word is one).
+pub fn band_from_description(d: &str) -> crate::data::Band {
+    let mut words: Vec<&str> = d.split_whitespace().collect();
+    let nm = words.last().and_then(|w| w.strip_suffix("nm")).and_then(|v| v.parse::<f64>().ok());
+    if nm.is_some() {
+        words.pop();
+    }
+    band(&words.join(" "), nm, None)
+}

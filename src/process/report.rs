@@ -376,6 +376,38 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
     }
     body += &section("products", "Coverage and survey products", &s);
 
+    // Terrain, canopy and trees.
+    if let Some(t) = rec(Stage::Terrain).map(|r| r.summary) {
+        let share = |a: Option<f64>, b: Option<f64>| num(a.zip(b).map(|(a, b)| 100.0 * a / b.max(1.0)), 1) + " %";
+        let heights: Vec<f64> =
+            t["trees"]["heights"].as_array().map(|a| a.iter().filter_map(Value::as_f64).collect()).unwrap_or_default();
+        let mut s = table(
+            &["DTM: ground cells", "CHM: cells at least 2 above the terrain", "trees", "tallest", "set apart (NDVI)"],
+            &[vec![
+                share(t["dtm"]["ground"].as_f64(), t["dtm"]["candidates"].as_f64()),
+                share(t["chm"]["above_2m"].as_f64(), t["chm"]["cells"].as_f64()),
+                t["trees"]["count"].as_u64().map_or("n/a".into(), |v| v.to_string()),
+                num(heights.iter().copied().reduce(f64::max), 2),
+                t["trees"]["not_vegetation"].as_u64().map_or("n/a".into(), |v| v.to_string()),
+            ]],
+        );
+        s += "<p>The DTM is SMRF's ground (PDAL <code>filters.smrf</code> defaults) from the DSM's measured and \
+              interpolated cells; trees are the CHM's local maxima in a window that grows with height, with crowns \
+              grown from them; <code>products/trees.geojson</code> and <code>trees.csv</code> list each tree's \
+              position, height, crown area, band means and NDVI.</p>";
+        for (file, caption) in [
+            ("products/dtm_hillshade.png", "DTM hillshade"),
+            ("products/dtm_quality.png", "DTM: ground cells (green), interpolated beneath objects (yellow)"),
+            ("products/chm_height.png", "canopy height model"),
+        ] {
+            if let Ok(bytes) = std::fs::read(project.join(file)) {
+                let _ =
+                    write!(s, "<figure>{}<figcaption>{}</figcaption></figure>", png_tag(&bytes, caption), esc(caption));
+            }
+        }
+        body += &section("terrain", "Terrain, canopy and trees", &s);
+    }
+
     // Held-out views.
     let eval = read_json(&project.join("run/eval.json")).unwrap_or(Value::Null);
     let rows: Vec<Vec<String>> = eval["bands"]

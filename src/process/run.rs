@@ -263,6 +263,10 @@ fn stage_inputs(o: &ProcessOptions, stage: Stage, flight_fp: &str, upstream: &[(
         Stage::Survey => json!({
             "gsd": o.gsd, "indices": o.indices.iter().map(|i| i.name()).collect::<Vec<_>>(), "fill": o.fill,
         }),
+        Stage::Terrain => {
+            let p = crate::products::terrain::SmrfParams::default();
+            json!({"smrf": [p.cell, p.slope, p.window, p.threshold, p.scalar], "trees": "defaults"})
+        }
         Stage::Report => json!({}),
     };
     let deps: Vec<&(Stage, String)> = upstream
@@ -288,6 +292,7 @@ fn describe(stage: Stage, o: &ProcessOptions) -> String {
         Stage::Eval => "held-out views: PSNR and SSIM per band".into(),
         Stage::Cloud => "multispectral point cloud".into(),
         Stage::Survey => "DSM, true orthomosaic and index rasters".into(),
+        Stage::Terrain => "DTM (SMRF), canopy height model and trees".into(),
         Stage::Report => "processing report".into(),
     }
 }
@@ -315,6 +320,7 @@ fn run_stage(o: &ProcessOptions, stage: Stage, inputs: &str, progress: Progress)
         Stage::Eval => super::stages::eval(o),
         Stage::Cloud => super::stages::cloud(o),
         Stage::Survey => super::stages::survey(o, progress),
+        Stage::Terrain => super::stages::terrain(o),
         Stage::Report => super::report::write_report(&o.project, &o.flight)
             .map(|path| done(vec![path.strip_prefix(&o.project).unwrap_or(&path).to_path_buf()], json!({}), vec![])),
     }

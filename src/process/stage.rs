@@ -32,12 +32,14 @@ pub enum Stage {
     Cloud,
     /// DSM, true orthomosaic and vegetation-index rasters on one grid.
     Survey,
+    /// DTM (SMRF ground filter of the DSM), canopy height model and trees, on the DSM's grid.
+    Terrain,
     /// The processing report (HTML).
     Report,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 8] = [
+    pub const ALL: [Stage; 9] = [
         Stage::Import,
         Stage::Poses,
         Stage::Check,
@@ -45,6 +47,7 @@ impl Stage {
         Stage::Eval,
         Stage::Cloud,
         Stage::Survey,
+        Stage::Terrain,
         Stage::Report,
     ];
 
@@ -57,6 +60,7 @@ impl Stage {
             Stage::Eval => "eval",
             Stage::Cloud => "cloud",
             Stage::Survey => "survey",
+            Stage::Terrain => "terrain",
             Stage::Report => "report",
         }
     }

@@ -368,6 +368,34 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
     with_gpu(done(files, summary, notes), &ctx)
 }
 
+/// Terrain: the DTM by SMRF from the survey's DSM (its measured and interpolated cells), the canopy height model
+/// and the trees with the ortho's band means and NDVI per crown, all on the DSM's grid (`export dtm|chm|trees`).
+pub(super) fn terrain(o: &ProcessOptions) -> Result<StageDone, ProcessError> {
+    use crate::products::canopy::{make_chm, make_dtm, make_trees};
+    use crate::products::terrain::SmrfParams;
+    use crate::products::trees::{CrownParams, TopParams};
+    let fail = ProcessError::stage(Stage::Terrain);
+    let dir = o.project.join(paths::products());
+    let (dsm, ortho) = (dir.join("dsm.tif"), dir.join("ortho.tif"));
+    let (dtm, chm, trees) = (dir.join("dtm.tif"), dir.join("chm.tif"), dir.join("trees.geojson"));
+    let d = make_dtm(&dsm, &dtm, &SmrfParams::default(), false).map_err(|e| fail(&e))?;
+    let c = make_chm(&dsm, &dtm, &chm).map_err(|e| fail(&e))?;
+    let ortho = ortho.is_file().then_some(ortho.as_path());
+    let t = make_trees(&chm, Some(&dtm), ortho, &trees, &TopParams::default(), &CrownParams::default())
+        .map_err(|e| fail(&e))?;
+    let mut notes = vec![d.line(), c.line(), t.line()];
+    notes.extend(t.notes.iter().cloned());
+    let heights: Vec<f64> = t.trees.iter().map(|t| (t.height * 100.0).round() / 100.0).collect();
+    let summary = json!({
+        "dtm": {"dsm_cells": d.dsm_cells, "candidates": d.candidates, "ground": d.ground, "cells": d.dtm_cells},
+        "chm": {"cells": c.cells, "above_2m": c.above_2m, "max": c.max},
+        "trees": {"count": t.trees.len(), "not_vegetation": t.not_vegetation, "heights": heights},
+    });
+    let files = d.files.iter().chain(&c.files).chain(&t.files);
+    let files: Vec<PathBuf> = files.map(|f| f.strip_prefix(&o.project).unwrap_or(f).to_path_buf()).collect();
+    Ok(done(files, summary, notes))
+}
+
 /// A file of the project, for the report.
 pub fn project_file(project: &Path, rel: &str) -> PathBuf {
     project.join(rel)

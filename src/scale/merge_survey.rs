@@ -149,6 +149,8 @@ pub fn merge_survey(
         crs: loaded.ds.crs.clone(),
         label: dir.display().to_string(),
         top,
+        // The merged DSM has no view-count raster: each block saw its own cells.
+        views: Vec::new(),
     };
     let mut first_run = Some(loaded);
     let nb = source.bands.len();

@@ -210,6 +210,7 @@ impl Prepared {
             transforms,
             band_transform,
             point_stride,
+            trees: desc.trees.clone(),
         })
     }
 }

@@ -77,6 +77,8 @@ pub struct Prepared {
     pub band_transform: Vec<usize>,
     /// Ground-truth point stride over (view, pixel).
     pub point_stride: usize,
+    /// The scene's trees (their truth: positions, heights, crowns).
+    pub trees: Vec<super::scene::TreeDesc>,
 }
 
 /// One rendered view.

@@ -12,6 +12,14 @@
 //!   truth/materials.tif` reports a DSM's or an orthomosaic's error per material (textured and uniform surfaces
 //!   apart; docs/geometry.md).
 //!
+//! - `dtm.tif`: the bare earth under every cell that has a surface (the ground plane, z = 0 plus the offset: under
+//!   buildings and crowns too);
+//! - `chm.tif`: the height of the first surface above the bare earth (`dsm - dtm`: 0 on open ground, a crown's or a
+//!   roof's height above it);
+//! - `trees.geojson` and `trees.csv`: every tree whose trunk stands inside the grid, as `msnerf export trees` writes
+//!   its table: the trunk's position, the height of the crown's top above the ground (trunk height + the crown's
+//!   vertical diameter), the crown's area (its ellipse, pi rx ry) and equivalent diameter.
+//!
 //! All are north-up GeoTIFFs on one grid, in the scene's `crs` when it has one.
 //!
 //! The grid covers what the cameras saw (the bounding box of the ground-truth surface points, snapped outward to
@@ -132,8 +140,8 @@ pub fn trace_grid(prep: &Prepared, g: &TruthGrid) -> TracedGrid {
     TracedGrid { dsm, refl, class, material }
 }
 
-/// Writes `truth/dsm.tif`, `ortho.tif`, `classes.tif` and `materials.tif` under `root` for the surface points the
-/// cameras saw.
+/// Writes `truth/dsm.tif`, `ortho.tif`, `classes.tif`, `materials.tif`, `dtm.tif`, `chm.tif` and the tree table
+/// under `root` for the surface points the cameras saw.
 pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<Option<TruthGrid>, SimError> {
     let Some(g) = grid_over(points, median_footprint(prep)) else { return Ok(None) };
     let TracedGrid { mut dsm, refl, class, material } = trace_grid(prep, &g);
@@ -149,7 +157,7 @@ pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<
         ..Default::default()
     };
     let height_band = vec![crate::output::image::band("height", None, None)];
-    let img = SpectralImage::from_planar(g.width, g.height, height_band, dsm)?;
+    let img = SpectralImage::from_planar(g.width, g.height, height_band, dsm.clone())?;
     write_geotiff(&dir.join("dsm.tif"), &img, &opts("first-surface height (world z, metres), straight down"))?;
     let bands: Vec<crate::data::Band> =
         prep.bands.iter().map(|b| crate::output::image::band(&b.name, Some(b.center_nm), Some(b.fwhm_nm))).collect();
@@ -161,5 +169,45 @@ pub fn write_truth(prep: &Prepared, root: &Path, points: &[[f64; 3]]) -> Result<
     let band = vec![crate::output::image::band(&material_band(prep), None, None)];
     let img = SpectralImage::from_planar(g.width, g.height, band, material)?;
     write_geotiff(&dir.join("materials.tif"), &img, &opts("the material the vertical ray hit"))?;
+    let ground = o[2] as f32;
+    let dtm: Vec<f32> = dsm.iter().map(|z| if z.is_finite() { ground } else { f32::NAN }).collect();
+    let chm: Vec<f32> = dsm.iter().map(|z| z - ground).collect();
+    let img = SpectralImage::single(g.width, g.height, crate::output::image::band("terrain height", None, None), dtm)?;
+    write_geotiff(&dir.join("dtm.tif"), &img, &opts("bare earth (world z, metres) under every surface"))?;
+    let band = crate::output::image::band("height above terrain", None, None);
+    let img = SpectralImage::single(g.width, g.height, band, chm)?;
+    write_geotiff(&dir.join("chm.tif"), &img, &opts("first surface above the bare earth (metres)"))?;
+    let trees = truth_trees(prep, &g);
+    let epsg = georef.epsg;
+    crate::products::trees::table::write_geojson(&dir.join("trees.geojson"), &trees, &[], epsg)?;
+    crate::products::trees::table::write_csv(&dir.join("trees.csv"), &trees, &[])?;
     Ok(Some(g))
+}
+
+/// The scene's trees whose trunk stands inside grid `g`, in world coordinates (see the module doc).
+pub fn truth_trees(prep: &Prepared, g: &TruthGrid) -> Vec<crate::products::trees::Tree> {
+    let o = prep.world_offset;
+    let (x1, y0) = (g.origin[0] + g.width as f64 * g.gsd, g.origin[1] - g.height as f64 * g.gsd);
+    prep.trees
+        .iter()
+        .filter(|t| (g.origin[0]..x1).contains(&t.position[0]) && (y0..g.origin[1]).contains(&t.position[1]))
+        .enumerate()
+        .map(|(i, t)| {
+            let area = std::f64::consts::PI * t.crown[0] * t.crown[1];
+            crate::products::trees::Tree {
+                id: i as u32 + 1,
+                x: t.position[0] + o[0],
+                y: t.position[1] + o[1],
+                height: t.trunk_height + 2.0 * t.crown[2],
+                ground_z: o[2],
+                crown_area: area,
+                crown_diameter: 2.0 * (t.crown[0] * t.crown[1]).sqrt(),
+                band_means: Vec::new(),
+                ndvi: None,
+                ndre: None,
+                support: None,
+                views: None,
+            }
+        })
+        .collect()
 }

@@ -276,6 +276,20 @@ fn survey_products(tmp: &std::path::Path, data: &std::path::Path, run: &str) {
         }
     }
     eprintln!("DSM quality codes (nodata, measured, interpolated, field only): {codes:?}");
+    // The view counts beside it: a count wherever the DSM has a height (at least the two agreeing views of a
+    // measured cell, at most the flight's views), NaN elsewhere.
+    let views = read_geotiff(&tmp.join("dsm_views.tif")).unwrap();
+    let n_views = msnerf::data::load_dataset(data, &Default::default()).unwrap().frames.len() as f32;
+    for r in 0..heights.grid.height {
+        for c in 0..heights.grid.width {
+            let (z, q, n) = (heights.value(0, c, r), quality.value(0, c, r), views.value(0, c, r));
+            assert_eq!(heights.is_nodata(z), n.is_nan(), "views {n} at ({c}, {r})");
+            assert!(n.is_nan() || (0.0..=n_views).contains(&n), "views {n} of {n_views} at ({c}, {r})");
+            if q == 1.0 {
+                assert!(n >= 2.0, "a measured cell seen by {n} views at ({c}, {r})");
+            }
+        }
+    }
     assert!(codes[1] > 500 && codes[3] > 0 && codes[2] == 0, "by default the field's heights stay: {codes:?}");
     assert!(text.contains("measured (photometric support)"), "{text}");
     // `--fill none`: only measured cells (fewer, none new); `--fill interpolate`: the cells the images do not support

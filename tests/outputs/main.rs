@@ -12,6 +12,7 @@ mod rig_support;
 #[path = "../sim_support/mod.rs"]
 mod sim_support;
 
+mod canopy;
 mod dsm_fill;
 mod export_surface;
 mod output_cog;
@@ -30,3 +31,4 @@ mod sim_radiometry;
 mod sim_raw_rig;
 mod sim_truth;
 mod survey_units;
+mod terrain_smrf;

@@ -191,3 +191,44 @@ fn a_weak_correlation_supports_the_point_without_moving_it() {
     let (r, _) = refine_from(&scene(0.3, 0.0), -4.0, 4, &RefineOptions::default());
     assert!(!r.supported && !r.moved, "{r:?}");
 }
+
+/// `holds_sweep` says whether a reference view would score every candidate of the sweep: checked against the sweep
+/// itself (the patch scored against the view's own copy at every coarse candidate) for points across a nadir and an
+/// oblique camera's frame, the border rows and columns included.
+#[test]
+fn a_reference_holds_the_sweep_exactly_when_every_candidate_scores() {
+    use msnerf::nerf::refine::{holds_sweep, plane_axes, score};
+    let cam = camera();
+    let opts = RefineOptions::default();
+    let (down, up) = ([0.0, 0.0, -1.0], [0.0, 0.0, 1.0]);
+    let mut seen = [0usize; 2];
+    for eye in [[0.0, 0.0, 20.0], [12.0, -5.0, 18.0]] {
+        let m = look_at(eye, [0.0, 0.0, 0.0], None);
+        let img = render(&cam, &m, 0.5, 0.2);
+        let v = PatchView {
+            origin: [m[0][3], m[1][3], m[2][3]],
+            rot: [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2]]),
+            cam: &cam,
+            planes: vec![img.as_slice()],
+        };
+        for row in (0..H).step_by(3) {
+            for col in (0..W).step_by(3) {
+                let r = cam.ray_f64(&m, row, col);
+                let t = -r.origin[2] / r.direction[2];
+                let p0 = [0, 1, 2].map(|k| r.origin[k] + t * r.direction[k]);
+                let holds = holds_sweep(&cam, v.origin, &v.rot, p0, down, up, &opts);
+                let fp = t / cam.fx;
+                let pair =
+                    [PatchView { planes: vec![img.as_slice()], ..v }, PatchView { planes: vec![img.as_slice()], ..v }];
+                let mut scratch = Vec::new();
+                let all = (-(opts.range as i64)..=opts.range as i64).all(|k| {
+                    let p = [p0[0], p0[1], p0[2] + k as f64 * fp * down[2]];
+                    score(p, plane_axes(up), fp, opts.half, &pair, &mut scratch).0.is_some()
+                });
+                assert_eq!(holds, all, "pixel ({row}, {col}) of the camera at {eye:?}");
+                seen[holds as usize] += 1;
+            }
+        }
+    }
+    assert!(seen[0] > 50 && seen[1] > 200, "both outcomes met: {seen:?}");
+}

@@ -182,7 +182,7 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
 
     // Products in the flight's UTM zone (32N), read back by GDAL and from the LAS bytes.
     let products = project.join("products");
-    for raster in ["dsm.tif", "ortho.tif", "ortho_ndvi.tif"] {
+    for raster in ["dsm.tif", "ortho.tif", "ortho_ndvi.tif", "dtm.tif", "chm.tif"] {
         let info = gdalinfo_json(&products.join(raster));
         let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or_default();
         assert!(wkt.contains("UTM zone 32N"), "{raster}: {wkt}");
@@ -220,6 +220,13 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     assert!(acc.dsm.count > 0 && acc.dsm_relative.count > 0);
     assert_eq!(acc.stages.len(), Stage::ALL.len());
     assert!(acc.direct.is_none());
+    // The terrain stage's products judged against the true bare earth and the scene's trees.
+    let dtm = acc.dtm.as_ref().expect("the DTM judged");
+    assert!(dtm.count > 0 && dtm.median_abs_m.is_finite(), "{dtm:?}");
+    let trees = acc.trees.as_ref().expect("the trees judged");
+    assert!(trees["known"].as_u64().unwrap() > 0 && trees["found"].is_u64(), "{trees}");
+    let terrain = &rec(Stage::Terrain)["summary"];
+    assert!(terrain["dtm"]["ground"].as_u64().unwrap() > 0, "{terrain}");
     // With ground control the products are judged as delivered: no shift is removed, and the points took the
     // simulated datum shift out (about a metre in every fix).
     assert!(acc.ground_control.is_some() && acc.datum_shift_m == [0.0; 3]);
@@ -229,7 +236,7 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     // The report: every section, every number finite, every image decodes.
     let html = std::fs::read_to_string(project.join("report.html")).unwrap();
     let (images, sections, words) = parse_report(&html);
-    for want in ["stages", "import", "registration", "poses", "products", "accuracy", "cloud"] {
+    for want in ["stages", "import", "registration", "poses", "products", "terrain", "accuracy", "cloud"] {
         assert!(sections.iter().any(|s| s == want), "section {want} missing: {sections:?}");
     }
     assert!(images.len() >= 4, "camera positions, hillshade, ortho and NDVI: {images:?}");
