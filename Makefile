@@ -5,7 +5,10 @@ export MSNERF_REQUIRE_VALIDATION ?= 1
 # Fresh GPU buffers hold NaN bits, so a read of memory nobody wrote fails a test on lavapipe as it would on NVIDIA.
 export MSNERF_POISON_BUFFERS ?= 1
 
-.PHONY: setup test lint build demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-gcp flight-acceptance-paper
+# Where `make install` puts the binary.
+PREFIX ?= $(HOME)/.local
+
+.PHONY: setup test lint build install terrain-report demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-gcp flight-acceptance-paper
 
 setup:
 	@bash tools/setup-debian.sh
@@ -25,6 +28,16 @@ devices: build
 
 demo: build
 	./target/release/msnerf demo
+
+# `msnerf` on the PATH: the release binary into $(PREFIX)/bin (default ~/.local/bin, on Debian's PATH at the next login).
+install: build
+	install -D -m 755 target/release/msnerf $(PREFIX)/bin/msnerf
+	@case ":$$PATH:" in *":$(PREFIX)/bin:"*) echo "msnerf installed in $(PREFIX)/bin";; \
+	  *) echo "msnerf installed in $(PREFIX)/bin, which is not on your PATH: add it (export PATH=\"$(PREFIX)/bin:\$$PATH\")";; esac
+
+# docs/results/terrain.md: DTM, CHM and trees on a ten-minute campus run against the simulator's truth (~15 min).
+terrain-report: build
+	bash tools/terrain-report.sh terrain-report-output 600
 
 # docs/accuracy-vs-time.md and its plots: the configs/sweeps/accuracy-report.yaml sweep on the built-in campus scene
 # (~20 min on 2 cores with lavapipe). Resumable: rerunning skips the cells already in accuracy-report-output/.

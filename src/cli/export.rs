@@ -85,7 +85,7 @@ pub struct PointcloudArgs {
     /// spread point of each cell
     #[arg(long, value_parser = super::finite_f64)]
     pub gsd: Option<f64>,
-    /// The export before issue 18 (accumulation threshold only): no spread filter, no consistency check, no
+    /// The earlier export (accumulation threshold only): no spread filter, no consistency check, no
     /// scene-box crop
     #[arg(long)]
     pub legacy: bool,

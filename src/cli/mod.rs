@@ -80,7 +80,7 @@ pub enum Command {
     CompareTrees(compare_trees::CompareTreesArgs),
     /// Train a grid of configurations under one budget: accuracy against time, CSV, plots and a report
     Sweep(sweep::SweepArgs),
-    /// Split a large flight into a grid of overlapping blocks, each a dataset of its own (issue 23)
+    /// Split a large flight into a grid of overlapping blocks, each a dataset of its own
     Partition(partition::PartitionArgs),
     /// Train every block of a `partition` folder, one `msnerf train` process per block, resumable
     TrainBlocks(partition::TrainBlocksArgs),

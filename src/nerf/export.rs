@@ -97,7 +97,7 @@ impl Default for ExportOptions {
 }
 
 impl ExportOptions {
-    /// The export before issue 18: accumulation threshold only, no spread or consistency filter.
+    /// The earlier export: accumulation threshold only, no spread or consistency filter.
     pub fn legacy(rays: usize, min_accumulation: f32, seed: u64) -> Self {
         Self {
             rays,

@@ -7,7 +7,7 @@
 //! each other, at least 20 px plus the window) that it fills to at least 80 % is the panel. Its corners are those extreme points, pushed
 //! out by the window's half width (the uniformity test erodes the patch by that much). Statistics are taken on
 //! the central part, the quadrilateral scaled by [`PANEL_INNER`] about its centre: on the RedEdge panel capture
-//! of shared/data/real the bright square is 220 px wide and MicaSense's own panel region (from the QR code and
+//! of tests/fixtures/real the bright square is 220 px wide and MicaSense's own panel region (from the QR code and
 //! the panel's layout) the central 161 px, so edge blur and the border of the reflective area stay out.
 
 use super::error::RigError;

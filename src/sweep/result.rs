@@ -32,7 +32,7 @@ pub struct TimePoint {
     pub geometry: Option<GeometryScore>,
 }
 
-/// Geometry at one evaluation point (issue 18): the held-out views' median depth against their depth maps
+/// Geometry at one evaluation point: the held-out views' median depth against their depth maps
 /// (`output::metrics::depth` conventions: + = in front of the surface) and the default careful point-cloud export
 /// against the ground-truth cloud (`output::compare`).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

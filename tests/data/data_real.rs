@@ -1,4 +1,4 @@
-//! Real sensor files from shared/data/real: MicaSense RedEdge rig TIFFs (XMP bands, black level) and a
+//! Real sensor files from tests/fixtures/real: MicaSense RedEdge rig TIFFs (XMP bands, black level) and a
 //! 5-band float GeoTIFF.
 
 use crate::rig_support;

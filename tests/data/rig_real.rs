@@ -1,4 +1,4 @@
-//! `msnerf import rig` on the real MicaSense RedEdge files of shared/data/real (issue 19's acceptance):
+//! `msnerf import rig` on the real MicaSense RedEdge files of tests/fixtures/real (issue 19's acceptance):
 //! radiance on the panel against MicaSense's model written here in plain f64 and against MicaSense's own test
 //! values (micasense/imageprocessing tests/test_panel.py, same panel image), panel detection against
 //! MicaSense's panel corners, the panel's reflectance coming back, and band registration of the flight capture

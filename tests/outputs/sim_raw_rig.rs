@@ -25,7 +25,7 @@
 //!   file's time and GPS, and the horizontal irradiance with NOAA's elevation (MicaSense recomputes the elevation for
 //!   old firmware) within 0.5 % of the truth.
 //! - `micasense_file_layout_matches_a_real_rededge_file`: every EXIF tag and XMP property (namespace URI and name)
-//!   of the real RedEdge flight file in shared/data/real is in the simulated one (the exceptions are listed below
+//!   of the real RedEdge flight file in tests/fixtures/real is in the simulated one (the exceptions are listed below
 //!   with their reasons), with the same value type and count, and the same XMP namespace URIs; units as MicaSense's
 //!   library reads them: PrincipalPoint and PerspectiveFocalLength (with PerspectiveFocalLengthUnits) in mm, DLS
 //!   Yaw/Pitch/Roll in radians, BlackLevel 4 x 4800 SHORT with BlackLevelRepeatDim 2x2, 16 bits holding 12-bit

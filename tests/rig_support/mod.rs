@@ -7,18 +7,15 @@ use std::path::PathBuf;
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
 
-/// `shared/data/real` (next to the checkout, or `$MSNERF_REAL_DATA`). Fails loudly: these tests must run.
+/// The real sensor files: `tests/fixtures/real` in the repository (with their licences), or `$MSNERF_REAL_DATA`.
+/// Fails loudly: these tests must run.
 pub fn real_dir() -> PathBuf {
-    let here = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let mut candidates = vec![here.join("../shared/data/real"), PathBuf::from("/work/shared/data/real")];
-    if let Ok(p) = std::env::var("MSNERF_REAL_DATA") {
-        candidates.insert(0, PathBuf::from(p));
-    }
-    candidates
-        .iter()
-        .find(|p| p.join("micasense-rededge").is_dir())
-        .cloned()
-        .unwrap_or_else(|| panic!("the real sensor files are missing: looked in {candidates:?} (set MSNERF_REAL_DATA)"))
+    let dir = match std::env::var("MSNERF_REAL_DATA") {
+        Ok(p) => PathBuf::from(p),
+        Err(_) => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/real"),
+    };
+    assert!(dir.join("micasense-rededge").is_dir(), "the real sensor files are missing from {}", dir.display());
+    dir
 }
 
 /// Reads a float32 chunky TIFF into per-band planes (width, height, bands).

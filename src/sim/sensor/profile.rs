@@ -136,7 +136,7 @@ fn lens(f: f64, cx: f64, cy: f64, d: [f64; 5]) -> Lens {
     Lens { fx: f, fy: f, cx, cy, k1: d[0], k2: d[1], k3: d[2], p1: d[3], p2: d[4] }
 }
 
-/// The vignetting polynomial of the real RedEdge Blue band (shared/data/real), the base of the MicaSense profiles.
+/// The vignetting polynomial of the real RedEdge Blue band (tests/fixtures/real), the base of the MicaSense profiles.
 const MICASENSE_VIGNETTING: [f64; 6] = [
     -3.188_190_987_533_484e-5,
     1.138_074_145_205_65e-7,
