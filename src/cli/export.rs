@@ -174,7 +174,7 @@ pub fn run(cli: &Cli, a: &ExportArgs) -> anyhow::Result<()> {
     anyhow::ensure!(ext_ok, "--out {}: the file must end in .ply or .las", a.out.display());
     let opts = a.export_options()?;
     let ctx = Context::new(&cli.context_desc())?;
-    if a.run.join("blocks.json").is_file() {
+    if crate::scale::is_blocks_folder(&a.run) {
         return export_blocks(&ctx, a, &opts);
     }
     let mut run = LoadedRun::load(&ctx, &a.run)?;

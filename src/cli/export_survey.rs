@@ -205,7 +205,7 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
     }
     outputs.indices.dedup();
     let ctx = Context::new(&cli.context_desc())?;
-    if a.run.join("blocks.json").is_file() {
+    if crate::scale::is_blocks_folder(&a.run) {
         return run_survey_blocks(&ctx, a, &opts, &outputs);
     }
     anyhow::ensure!(!a.partial, "--partial: {} is a run folder, not a `msnerf partition` folder", a.run.display());

@@ -211,7 +211,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
         anyhow::bail!("--orbit-views, --orbit-radius, --orbit-height and --orbit-pitch-deg need --views orbit");
     }
     let ctx = Context::new(&cli.context_desc())?;
-    if a.run.join("blocks.json").is_file() {
+    if crate::scale::is_blocks_folder(&a.run) {
         return run_blocks(&ctx, a);
     }
     anyhow::ensure!(!a.partial, "--partial: {} is a run folder, not a `msnerf partition` folder", a.run.display());

@@ -49,24 +49,8 @@ pub enum AlphaBackground {
     Refuse,
 }
 
-impl AlphaBackground {
-    /// The ground truth's background for a model's `rendering.background`, in training or in evaluation.
-    pub fn for_model(background: crate::nerf::config::Background, training: bool) -> AlphaBackground {
-        use crate::nerf::config::Background;
-        match background {
-            Background::LastSample | Background::Black => AlphaBackground::Black,
-            Background::White => AlphaBackground::White,
-            Background::Random if training => AlphaBackground::Refuse,
-            Background::Random => AlphaBackground::Black,
-        }
-    }
-
-    /// [`AlphaBackground::for_model`] for a model's whole `rendering` section: training with a `random` warm-up
-    /// (`random_background_steps`) refuses alpha as `random` does, since its first steps blend with random colours.
-    pub fn for_rendering(r: &crate::nerf::config::RenderingConfig, training: bool) -> AlphaBackground {
-        AlphaBackground::for_model(r.background_at(0, training), training)
-    }
-}
+// A model's background chooses among these (`nerf::config::Background::alpha_background`): the data layer does not
+// read the model's configuration.
 
 /// Where a frame's pixels come from.
 #[derive(Debug, Clone, PartialEq)]

@@ -178,7 +178,27 @@ fn is_zero(v: &u64) -> bool {
     *v == 0
 }
 
+impl Background {
+    /// What the ground truth of an image with alpha is composited over under this background, in training or in
+    /// evaluation ([`crate::data::AlphaBackground`]).
+    pub fn alpha_background(self, training: bool) -> crate::data::AlphaBackground {
+        use crate::data::AlphaBackground;
+        match self {
+            Background::LastSample | Background::Black => AlphaBackground::Black,
+            Background::White => AlphaBackground::White,
+            Background::Random if training => AlphaBackground::Refuse,
+            Background::Random => AlphaBackground::Black,
+        }
+    }
+}
+
 impl RenderingConfig {
+    /// [`Background::alpha_background`] for the whole section: training with a `random` warm-up
+    /// (`random_background_steps`) refuses alpha as `random` does, since its first steps blend with random colours.
+    pub fn alpha_background(&self, training: bool) -> crate::data::AlphaBackground {
+        self.background_at(0, training).alpha_background(training)
+    }
+
     /// The background of a training step (`train`) or of evaluation: `random` during the warm-up of
     /// [`RenderingConfig::random_background_steps`], `background` otherwise.
     pub fn background_at(&self, step: u64, train: bool) -> Background {

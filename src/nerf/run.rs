@@ -121,7 +121,7 @@ impl LoadedRun {
             .map_err(|e| NerfError::key(&info_path, "band_indices", e))?;
         let mut ds = load_run_dataset(Path::new(data), band_indices.as_deref(), &cfg.sampling)?;
         check_run_dataset(&info_path, &info, &ds)?;
-        ds.options.alpha_background = crate::data::AlphaBackground::for_rendering(&cfg.rendering, false);
+        ds.options.alpha_background = cfg.rendering.alpha_background(false);
         let checkpoint = dir.join("checkpoints/latest.msnp");
         let mut model = Model::new(ctx, &cfg, ds.n_bands(), ds.frames.len())?;
         model.store.load(&checkpoint)?;

@@ -280,7 +280,7 @@ pub fn train(ctx: &Context, opts: &TrainOptions) -> NerfResult<TrainSummary> {
     let depth_note = resolve_depth_supervision(&mut model_cfg, &ds);
     log::info!("depth supervision: {depth_note}");
     let cfg = &model_cfg;
-    ds.options.alpha_background = crate::data::AlphaBackground::for_rendering(&cfg.rendering, true);
+    ds.options.alpha_background = cfg.rendering.alpha_background(true);
     let bands = ds.n_bands();
     cfg.band_weights(bands)?;
     let train_frames = ds.split_indices(Split::Train);

@@ -19,4 +19,13 @@ pub mod slurm;
 pub mod slurm_time;
 
 pub use error::ScaleError;
+
+/// The file that makes a folder a `msnerf partition` output.
+pub const BLOCKS_FILE: &str = "blocks.json";
+
+/// Whether `path` is a `msnerf partition` folder (its blocks' runs) rather than one run: the commands that take
+/// either (`export`, `render`) decide here.
+pub fn is_blocks_folder(path: &std::path::Path) -> bool {
+    path.join(BLOCKS_FILE).is_file()
+}
 pub use partition::{partition, Block, Blocks, PartitionOptions};

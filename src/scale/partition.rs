@@ -265,7 +265,7 @@ pub fn partition_dataset(
         blocks,
         warnings,
     };
-    let p = stage.path.join("blocks.json");
+    let p = stage.path.join(super::BLOCKS_FILE);
     std::fs::write(&p, serde_json::to_vec_pretty(&result).expect("json")).map_err(ScaleError::io(&p))?;
     let gib = match slurm {
         Some(so) => Some(super::slurm::write_job_array_into(&stage.path, out, &result, so)?),

@@ -38,7 +38,7 @@ pub struct BlockRun {
 
 /// Reads `BLOCKS/blocks.json`.
 pub fn read_blocks(dir: &Path) -> Result<Blocks, ScaleError> {
-    let p = dir.join("blocks.json");
+    let p = dir.join(super::BLOCKS_FILE);
     let text = std::fs::read_to_string(&p).map_err(|e| ScaleError::Dataset {
         path: p.clone(),
         reason: format!("{e} (is this a folder written by `msnerf partition`?)"),

@@ -100,17 +100,17 @@ fn rgba_png_is_composited_over_the_background() {
 #[test]
 fn background_follows_the_model() {
     use msnerf::nerf::config::Background;
-    assert_eq!(AlphaBackground::for_model(Background::LastSample, true), AlphaBackground::Black);
-    assert_eq!(AlphaBackground::for_model(Background::Black, true), AlphaBackground::Black);
-    assert_eq!(AlphaBackground::for_model(Background::White, false), AlphaBackground::White);
-    assert_eq!(AlphaBackground::for_model(Background::Random, true), AlphaBackground::Refuse);
-    assert_eq!(AlphaBackground::for_model(Background::Random, false), AlphaBackground::Black);
+    assert_eq!(Background::LastSample.alpha_background(true), AlphaBackground::Black);
+    assert_eq!(Background::Black.alpha_background(true), AlphaBackground::Black);
+    assert_eq!(Background::White.alpha_background(false), AlphaBackground::White);
+    assert_eq!(Background::Random.alpha_background(true), AlphaBackground::Refuse);
+    assert_eq!(Background::Random.alpha_background(false), AlphaBackground::Black);
     // A `random` warm-up before `last_sample`: refused in training, black in evaluation.
     let r = msnerf::nerf::config::RenderingConfig { background: Background::LastSample, random_background_steps: 100 };
-    assert_eq!(AlphaBackground::for_rendering(&r, true), AlphaBackground::Refuse);
-    assert_eq!(AlphaBackground::for_rendering(&r, false), AlphaBackground::Black);
+    assert_eq!(r.alpha_background(true), AlphaBackground::Refuse);
+    assert_eq!(r.alpha_background(false), AlphaBackground::Black);
     let r = msnerf::nerf::config::RenderingConfig { random_background_steps: 0, ..r };
-    assert_eq!(AlphaBackground::for_rendering(&r, true), AlphaBackground::Black);
+    assert_eq!(r.alpha_background(true), AlphaBackground::Black);
 }
 
 fn write_dataset(dir: &Path, bytes: &[u8], bands: usize) {
