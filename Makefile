@@ -8,7 +8,7 @@ export MSNERF_POISON_BUFFERS ?= 1
 # Where `make install` puts the binary.
 PREFIX ?= $(HOME)/.local
 
-.PHONY: setup test lint build install terrain-report demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-gcp flight-acceptance-paper
+.PHONY: setup test test-fast lint build install terrain-report demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-gcp flight-acceptance-paper
 
 setup:
 	@bash tools/setup-debian.sh
@@ -19,6 +19,11 @@ lint: setup
 
 test: lint
 	$(CARGO) test --release
+
+# The edit-compile loop's tier (no lint, no COLMAP, no training runs): the library's unit tests and the kernel,
+# stability and outputs binaries. `make test` stays what CI runs.
+test-fast: setup
+	$(CARGO) test --release --lib --test kernels --test stability --test outputs
 
 build: setup
 	$(CARGO) build --release
