@@ -31,6 +31,7 @@ use crate::output::pointcloud::{read_cloud, PointCloud};
 use crate::output::raster::geotiff_read::read_geotiff;
 use crate::sim::sensor::flight::{prepare, RawRigOptions};
 use crate::sim::SceneDesc;
+use crate::util::stats::nearest_rank as pct;
 
 /// Errors of the benchmark name the file.
 #[derive(Debug, thiserror::Error)]
@@ -122,14 +123,6 @@ pub struct FlightAcceptance {
     pub relative_transform: Value,
     pub stages: Vec<Value>,
     pub direct: Option<Value>,
-}
-
-fn pct(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
 /// The raw-rig options the flight was simulated with (its truth records them).

@@ -20,6 +20,7 @@
 
 use super::camera::{camera_direction, Camera};
 use super::pose::{rotation_between, Mat4, PoseTransform};
+use crate::util::stats::nearest_rank as percentile;
 use glam::DVec3;
 
 /// Why the aerial normalisation does not apply (the caller falls back to `poses` and says so).
@@ -48,11 +49,6 @@ impl std::fmt::Display for NotAerial {
 /// Column `c` of a 4x4 pose (rows) as a vector.
 fn column(p: &Mat4, c: usize) -> DVec3 {
     DVec3::new(p[0][c], p[1][c], p[2][c])
-}
-
-fn percentile(v: &mut [f64], q: f64) -> f64 {
-    v.sort_unstable_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
 /// The ground the cameras see, in the levelled world frame (the world turned so that the cameras' mean up is +z).

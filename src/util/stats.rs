@@ -1,7 +1,8 @@
 //! Order statistics shared across layers, in the two conventions the code uses: [`median`] (the mean of the two
 //! middle values for an even count, as numpy and CloudCompare report it) and [`upper_median`] (the upper middle
 //! value: an element of the data, for robust estimators that must return one of their inputs' values). Both sort a
-//! copy by `total_cmp` and return NaN for no values; [`quantile`] interpolates between order statistics as numpy does.
+//! copy by `total_cmp` and return NaN for no values; [`quantile`] interpolates between order statistics as numpy does,
+//! [`nearest_rank`] picks the order statistic nearest the quantile (an element of the data).
 
 /// Median: the middle value, or the mean of the two middle values for an even count; NaN when empty.
 pub fn median(values: &[f64]) -> f64 {
@@ -50,4 +51,14 @@ pub fn quantile_of_sorted(s: &[f64], q: f64) -> f64 {
     } else {
         s[i]
     }
+}
+
+/// The order statistic nearest the `q` quantile (0..=1): `sorted[round((n - 1) q)]`, sorting `values` in place; NaN
+/// when empty.
+pub fn nearest_rank(values: &mut [f64], q: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    values[((values.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
 }

@@ -83,18 +83,8 @@ pub fn percentile(values: &[f32], p: f64) -> f64 {
 }
 
 fn percentile_of(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_unstable_by(|a, b| a.total_cmp(b));
-    let pos = (p / 100.0).clamp(0.0, 1.0) * (v.len() - 1) as f64;
-    let i = pos.floor() as usize;
-    let f = pos - i as f64;
-    if i + 1 < v.len() {
-        v[i] + (v[i + 1] - v[i]) * f
-    } else {
-        v[i]
-    }
+    v.sort_unstable_by(f64::total_cmp);
+    crate::util::stats::quantile_of_sorted(v, p / 100.0)
 }
 
 /// The display range of one band under `stretch`.

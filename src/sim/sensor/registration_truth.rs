@@ -43,6 +43,7 @@ use crate::rig::register::{fit_homography, fit_homography_weighted, Homography, 
 use crate::rig::warp::Warp;
 use crate::rig::RigError;
 use crate::sim::{Prepared, SceneDesc, SimError};
+use crate::util::stats::quantile_of_sorted as percentile_sorted;
 
 /// Why an evaluation could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -237,16 +238,6 @@ fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, Registrat
     let text =
         std::fs::read_to_string(path).map_err(|source| RegistrationTruthError::Io { path: path.into(), source })?;
     serde_json::from_str(&text).map_err(|e| RegistrationTruthError::Format { path: path.into(), reason: e.to_string() })
-}
-
-/// Linear-interpolation percentile (`q` in [0, 1]) of values sorted ascending; NaN when empty.
-fn percentile_sorted(s: &[f64], q: f64) -> f64 {
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    let pos = q.clamp(0.0, 1.0) * (s.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    s[lo] + (s[hi] - s[lo]) * (pos - lo as f64)
 }
 
 fn sorted(mut v: Vec<f64>) -> Vec<f64> {
