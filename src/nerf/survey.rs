@@ -461,12 +461,9 @@ pub fn render_survey(
                         let (origin, rot) = poses[f as usize];
                         holds_sweep(&run.ds.frames[f as usize].camera, origin, &rot, p, down, up, r)
                     };
-                    let rank = |f: u32| (holds(f), nadir(p, f));
+                    let rank: Vec<(bool, f64)> = partners.iter().map(|&f| (holds(f), nadir(p, f))).collect();
                     let best = (0..partners.len())
-                        .max_by(|&a, &b| {
-                            let (x, y) = (rank(partners[a]), rank(partners[b]));
-                            x.0.cmp(&y.0).then(x.1.total_cmp(&y.1))
-                        })
+                        .max_by(|&a, &b| rank[a].0.cmp(&rank[b].0).then(rank[a].1.total_cmp(&rank[b].1)))
                         .unwrap_or(0);
                     let frame = partners.swap_remove(best) as usize;
                     (k, RefinePoint { p, dir: down, frame, partners })

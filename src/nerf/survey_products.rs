@@ -126,16 +126,17 @@ pub fn view_counts(z: &[f32], grid: &SurveyGrid, views: &[ViewCamera]) -> Vec<f3
         .collect()
 }
 
-/// `<dsm stem>_views.tif`: [`view_counts`] as float32 on the DSM's grid (nodata NaN).
-fn write_views(
-    dsm: &Path,
+/// `<product stem>_views.tif`: per cell the training views that saw it ([`view_counts`]), float32 on the product's
+/// `w` x `h` grid (nodata NaN); `label` names the source.
+pub fn write_views(
+    product: &Path,
     counts: Vec<f32>,
-    grid: &SurveyGrid,
+    (w, h): (usize, usize),
     georef: &GeoReference,
     label: &str,
 ) -> Result<PathBuf, SurveyError> {
-    let path = sibling(dsm, "_views.tif");
-    let img = SpectralImage::single(grid.width, grid.height, band("views", None, None), counts)?;
+    let path = sibling(product, "_views.tif");
+    let img = SpectralImage::single(w, h, band("views", None, None), counts)?;
     let opts = GeoTiffOptions {
         nodata: Some(f64::NAN),
         georef: Some(*georef),
@@ -323,7 +324,7 @@ pub fn write_products(
         files.extend(write_quality(path, &dsm_quality, w, h, &georef, what, &source.label)?);
         if !source.views.is_empty() {
             let counts = view_counts(&dsm_cells, grid, &source.views);
-            files.push(write_views(path, counts, grid, &georef, &source.label)?);
+            files.push(write_views(path, counts, (w, h), &georef, &source.label)?);
         }
     }
     if let (Some(wr), Some(path)) = (ortho, &outputs.ortho) {
@@ -457,7 +458,8 @@ pub fn without_nodata(mut img: SpectralImage) -> SpectralImage {
     img
 }
 
-fn dsm_previews(path: &Path, pv: &CogPreview, gsd: f64) -> Result<Vec<PathBuf>, SurveyError> {
+/// [`height_previews`] of a height COG's preview level (`gsd`: the full resolution's cell size).
+pub fn dsm_previews(path: &Path, pv: &CogPreview, gsd: f64) -> Result<Vec<PathBuf>, SurveyError> {
     height_previews(path, &without_nodata(pv.image.clone()), gsd * pv.factor as f64)
 }
 

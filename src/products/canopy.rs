@@ -17,9 +17,9 @@ use super::trees::{
 };
 use super::ProductError;
 use crate::nerf::survey::quality;
-use crate::nerf::survey_products::{height_previews, sibling, write_quality, NODATA, PREVIEW_MAX};
+use crate::nerf::survey_products::{dsm_previews, sibling, write_quality, write_views, NODATA, PREVIEW_MAX};
 use crate::output::image::band_from_description;
-use crate::output::raster::geotiff_read::{read_geotiff, RasterGrid};
+use crate::output::raster::geotiff_read::{read_geotiff, GeoRaster, RasterGrid};
 use crate::output::raster::{CogOptions, CogWriter, GeoReference, GeoTiffOptions};
 use crate::output::SpectralImage;
 
@@ -118,10 +118,21 @@ pub fn write_height_cog(
     }
     let mut files = vec![path.to_path_buf()];
     if let Some(pv) = wr.finish()? {
-        let img = crate::nerf::survey_products::without_nodata(pv.image);
-        files.extend(height_previews(path, &img, hg.gsd * pv.factor as f64)?);
+        files.extend(dsm_previews(path, &pv, hg.gsd)?);
     }
     Ok(files)
+}
+
+/// The raster `<base stem><suffix>` beside `base` (its quality or view counts), checked to share `base`'s grid; None
+/// when there is none.
+fn sidecar(base: &HeightRaster, suffix: &str) -> Result<Option<GeoRaster>, ProductError> {
+    let path = sibling(&base.path, suffix);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let r = read_geotiff(&path)?;
+    require_same_grid(base, &path, &r.grid)?;
+    Ok(Some(r))
 }
 
 /// What [`make_dtm`] did.
@@ -168,12 +179,9 @@ pub fn make_dtm(dsm: &Path, out: &Path, p: &SmrfParams, use_field_heights: bool)
         return Err(ProductError::input(dsm, "no cell has a height (every cell is nodata)"));
     }
     let q_path = sibling(dsm, "_quality.tif");
-    let usable: Vec<bool> = if q_path.is_file() && !use_field_heights {
-        let q = read_geotiff(&q_path)?;
-        require_same_grid(&d, &q_path, &q.grid)?;
-        (0..n).map(|i| matches!(q.data[i] as u8, quality::MEASURED | quality::INTERPOLATED)).collect()
-    } else {
-        vec![true; n]
+    let usable: Vec<bool> = match sidecar(&d, "_quality.tif")?.filter(|_| !use_field_heights) {
+        Some(q) => q.data[..n].iter().map(|&c| matches!(c as u8, quality::MEASURED | quality::INTERPOLATED)).collect(),
+        None => vec![true; n],
     };
     let candidates = (0..n).filter(|&i| usable[i] && d.heights.z[i].is_finite()).count();
     if candidates == 0 {
@@ -254,10 +262,7 @@ pub fn make_chm(dsm: &Path, dtm: &Path, out: &Path) -> Result<ChmSummary, Produc
     ];
     let mut files = write_height_cog(out, &chm, s.georef(), "height above terrain", meta)?;
     // The DSM's quality, carried cell for cell: `export trees` does not take a field-only height for a crown.
-    let q_path = sibling(dsm, "_quality.tif");
-    if q_path.is_file() {
-        let q = read_geotiff(&q_path)?;
-        require_same_grid(&s, &q_path, &q.grid)?;
+    if let Some(q) = sidecar(&s, "_quality.tif")? {
         let codes: Vec<u8> =
             chm.z.iter().zip(&q.data).map(|(z, &c)| if z.is_finite() { c as u8 } else { quality::NODATA }).collect();
         let what = "CHM quality (the DSM's): 1 measured, 2 interpolated, 3 field only, 0 nodata";
@@ -265,23 +270,11 @@ pub fn make_chm(dsm: &Path, dtm: &Path, out: &Path) -> Result<ChmSummary, Produc
         files.extend(write_quality(out, &codes, w, h, &s.georef(), what, &dsm.display().to_string())?);
     }
     // And its view counts: `export trees` weighs a top seen by few images.
-    let v_path = sibling(dsm, "_views.tif");
-    if v_path.is_file() {
-        let v = read_geotiff(&v_path)?;
-        require_same_grid(&s, &v_path, &v.grid)?;
+    if let Some(v) = sidecar(&s, "_views.tif")? {
         let counts: Vec<f32> =
             chm.z.iter().zip(&v.data).map(|(z, &n)| if z.is_finite() { n } else { f32::NAN }).collect();
-        let img =
-            SpectralImage::single(chm.width, chm.height, crate::output::image::band("views", None, None), counts)?;
-        let path = sibling(out, "_views.tif");
-        let opts = GeoTiffOptions {
-            nodata: Some(f64::NAN),
-            georef: Some(s.georef()),
-            bigtiff: None,
-            metadata: vec![("msnerf_product".into(), "training views of each cell (the DSM's)".into())],
-        };
-        crate::output::raster::write_geotiff(&path, &img, &opts)?;
-        files.push(path);
+        let size = (chm.width, chm.height);
+        files.push(write_views(out, counts, size, &s.georef(), &dsm.display().to_string())?);
     }
     Ok(ChmSummary { files, cells, above_2m, max })
 }
@@ -360,23 +353,10 @@ pub fn make_trees(
         }
     };
     // Which cells the DSM measured or interpolated (the CHM's quality, copied from the DSM's): a crown needs some.
-    let q_path = sibling(chm, "_quality.tif");
-    let supported: Option<Vec<bool>> = if q_path.is_file() {
-        let q = read_geotiff(&q_path)?;
-        require_same_grid(&c, &q_path, &q.grid)?;
-        Some(q.data.iter().map(|&code| matches!(code as u8, quality::MEASURED | quality::INTERPOLATED)).collect())
-    } else {
-        None
-    };
+    let supported: Option<Vec<bool>> = sidecar(&c, "_quality.tif")?
+        .map(|q| q.data.iter().map(|&code| matches!(code as u8, quality::MEASURED | quality::INTERPOLATED)).collect());
     // How many training images saw each cell (the CHM's copy of the DSM's view counts).
-    let v_path = sibling(chm, "_views.tif");
-    let views: Option<Vec<f32>> = if v_path.is_file() {
-        let v = read_geotiff(&v_path)?;
-        require_same_grid(&c, &v_path, &v.grid)?;
-        Some(v.data)
-    } else {
-        None
-    };
+    let views: Option<Vec<f32>> = sidecar(&c, "_views.tif")?.map(|v| v.data);
     // Tops, crowns and heights on the smoothed surface (a top's own cell may be a pit between leaves).
     let smooth = median_3x3(&c.heights);
     let top_cells = find_tops(&smooth, tops);

@@ -86,10 +86,11 @@ pub fn describe_trees(
             }
         }
     }
-    let index = |ix: VegetationIndex, means: &[f64]| -> Option<f64> {
-        let b = bands?;
-        let which = bands_for_index(&b.bands, ix, DEFAULT_TOLERANCE_NM).ok()?;
-        let v: Vec<f64> = which.iter().map(|&k| means[k]).collect();
+    // Each index's input bands, resolved once (None when the bands do not allow it).
+    let inputs = |ix: VegetationIndex| bands.and_then(|b| bands_for_index(&b.bands, ix, DEFAULT_TOLERANCE_NM).ok());
+    let (ndvi_bands, ndre_bands) = (inputs(VegetationIndex::Ndvi), inputs(VegetationIndex::Ndre720));
+    let index = |ix: VegetationIndex, which: &Option<Vec<usize>>, means: &[f64]| -> Option<f64> {
+        let v: Vec<f64> = which.as_ref()?.iter().map(|&k| means[k]).collect();
         Some(ix.formula(&v)).filter(|x| x.is_finite())
     };
     tops.iter()
@@ -115,8 +116,8 @@ pub fn describe_trees(
                 ground_z: dtm.map_or(f64::NAN, |d| d.z[cell] as f64),
                 crown_area: a,
                 crown_diameter: 2.0 * (a / std::f64::consts::PI).sqrt(),
-                ndvi: index(VegetationIndex::Ndvi, &band_means),
-                ndre: index(VegetationIndex::Ndre720, &band_means),
+                ndvi: index(VegetationIndex::Ndvi, &ndvi_bands, &band_means),
+                ndre: index(VegetationIndex::Ndre720, &ndre_bands, &band_means),
                 views: None,
                 support: supported.map(|_| if area[t] > 0 { sup[t] as f64 / area[t] as f64 } else { 0.0 }),
                 band_means,
