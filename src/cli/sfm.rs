@@ -46,6 +46,9 @@ pub struct SfmArgs {
     /// GPS noise floor for the robust geo-registration, metres
     #[arg(long, value_parser = super::finite_f64, default_value_t = 1.0)]
     pub gps_error: f64,
+    /// With ground control: keep the similarity fit alone, without the bundle adjustment on the control points
+    #[arg(long)]
+    pub no_adjust: bool,
     /// Threads for COLMAP (default: all cores)
     #[arg(long)]
     pub threads: Option<usize>,
@@ -73,6 +76,7 @@ pub fn run(a: &SfmArgs) -> anyhow::Result<()> {
     o.crs = a.crs.as_deref().map(crate::geo::Crs::parse).transpose().map_err(|e| anyhow::anyhow!("--crs: {e}"))?;
     o.no_georef = a.no_georef;
     o.gps_error_m = a.gps_error;
+    o.no_adjust = a.no_adjust;
     if let Some(t) = a.threads {
         anyhow::ensure!(t > 0, "--threads must be > 0");
         o.threads = t;

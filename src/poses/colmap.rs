@@ -33,9 +33,11 @@ pub struct ColmapImage {
     pub t: [f64; 3],
     pub camera_id: u32,
     pub name: String,
+    /// The image's 2-D points (pixels, the image's corner at 0), indexed as the points' tracks index them.
+    pub points2d: Vec<[f64; 2]>,
 }
 
-/// One 3-D point with its track (image ids).
+/// One 3-D point with its track (image ids, and each image's 2-D point index beside it).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ColmapPoint {
     pub id: u64,
@@ -43,6 +45,8 @@ pub struct ColmapPoint {
     pub rgb: [u8; 3],
     pub error: f64,
     pub images: Vec<u32>,
+    /// Index of the observation in its image's `points2d`, one per entry of `images`.
+    pub point2d: Vec<u32>,
 }
 
 /// A whole sparse model.
@@ -162,8 +166,18 @@ pub fn read_text(dir: &Path) -> Result<ColmapModel, PoseError> {
         let camera_id: u32 = num(&p, ln, "CAMERA_ID", Some(f[8]))?;
         // Names may contain spaces: everything after the camera id.
         let name = f[9..].join(" ");
-        m.images.push(ColmapImage { id, q, t, camera_id, name });
-        i += 2; // skip the POINTS2D line (possibly empty)
+        // The POINTS2D line (possibly empty): X Y POINT3D_ID triplets.
+        let pl = raw.get(i + 1).map_or("", |l| l.trim());
+        let v: Vec<&str> = pl.split_whitespace().collect();
+        if v.len() % 3 != 0 {
+            return Err(PoseError::parse(&p, format!("line {}", ln + 1), "POINTS2D: expected X Y POINT3D_ID triplets"));
+        }
+        let points2d = v
+            .chunks(3)
+            .map(|c| Ok([num(&p, ln + 1, "X", Some(c[0]))?, num(&p, ln + 1, "Y", Some(c[1]))?]))
+            .collect::<Result<_, PoseError>>()?;
+        m.images.push(ColmapImage { id, q, t, camera_id, name, points2d });
+        i += 2;
     }
     let p = dir.join("points3D.txt");
     if p.is_file() {
@@ -180,12 +194,15 @@ pub fn read_text(dir: &Path) -> Result<ColmapModel, PoseError> {
             let rgb = [num(&p, ln, "R", Some(f[4]))?, num(&p, ln, "G", Some(f[5]))?, num(&p, ln, "B", Some(f[6]))?];
             let images =
                 f[8..].chunks(2).map(|c| num(&p, ln, "IMAGE_ID", c.first().copied())).collect::<Result<_, _>>()?;
+            let point2d =
+                f[8..].chunks(2).map(|c| num(&p, ln, "POINT2D_IDX", c.get(1).copied())).collect::<Result<_, _>>()?;
             m.points.push(ColmapPoint {
                 id: num(&p, ln, "POINT3D_ID", Some(f[0]))?,
                 xyz,
                 rgb,
                 error: num(&p, ln, "ERROR", Some(f[7]))?,
                 images,
+                point2d,
             });
         }
     }
@@ -281,12 +298,12 @@ pub fn read_binary(dir: &Path) -> Result<ColmapModel, PoseError> {
         let camera_id = r.i32()? as u32;
         let name = r.name()?;
         let np = r.count(24)?;
+        let mut points2d = Vec::with_capacity(np);
         for _ in 0..np {
-            r.f64()?;
-            r.f64()?;
+            points2d.push([r.f64()?, r.f64()?]);
             r.i64()?;
         }
-        m.images.push(ColmapImage { id, q, t, camera_id, name });
+        m.images.push(ColmapImage { id, q, t, camera_id, name, points2d });
     }
     let p = dir.join("points3D.bin");
     if p.is_file() {
@@ -301,11 +318,12 @@ pub fn read_binary(dir: &Path) -> Result<ColmapModel, PoseError> {
             let error = r.f64()?;
             let tl = r.count(8)?;
             let mut images = Vec::with_capacity(tl);
+            let mut point2d = Vec::with_capacity(tl);
             for _ in 0..tl {
                 images.push(r.i32()? as u32);
-                r.i32()?;
+                point2d.push(r.i32()? as u32);
             }
-            m.points.push(ColmapPoint { id, xyz, rgb, error, images });
+            m.points.push(ColmapPoint { id, xyz, rgb, error, images, point2d });
         }
     }
     super::colmap_rigs::compose(dir, &mut m, true)?;

@@ -317,6 +317,18 @@ pub fn write_report(project: &Path, flight: &Path) -> Result<PathBuf, ProcessErr
             num(c.get("check_rms_m").and_then(Value::as_f64), 3)
         );
         s += &table(&["point", "views", "reprojection (px)", "residual E / N / U (m)", "check E / N / U (m)"], &rows);
+        if let Some(a) = c.get("adjustment").and_then(Value::as_object) {
+            let _ = write!(
+                s,
+                "<p>Bundle adjustment on the control points: {} iterations over {} observations, reprojection RMS {}                  -> {} px. The similarity fit alone: residual RMS {} m, check RMS {} m.</p>",
+                a.get("iterations").and_then(Value::as_u64).unwrap_or(0),
+                a.get("observations").and_then(Value::as_u64).unwrap_or(0),
+                num(a.get("rms_px_before").and_then(Value::as_f64), 2),
+                num(a.get("rms_px_after").and_then(Value::as_f64), 2),
+                num(a.get("similarity_rms_m").and_then(Value::as_f64), 3),
+                num(a.get("similarity_check_rms_m").and_then(Value::as_f64), 3)
+            );
+        }
         if let Some(g) = c.get("gps_shift_m").filter(|g| g.is_array()) {
             let _ = write!(
                 s,

@@ -85,9 +85,13 @@ pub struct Placed {
     pub views: usize,
     /// Mean reprojection error of the views used (pixels).
     pub reprojection_px: f64,
+    /// The observations used: (image file stem, pixel).
+    #[serde(skip)]
+    pub observations: Vec<(String, [f64; 2])>,
 }
 
-fn params(cam: &PoseCamera) -> ([f64; 4], [f64; 6]) {
+/// fx, fy, cx, cy and the distortion (k1, k2, k3, k4, p1, p2) of `cam`.
+pub fn params(cam: &PoseCamera) -> ([f64; 4], [f64; 6]) {
     let k = |n: &str| cam.keys.iter().find(|(key, _)| *key == n).map_or(0.0, |(_, v)| *v);
     let fx = k("fl_x");
     let fy = if cam.keys.iter().any(|(key, _)| *key == "fl_y") { k("fl_y") } else { fx };
@@ -194,6 +198,7 @@ pub fn place(model: &PoseModel, gc: &GroundControl) -> (Vec<Placed>, Vec<String>
                 model: x,
                 views: obs.len(),
                 reprojection_px: errs.iter().sum::<f64>() / errs.len() as f64,
+                observations: obs.iter().map(|(_, px, file)| (stem(file), *px)).collect(),
             }),
             Some((_, errs)) => notes.push(format!(
                 "point {}: its {} views disagree ({:.1} px reprojection error); not used",

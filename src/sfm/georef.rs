@@ -45,6 +45,9 @@ pub struct ControlReport {
     pub gps_shift_m: Option<[f64; 3]>,
     /// Observations and points left out, each named.
     pub notes: Vec<String>,
+    /// The bundle adjustment on the control points (`super::adjusted`), when it ran: the residuals, check
+    /// residuals and datum shift above are then the adjusted model's.
+    pub adjustment: Option<super::adjusted::AdjustmentReport>,
 }
 
 /// The fit and how well the GPS agrees with it.
@@ -77,6 +80,18 @@ impl GeoFit {
                 c.rms_m,
                 c.check_rms_m.map_or("n/a".into(), |r| format!("{r:.3} m (each point left out of the fit in turn)"))
             ));
+            if let Some(a) = &c.adjustment {
+                v.push(format!(
+                    "bundle adjustment on the control points: {} iterations, {} observations, reprojection rms \
+                     {:.2} -> {:.2} px; before it (similarity only) residual rms {:.3} m, check rms {}",
+                    a.iterations,
+                    a.observations,
+                    a.rms_px_before,
+                    a.rms_px_after,
+                    a.similarity_rms_m,
+                    a.similarity_check_rms_m.map_or("n/a".into(), |r| format!("{r:.3} m"))
+                ));
+            }
             if let Some(g) = c.gps_shift_m {
                 v.push(format!(
                     "GPS datum shift found by the control points: E {:+.3}, N {:+.3}, U {:+.3} m",
@@ -145,7 +160,8 @@ pub fn robust_fit(names: &[String], model: &[[f64; 3]], gps: &[[f64; 3]], min_er
     })
 }
 
-fn rms(v: impl Iterator<Item = f64>) -> f64 {
+/// Root mean square of `v` (0 when empty).
+pub fn rms(v: impl Iterator<Item = f64>) -> f64 {
     let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
     if n == 0 {
         0.0
@@ -249,6 +265,7 @@ pub fn fit_with_control(
             check_rms_m: (!checks.is_empty()).then(|| rms(checks.iter().copied())),
             points,
             notes,
+            adjustment: None,
         }),
     })
 }

@@ -13,6 +13,8 @@
 //! 5. `crate::poses::apply_poses` writes the poses, intrinsics and sparse points into the dataset (the old
 //!    `transforms.json` kept as a backup, unregistered frames listed in `unregistered_frames`).
 
+pub mod adjusted;
+pub mod bundle;
 pub mod colmap;
 pub mod control;
 pub mod georef;

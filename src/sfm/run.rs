@@ -82,8 +82,10 @@ pub struct SfmOptions {
     pub crs: Option<Crs>,
     /// Leave the model in COLMAP's frame even when the frames have GPS.
     pub no_georef: bool,
-    /// GPS noise floor for the robust fit (metres).
+    /// GPS noise floor for the robust fit (metres); also the fixes' standard deviation in the bundle adjustment.
     pub gps_error_m: f64,
+    /// With ground control, keep the similarity fit alone (no bundle adjustment on the control points).
+    pub no_adjust: bool,
     pub threads: usize,
 }
 
@@ -102,6 +104,7 @@ impl SfmOptions {
             crs: None,
             no_georef: false,
             gps_error_m: 1.0,
+            no_adjust: false,
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
         }
     }
@@ -240,9 +243,12 @@ fn unscale(m: &mut ColmapModel, factor: u32) {
         c.width /= u64::from(factor);
         c.height /= u64::from(factor);
     }
-    // Reprojection errors in the dataset's pixels too.
+    // Reprojection errors and the 2-D points in the dataset's pixels too.
     for p in &mut m.points {
         p.error /= f;
+    }
+    for im in &mut m.images {
+        im.points2d.iter_mut().for_each(|p| *p = [p[0] / f, p[1] / f]);
     }
 }
 
@@ -545,7 +551,14 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
         .map_err(|e| {
             dataset_err(&tpath, format!("geo-registration to GPS: {e}; pass --no-georef to keep COLMAP's frame"))
         })?;
+        let mut fit = fit;
         georef::apply(&mut model, &fit.similarity);
+        if let (Some(gc), Some(report)) = (&control, fit.control.as_mut()) {
+            if !o.no_adjust {
+                adjust_on_control(&mut model, &cm, gc, report, (&names, &dst, &fit.rejected), o.gps_error_m)
+                    .map_err(|e| dataset_err(&tpath, format!("bundle adjustment on the ground control: {e}")))?;
+            }
+        }
         model.crs = Some(crs);
         georef_fit = Some(fit);
     }
@@ -575,4 +588,41 @@ pub fn run_sfm(o: &SfmOptions) -> Result<SfmReport, SfmError> {
     crate::util::atomic::write_bytes(&ws.join("sfm_report.json"), text.as_bytes())
         .map_err(|e| dataset_err(&ws.join("sfm_report.json"), e.to_string()))?;
     Ok(report)
+}
+
+/// Runs [`super::adjusted::adjust_with_control`] on the georeferenced `model` with the points of `gc` placed again
+/// in its frame and the GPS pairs (`names`, `fixes`) the fit kept, and puts the adjusted residuals into `report`.
+fn adjust_on_control(
+    model: &mut crate::poses::model::PoseModel,
+    cm: &ColmapModel,
+    gc: &super::control::GroundControl,
+    report: &mut georef::ControlReport,
+    (names, fixes, rejected): (&[String], &[[f64; 3]], &[String]),
+    gps_sigma: f64,
+) -> Result<(), String> {
+    let (placed, _) = super::control::place(model, gc);
+    if placed.is_empty() {
+        return Ok(());
+    }
+    let by_stem: HashMap<String, usize> = model.images.iter().enumerate().map(|(i, im)| (stem(&im.name), i)).collect();
+    let gps: Vec<(usize, [f64; 3])> = names
+        .iter()
+        .zip(fixes)
+        .filter(|(n, _)| !rejected.contains(n))
+        .filter_map(|(n, f)| by_stem.get(&stem(n)).map(|&i| (i, *f)))
+        .collect();
+    let super::adjusted::Adjusted { report: mut adj, points, gps_shift_m: offset } =
+        super::adjusted::adjust_with_control(model, cm, &gps, gps_sigma, &placed)?;
+    adj.similarity_rms_m = report.rms_m;
+    adj.similarity_check_rms_m = report.check_rms_m;
+    let len = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    report.rms_m = georef::rms(points.iter().map(|p| len(p.residual_m)));
+    let checks: Vec<f64> = points.iter().filter_map(|p| p.check_m.map(len)).collect();
+    report.check_rms_m = (!checks.is_empty()).then(|| georef::rms(checks.iter().copied()));
+    if offset.is_some() {
+        report.gps_shift_m = offset;
+    }
+    report.points = points;
+    report.adjustment = Some(adj);
+    Ok(())
 }

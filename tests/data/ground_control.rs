@@ -167,7 +167,14 @@ fn scene() -> (Similarity, Vec<[f64; 3]>, Vec<[f64; 3]>) {
 }
 
 fn placed(name: &str, world: [f64; 3], model: [f64; 3]) -> msnerf::sfm::control::Placed {
-    msnerf::sfm::control::Placed { name: name.into(), xyz: world, model, views: 5, reprojection_px: 0.3 }
+    msnerf::sfm::control::Placed {
+        name: name.into(),
+        xyz: world,
+        model,
+        views: 5,
+        reprojection_px: 0.3,
+        observations: Vec::new(),
+    }
 }
 
 #[test]

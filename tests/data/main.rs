@@ -32,5 +32,6 @@ mod rig_import;
 mod rig_real;
 mod rig_registration_truth;
 mod rig_resample;
+mod sfm_bundle;
 mod sfm_colmap;
 mod sfm_georef;

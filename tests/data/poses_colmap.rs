@@ -196,6 +196,16 @@ fn colmap_text_and_binary_models_import_within_1e6() {
         unposed_copy(&data, &d);
         let m = read_model(&model).unwrap();
         assert_eq!(m.images.len(), t.names.len() - skip.len() + 1);
+        // The 2-D points (the bundle adjustment's observations), as written above.
+        for im in &m.images {
+            let want: Vec<[f64; 2]> = match (kind, im.id % 2) {
+                ("bin", _) => vec![[12.5, 7.25]],
+                (_, 0) => vec![],
+                _ => vec![[10.5, 20.5], [30.0, 40.0]],
+            };
+            assert_eq!(im.points2d, want, "{kind} image {}", im.id);
+        }
+        assert!(m.points.iter().all(|p| p.point2d.len() == p.images.len() && p.point2d.iter().all(|&k| k == 0)));
         let rep = apply_poses(&pm(&m, &model), &model, &d).unwrap();
         assert_eq!(rep.registered, t.names.len() - skip.len());
         assert_eq!(rep.unknown_images, vec!["ghost_0001.png".to_string()]);

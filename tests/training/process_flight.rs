@@ -166,6 +166,10 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
     let control = &poses["georef"]["control"];
     assert_eq!(control["points"].as_array().map(|p| p.len()), Some(5), "{poses}");
     assert!(control["check_rms_m"].as_f64().unwrap() < 0.5, "{control}");
+    // The bundle adjustment on the control points ran and did not make the images disagree.
+    let adj = &control["adjustment"];
+    assert!(adj["iterations"].as_u64().unwrap() >= 1, "{control}");
+    assert!(adj["rms_px_after"].as_f64().unwrap() <= adj["rms_px_before"].as_f64().unwrap() + 0.05, "{control}");
 
     // One host budget for the flight: the exports hold decoded training images within the training cache's budget.
     let budget = rec(Stage::Train)["summary"]["host_budget_bytes"].as_u64().expect("the train stage's host budget");
@@ -251,7 +255,12 @@ fn a_raw_flight_becomes_survey_products_and_a_report_in_one_call_and_reruns_skip
         }
     }
     assert!(words.iter().any(|w| w == "PSNR"), "the held-out table");
-    assert!(html.contains("Ground control") && html.contains("datum shift, found by the points"), "GCP section");
+    assert!(
+        html.contains("Ground control")
+            && html.contains("datum shift, found by the points")
+            && html.contains("Bundle adjustment on the control points"),
+        "GCP section"
+    );
     assert!(html.contains("planned host memory") && html.contains("measured (photometric support)"));
 
     // A rerun: every stage current, nothing rewritten.
