@@ -8,7 +8,7 @@ export MSNERF_POISON_BUFFERS ?= 1
 # Where `make install` puts the binary.
 PREFIX ?= $(HOME)/.local
 
-.PHONY: setup test test-fast lint build install terrain-report demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-gcp flight-acceptance-paper
+.PHONY: setup test test-fast lint build install cli-reference terrain-report demo devices bench clean accuracy-report accuracy-report-5min mlp-precision-report geometry-report geometry-sweep background-seeds survey-report import-bench rig-parallax test-slurm scale-acceptance flight-acceptance flight-acceptance-gcp flight-acceptance-paper
 
 setup:
 	@bash tools/setup-debian.sh
@@ -39,6 +39,10 @@ install: build
 	install -D -m 755 target/release/msnerf $(PREFIX)/bin/msnerf
 	@case ":$$PATH:" in *":$(PREFIX)/bin:"*) echo "msnerf installed in $(PREFIX)/bin";; \
 	  *) echo "msnerf installed in $(PREFIX)/bin, which is not on your PATH: add it (export PATH=\"$(PREFIX)/bin:\$$PATH\")";; esac
+
+# The CLI reference (docs/reference/cli.md) written again from the binary's help; a test fails when it is stale.
+cli-reference:
+	MSNERF_UPDATE_REFERENCE=1 cargo test --release --lib cli_reference
 
 # docs/results/terrain.md: DTM, CHM and trees on a ten-minute campus run against the simulator's truth (~15 min).
 terrain-report: build

@@ -16,6 +16,7 @@ pub mod partition;
 pub mod plan;
 pub mod preview;
 pub mod process;
+pub mod reference;
 pub mod refine_args;
 pub mod render;
 pub mod sfm;

@@ -4,7 +4,7 @@
 //! `RaySamples.get_weights`, `interlevel_loss`/`lossfun_outer`, `distortion_loss`/`lossfun_distortion` and torch
 //! autograd in float64). A missing or unreadable fixture fails the test.
 //!
-//! How the quantities map (docs: README "Testing"; spec/nerfacto.md §2.7, §2.12):
+//! How the quantities map (docs/design/testing.md; spec/nerfacto.md §2.7, §2.12):
 //! - PDF: nerfstudio's eval-mode `PDFSampler(include_original=False, histogram_padding=0.01)` fed
 //!   `torch.pow(w, anneal)` (ProposalNetworkSampler's line) = msnerf's `pdf_resample(.., anneal, u, jitter=false)`.
 //! - interlevel: nerfstudio's loss is the mean over rays and NeRF samples of `lossfun_outer`, summed over proposal
