@@ -7,7 +7,6 @@
 //! simulated dataset carries SfM points (noise 0.1 m) and training uses them for DS-NeRF depth supervision
 //! (docs/geometry.md); `--images-only` trains on the images alone, for comparison.
 
-use super::render::{write_view, RenderArgs};
 use super::Cli;
 use crate::data::Split;
 use crate::gpu::Context;
@@ -17,7 +16,9 @@ use crate::nerf::run::LoadedRun;
 use crate::nerf::trainer::{train, TrainOptions};
 use crate::output::compare::{compare_clouds, CompareOptions};
 use crate::output::pointcloud::read_ply;
+use crate::output::raster::indices::VegetationIndex;
 use crate::products::cloud::{write_cloud, CloudFilter};
+use crate::products::views::{write_contact_sheet, write_view, ViewOptions};
 use crate::sim::sparse::SparseOptions;
 use crate::sim::{simulate, SceneDesc, SimOptions};
 use std::path::{Path, PathBuf};
@@ -114,28 +115,13 @@ pub fn run(cli: &Cli, a: &DemoArgs) -> anyhow::Result<()> {
 
     println!("[4/6] rendering CIR and NDVI previews");
     std::fs::create_dir_all(&renders)?;
-    let rargs = RenderArgs {
-        run: run_dir.clone(),
-        views: "eval".into(),
-        out: renders.clone(),
-        exr: false,
-        indices: vec!["NDVI".into(), "NDRE720".into()],
-        stretch: "reflectance".into(),
-        sheet_views: 4,
-        orbit: Default::default(),
-        partial: false,
-        blend_mib: 1024,
-    };
+    let vo = ViewOptions { indices: vec![VegetationIndex::Ndvi, VegetationIndex::Ndre720], ..Default::default() };
     let frames = run.ds.split_indices(Split::Eval);
     let mut tiles = Vec::new();
     for &f in frames.iter().take(2) {
-        tiles.extend(write_view(&mut run, f, &renders, &rargs)?.tiles);
+        tiles.extend(write_view(&mut run, f, &renders, &vo)?.tiles);
     }
-    let per_view = tiles.len() / frames.len().clamp(1, 2);
-    let t: Vec<_> =
-        tiles.iter().map(|(l, i)| crate::output::raster::contact::Tile { image: i, label: Some(l.as_str()) }).collect();
-    crate::output::raster::contact::contact_sheet(&t, per_view.max(1), 4, [32, 32, 32])?
-        .write_png(&renders.join("contact_sheet.png"))?;
+    write_contact_sheet(&tiles, tiles.len() / frames.len().clamp(1, 2), &renders)?;
 
     println!("[5/6] exporting the multispectral point cloud");
     // The same export and filters as `msnerf export pointcloud` (their defaults), at 100,000 rays.

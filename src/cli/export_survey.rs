@@ -12,9 +12,9 @@ use crate::gpu::Context;
 use crate::nerf::run::LoadedRun;
 use crate::nerf::survey::{seen_bounds, DsmFill, SurveyGrid, SurveyOptions};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
-use crate::output::raster::geotiff_read::read_grid;
 use crate::output::raster::indices::VegetationIndex;
 use crate::products::cloud::careful_filters;
+use crate::products::survey_grid::{choose_grid, parse_bounds, GridSpec};
 
 #[derive(clap::Args, Debug)]
 pub struct SurveyArgs {
@@ -125,73 +125,23 @@ impl SurveyArgs {
         })
     }
 
-    /// The grid: --align-to's, or --gsd over --bounds (default: `seen`, what the training cameras saw). `crs`: the
-    /// dataset's, which --align-to's must match.
+    /// The grid the flags ask for (`products::survey_grid`); `seen`: what the training cameras saw.
     fn grid(
         &self,
         crs: Option<&crate::geo::Crs>,
-        seen: impl FnOnce() -> anyhow::Result<[f64; 4]>,
+        seen: impl FnOnce() -> Result<[f64; 4], crate::products::ProductError>,
     ) -> anyhow::Result<SurveyGrid> {
-        if let Some(path) = &self.align_to {
+        let spec = if let Some(p) = &self.align_to {
             anyhow::ensure!(
                 self.gsd.is_none() && self.bounds.is_none(),
                 "--align-to takes the place of --gsd and --bounds"
             );
-            let g = read_grid(path)?;
-            anyhow::ensure!(
-                (g.pixel_size[0] - g.pixel_size[1]).abs() <= 1e-9 * g.pixel_size[0],
-                "--align-to {}: cells of {} x {} are not square",
-                path.display(),
-                g.pixel_size[0],
-                g.pixel_size[1]
-            );
-            if let (Some(a), Some(c)) = (g.epsg, crs.and_then(|c| c.epsg)) {
-                anyhow::ensure!(
-                    a as u32 == c,
-                    "--align-to {}: EPSG:{a}, but the dataset is in EPSG:{c}",
-                    path.display()
-                );
-            }
-            anyhow::ensure!(
-                g.width * g.height <= self.max_cells,
-                "--align-to {}: {} x {} cells, more than --max-cells {}",
-                path.display(),
-                g.width,
-                g.height,
-                self.max_cells
-            );
-            return Ok(SurveyGrid { origin: g.origin, gsd: g.pixel_size[0], width: g.width, height: g.height });
-        }
-        let gsd = self.gsd.ok_or_else(|| anyhow::anyhow!("give --gsd (the cell size) or --align-to"))?;
-        anyhow::ensure!(gsd.is_finite() && gsd > 0.0, "--gsd must be > 0, got {gsd}");
-        let seen = seen()?;
-        let bounds = match &self.bounds {
-            Some(text) => {
-                let v: Vec<f64> = text
-                    .split(',')
-                    .map(|x| x.trim().parse::<f64>())
-                    .collect::<Result<_, _>>()
-                    .map_err(|_| anyhow::anyhow!("--bounds `{text}`: expected four numbers xmin,ymin,xmax,ymax"))?;
-                anyhow::ensure!(v.len() == 4, "--bounds `{text}`: expected four numbers xmin,ymin,xmax,ymax");
-                let b = [v[0], v[1], v[2], v[3]];
-                let overlap = b[0] < seen[2] && b[2] > seen[0] && b[1] < seen[3] && b[3] > seen[1];
-                anyhow::ensure!(
-                    overlap,
-                    "--bounds {},{},{},{} lie outside the ground the training cameras saw ({:.2},{:.2},{:.2},{:.2})",
-                    b[0],
-                    b[1],
-                    b[2],
-                    b[3],
-                    seen[0],
-                    seen[1],
-                    seen[2],
-                    seen[3]
-                );
-                b
-            }
-            None => seen,
+            GridSpec::AlignTo(p.clone())
+        } else {
+            let gsd = self.gsd.ok_or_else(|| anyhow::anyhow!("give --gsd (the cell size) or --align-to"))?;
+            GridSpec::Cells { gsd, bounds: self.bounds.as_deref().map(parse_bounds).transpose()? }
         };
-        Ok(SurveyGrid::covering(bounds, gsd, self.max_cells)?)
+        Ok(choose_grid(&spec, self.max_cells, crs, seen)?)
     }
 }
 

@@ -9,16 +9,16 @@ use crate::data::pose::PoseTransform;
 use crate::data::Split;
 use crate::gpu::Context;
 use crate::nerf::camera_path::load_camera_path;
-use crate::nerf::evaluate::{ground_truth, ground_truth_of};
+use crate::nerf::evaluate::ground_truth_of;
 use crate::nerf::run::{LoadedRun, RenderedView};
 use crate::nerf::views::{orbit_views, NovelView, OrbitDesc};
 use crate::output::image::SpectralImage;
 use crate::output::metrics::{image_metrics, MetricOptions};
-use crate::output::raster::colormap::Colormap;
-use crate::output::raster::contact::{contact_sheet, Tile};
-use crate::output::raster::geotiff::{write_geotiff, GeoTiffOptions};
-use crate::output::raster::indices::{compute_index, write_index_geotiff, VegetationIndex};
-use crate::output::raster::preview::{self, Rgb8, Stretch};
+use crate::output::raster::indices::VegetationIndex;
+use crate::output::raster::preview::Rgb8;
+use crate::products::views::{
+    check_index_bands, parse_stretch, write_contact_sheet, write_novel_view, write_outputs, write_view, ViewOptions,
+};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
@@ -118,91 +118,17 @@ fn parse_views(ds: &crate::data::Dataset, transform: &PoseTransform, a: &RenderA
     }
 }
 
-/// Previews and files of one rendered view; returns the tiles for the contact sheet.
-pub struct ViewFiles {
-    pub tiles: Vec<(String, Rgb8)>,
-}
-
-fn stretch(s: &str) -> anyhow::Result<Stretch> {
-    match s {
-        "reflectance" => Ok(Stretch::Reflectance),
-        "percentile" => Ok(Stretch::Percentile { low: 2.0, high: 98.0 }),
-        _ => anyhow::bail!("--stretch: expected `reflectance` or `percentile`, got `{s}`"),
+impl RenderArgs {
+    /// The per-view products the flags ask for (index names and the stretch checked).
+    pub fn view_options(&self) -> anyhow::Result<ViewOptions> {
+        let indices = self.indices.iter().map(|n| VegetationIndex::parse(n)).collect::<Result<_, _>>()?;
+        Ok(ViewOptions { exr: self.exr, indices, stretch: parse_stretch(&self.stretch)? })
     }
-}
-
-/// Renders dataset frame `frame`, writes everything for it into `out` and returns its preview tiles.
-pub fn write_view(run: &mut LoadedRun, frame: usize, out: &Path, a: &RenderArgs) -> anyhow::Result<ViewFiles> {
-    let rv = run.render_view(frame)?;
-    let stem = Path::new(&run.ds.frames[frame].name)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or(format!("view{frame}"));
-    // With `rig_cameras` the image holds each band in its own camera, not the frame camera's registered view: an
-    // error map against it would show the rig's parallax as model error, so there is none.
-    let gt = if run.ds.rig.is_some() { None } else { ground_truth(run, frame).ok().map(|(gt, _)| gt) };
-    write_outputs(&run.ds.bands, &rv, &stem, gt.as_ref(), out, a)
-}
-
-/// Renders novel view `k` (set with [`LoadedRun::set_novel_views`]) and writes its files, without an error map.
-pub fn write_novel_view(run: &mut LoadedRun, k: usize, out: &Path, a: &RenderArgs) -> anyhow::Result<ViewFiles> {
-    let rv = run.render_novel_view(k)?;
-    let stem = run.novel[k].name.clone();
-    write_outputs(&run.ds.bands, &rv, &stem, None, out, a)
-}
-
-/// Writes the files of one rendered view named `stem`; `gt` (the frame's ground truth) adds the error preview.
-fn write_outputs(
-    bands: &[crate::data::Band],
-    rv: &RenderedView,
-    stem: &str,
-    gt: Option<&SpectralImage>,
-    out: &Path,
-    a: &RenderArgs,
-) -> anyhow::Result<ViewFiles> {
-    let img = SpectralImage::from_interleaved(rv.width, rv.height, bands.to_vec(), &rv.colour)?;
-    write_geotiff(&out.join(format!("{stem}.tif")), &img, &GeoTiffOptions::default())?;
-    if a.exr {
-        crate::output::raster::exr::write_exr(&out.join(format!("{stem}.exr")), &img)?;
-    }
-    let st = stretch(&a.stretch)?;
-    let mut tiles = Vec::new();
-    let mut save = |name: &str, png: Rgb8| -> anyhow::Result<()> {
-        png.write_png(&out.join(format!("{stem}_{name}.png")))?;
-        tiles.push((format!("{stem} {name}"), png));
-        Ok(())
-    };
-    // Natural colour and CIR need the visible / NIR bands; a dataset without them simply has no such preview.
-    if let Ok(p) = preview::natural_colour(&img, st) {
-        save("rgb", p)?;
-    }
-    if let Ok(p) = preview::cir(&img, st) {
-        save("cir", p)?;
-    }
-    for name in &a.indices {
-        let idx = VegetationIndex::parse(name)?;
-        write_index_geotiff(&out.join(format!("{stem}_{}.tif", idx.name().to_lowercase())), &img, idx, 25.0, None)?;
-        let v = compute_index(&img, idx, 25.0)?;
-        let p = preview::with_colorbar(
-            &preview::index_preview(&v, rv.width, rv.height, idx.preview_range())?,
-            Colormap::RdYlGn,
-        );
-        save(&idx.name().to_lowercase(), p)?;
-    }
-    save("depth", preview::depth_preview(&rv.depth, rv.width, rv.height, None, Colormap::Turbo)?)?;
-    save("acc", preview::accumulation_preview(&rv.accumulation, rv.width, rv.height)?)?;
-    if let Some(gt) = gt {
-        save("error", preview::error_preview(&img, gt, None)?.0)?;
-    }
-    Ok(ViewFiles { tiles })
 }
 
 pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
     // Check every flag before rendering anything, so a typo does not leave a half-filled output folder.
-    for name in &a.indices {
-        VegetationIndex::parse(name)?;
-    }
-    stretch(&a.stretch)?;
+    let vo = a.view_options()?;
     let is_path = a.views.ends_with(".json") || Path::new(&a.views).is_file();
     if !is_path && !["eval", "train", "all", "orbit"].contains(&a.views.as_str()) {
         anyhow::bail!("--views {}: expected {VIEWS_CHOICES}", a.views);
@@ -216,7 +142,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(!a.partial, "--partial: {} is a run folder, not a `msnerf partition` folder", a.run.display());
     let mut run = LoadedRun::load(&ctx, &a.run)?;
-    check_index_bands(&run.ds, a)?;
+    check_index_bands(&run.ds.bands, &vo)?;
     // Every view is known (and a camera path fully checked) before the output folder is touched.
     let views = parse_views(&run.ds, &run.transform, a)?;
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
@@ -230,8 +156,8 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
     }
     for k in 0..n {
         let (v, name) = match &views {
-            Views::Frames(f) => (write_view(&mut run, f[k], &a.out, a)?, run.ds.frames[f[k]].name.clone()),
-            Views::Novel(nv) => (write_novel_view(&mut run, k, &a.out, a)?, nv[k].name.clone()),
+            Views::Frames(f) => (write_view(&mut run, f[k], &a.out, &vo)?, run.ds.frames[f[k]].name.clone()),
+            Views::Novel(nv) => (write_novel_view(&mut run, k, &a.out, &vo)?, nv[k].name.clone()),
         };
         if k < a.sheet_views {
             sheet.extend(v.tiles);
@@ -241,25 +167,12 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> anyhow::Result<()> {
     write_sheet(&sheet, n, a)
 }
 
-/// Each `--indices` entry has the bands it needs in this run (before anything is rendered or written).
-fn check_index_bands(ds: &crate::data::Dataset, a: &RenderArgs) -> anyhow::Result<()> {
-    use crate::output::raster::indices::{bands_for_index, DEFAULT_TOLERANCE_NM};
-    let bands: Vec<_> = ds.bands.iter().map(|b| crate::output::image::band(&b.name, b.center_nm, b.fwhm_nm)).collect();
-    for name in &a.indices {
-        bands_for_index(&bands, VegetationIndex::parse(name)?, DEFAULT_TOLERANCE_NM)
-            .map_err(|e| anyhow::anyhow!("--indices {name}: {e}"))?;
-    }
-    Ok(())
-}
-
 fn write_sheet(sheet: &[(String, Rgb8)], n: usize, a: &RenderArgs) -> anyhow::Result<()> {
     if a.sheet_views == 0 {
         println!("outputs in {} (no contact sheet: --sheet-views 0)", a.out.display());
         return Ok(());
     }
-    let per_view = sheet.len() / n.min(a.sheet_views).max(1);
-    let tiles: Vec<Tile> = sheet.iter().map(|(l, i)| Tile { image: i, label: Some(l.as_str()) }).collect();
-    contact_sheet(&tiles, per_view.max(1), 4, [32, 32, 32])?.write_png(&a.out.join("contact_sheet.png"))?;
+    write_contact_sheet(sheet, sheet.len() / n.min(a.sheet_views).max(1), &a.out)?;
     println!("outputs in {}", a.out.display());
     Ok(())
 }
@@ -269,6 +182,7 @@ fn write_sheet(sheet: &[(String, Rgb8)], n: usize, a: &RenderArgs) -> anyhow::Re
 /// (`metrics.json`: the whole scene's views, not one block's).
 fn run_blocks(ctx: &Context, a: &RenderArgs) -> anyhow::Result<()> {
     use crate::scale::merge_render::{render_blocks, WorldView};
+    let vo = a.view_options()?;
     let blocks = crate::scale::runner::read_blocks(&a.run)?;
     let ds = crate::data::load_dataset(&blocks.source, &crate::data::LoadOptions::default())?;
     let transform = ds.pose_transform();
@@ -299,7 +213,7 @@ fn run_blocks(ctx: &Context, a: &RenderArgs) -> anyhow::Result<()> {
             Some(f) if ds.rig.is_none() => Some(ground_truth_of(&ds, *f)?),
             _ => None,
         };
-        let files = write_outputs(&ds.bands, &rv, &stem, gt.as_ref().map(|g| &g.0), &a.out, a)?;
+        let files = write_outputs(&ds.bands, &rv, &stem, gt.as_ref().map(|g| &g.0), &a.out, &vo)?;
         if let Some((gt, mask)) = &gt {
             let img = SpectralImage::from_interleaved(rv.width, rv.height, ds.bands.clone(), &rv.colour)?;
             let m = image_metrics(&img, gt, mask.as_deref(), &MetricOptions::default())?;

@@ -6,6 +6,8 @@
 //! - [`terrain`]: the DTM by SMRF ground filtering of a DSM, and the canopy height model;
 //! - [`trees`]: tree tops, crowns and their attributes from a canopy height model;
 //! - [`canopy`]: those as files on the DSM's grid (`export dtm`, `export chm`, `export trees`, `process`);
+//! - [`survey_grid`]: the grid a DSM or ortho is made on (another raster's, or cells over bounds);
+//! - [`views`]: the files of a rendered view (GeoTIFF, EXR, previews, index rasters) and the contact sheet;
 //! - [`error`]: [`ProductError`], naming the option or file concerned.
 //!
 //! The rendering itself (points, DSM and true ortho from the field) is `nerf::export` and `nerf::survey`.
@@ -13,7 +15,9 @@
 pub mod canopy;
 pub mod cloud;
 pub mod error;
+pub mod survey_grid;
 pub mod terrain;
 pub mod trees;
+pub mod views;
 
 pub use error::ProductError;
