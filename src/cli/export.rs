@@ -10,7 +10,7 @@
 use super::refine_args::RefineArgs;
 use super::Cli;
 use crate::gpu::Context;
-use crate::nerf::export::{export_points_with_stats, ExportOptions};
+use crate::nerf::export::{export_points_with_stats, Consistency, ExportOptions, DEFAULT_MAX_SPREAD_CELLS};
 use crate::nerf::run::LoadedRun;
 use crate::output::pointcloud::{self, PointCloud};
 use crate::products::cloud::{careful_filters, summary, unsupported_note, write_cloud, CloudFilter};
@@ -46,10 +46,10 @@ pub struct PointcloudArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Training rays to render before filtering
-    #[arg(long, default_value_t = 200_000)]
+    #[arg(long, default_value_t = ExportOptions::default().rays)]
     pub rays: usize,
     /// Keep rays whose accumulation (opacity) is at least this
-    #[arg(long, value_parser = super::opacity_f32, default_value_t = 0.5)]
+    #[arg(long, value_parser = super::opacity_f32, default_value_t = ExportOptions::default().min_accumulation)]
     pub min_accumulation: f32,
     /// Statistical outlier removal: neighbours and standard-deviation ratio (0 neighbours turns it off)
     #[arg(long, default_value_t = CloudFilter::default().outlier_neighbours)]
@@ -62,24 +62,24 @@ pub struct PointcloudArgs {
     /// At most this many points (random, seeded subsample)
     #[arg(long)]
     pub points: Option<usize>,
-    #[arg(long, default_value_t = 42)]
+    #[arg(long, default_value_t = ExportOptions::default().seed)]
     pub seed: u64,
     /// Also write surface normals: -grad(density) of the NeRF field at each point, facing the camera that saw it
     #[arg(long)]
     pub normals: bool,
     /// Drop rays whose weights' interquartile depth spread exceeds this many cells of the field's finest grid level
     /// (0 turns the filter off)
-    #[arg(long, value_parser = super::finite_f64, default_value_t = 8.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = DEFAULT_MAX_SPREAD_CELLS)]
     pub max_spread_cells: f64,
     /// Multi-view consistency: other training views checked per point (0 turns the check off; needs --no-refine,
     /// since the refinement correlates against the agreeing views)
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = Consistency::default().views)]
     pub check_views: usize,
     /// Multi-view consistency: agreeing views a point needs
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = Consistency::default().min_agree)]
     pub min_agree: usize,
     /// Multi-view consistency: largest depth disagreement, in pixel footprints of the checking view
-    #[arg(long, value_parser = super::finite_f64, default_value_t = 2.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = Consistency::default().tolerance)]
     pub agree_tolerance: f64,
     /// Thin to one point per cube of this edge (world units, e.g. metres): the most consistent, then the least
     /// spread point of each cell

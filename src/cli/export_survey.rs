@@ -9,8 +9,9 @@ use std::path::PathBuf;
 use super::refine_args::RefineArgs;
 use super::Cli;
 use crate::gpu::Context;
+use crate::nerf::export::{Consistency, DEFAULT_MAX_SPREAD_CELLS};
 use crate::nerf::run::LoadedRun;
-use crate::nerf::survey::{seen_bounds, DsmFill, SurveyGrid, SurveyOptions};
+use crate::nerf::survey::{seen_bounds, DsmFill, SurveyGrid, SurveyOptions, MAX_SURVEY_CELLS};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
 use crate::output::raster::indices::VegetationIndex;
 use crate::products::cloud::careful_filters;
@@ -36,25 +37,25 @@ pub struct SurveyArgs {
     #[arg(long)]
     pub align_to: Option<PathBuf>,
     /// Refuse grids with more cells than this
-    #[arg(long, default_value_t = 200_000_000)]
+    #[arg(long, default_value_t = MAX_SURVEY_CELLS)]
     pub max_cells: usize,
     /// World z the vertical rays start from (default: the training cameras' median height)
     #[arg(long, value_parser = super::finite_f64, allow_hyphen_values = true)]
     pub top: Option<f64>,
     /// Minimum accumulation (opacity) of a cell's ray (at least 0.5)
-    #[arg(long, value_parser = super::opacity_f32, default_value_t = 0.5)]
+    #[arg(long, value_parser = super::opacity_f32, default_value_t = SurveyOptions::default().min_accumulation)]
     pub min_accumulation: f32,
     /// DSM: nodata where the ray's weights spread over more than this many finest-grid cells (0: off)
-    #[arg(long, value_parser = super::finite_f64, default_value_t = 8.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = DEFAULT_MAX_SPREAD_CELLS)]
     pub max_spread_cells: f64,
     /// DSM: training views that check each cell's surface point (0: no check; needs --no-refine)
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = Consistency::default().views)]
     pub check_views: usize,
     /// DSM: agreeing views a cell needs
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = Consistency::default().min_agree)]
     pub min_agree: usize,
     /// DSM: largest depth disagreement of a checking view, in its pixel footprints
-    #[arg(long, value_parser = super::finite_f64, default_value_t = 2.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = Consistency::default().tolerance)]
     pub agree_tolerance: f64,
     /// DSM: keep surfaces outside the scene box (the aerial normalisation's unit cube), which are otherwise nodata
     #[arg(long)]
@@ -70,7 +71,7 @@ pub struct SurveyArgs {
     #[arg(long, value_parser = super::positive_f64)]
     pub fill_max_distance: Option<f64>,
     /// Rays rendered per block (bounds host memory: about 100 bytes per ray)
-    #[arg(long, default_value_t = 1 << 20)]
+    #[arg(long, default_value_t = SurveyOptions::default().block_rays)]
     pub block_rays: usize,
     /// RUN is a `msnerf partition` folder: merge the blocks that finished, their cells nodata for the others
     /// (without it, a block that did not finish is an error)

@@ -25,10 +25,10 @@ pub struct SfmArgs {
     #[arg(long, value_enum, default_value_t = Matcher::Auto)]
     pub matcher: Matcher,
     /// Frames each frame is matched with: the next ones (sequential) or the nearest ones (spatial)
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = crate::sfm::run::DEFAULT_OVERLAP)]
     pub overlap: usize,
     /// SIFT peak threshold (COLMAP's default 0.0067 finds too few features in small aerial views; docs/poses.md)
-    #[arg(long, value_parser = super::finite_f64, default_value_t = 0.002)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = crate::sfm::run::DEFAULT_PEAK_THRESHOLD)]
     pub peak_threshold: f64,
     /// Most SIFT features per image (default: one per 150 pixels of the upsampled image, 1024 to 8192); CPU
     /// matching time grows with its square
@@ -44,7 +44,7 @@ pub struct SfmArgs {
     #[arg(long)]
     pub no_georef: bool,
     /// GPS noise floor for the robust geo-registration, metres
-    #[arg(long, value_parser = super::finite_f64, default_value_t = 1.0)]
+    #[arg(long, value_parser = super::finite_f64, default_value_t = crate::sfm::run::DEFAULT_GPS_ERROR_M)]
     pub gps_error: f64,
     /// With ground control: keep the similarity fit alone, without the bundle adjustment on the control points
     #[arg(long)]

@@ -80,6 +80,9 @@ pub struct ExportOptions {
 /// Host memory the refinement may hold in decoded training images unless the caller says otherwise.
 pub const REFINE_IMAGE_BUDGET: u64 = 4 << 30;
 
+/// The spread filter's default: rays whose weights spread over more finest-grid cells than this are dropped.
+pub const DEFAULT_MAX_SPREAD_CELLS: f64 = 8.0;
+
 impl Default for ExportOptions {
     fn default() -> Self {
         Self {
@@ -87,7 +90,7 @@ impl Default for ExportOptions {
             min_accumulation: 0.5,
             seed: 42,
             normals: false,
-            max_spread_cells: Some(8.0),
+            max_spread_cells: Some(DEFAULT_MAX_SPREAD_CELLS),
             consistency: Some(Consistency::default()),
             scene_box: true,
             refine: Some(RefineOptions::default()),

@@ -176,11 +176,14 @@ pub struct SurveyOptions {
     pub image_budget_bytes: u64,
 }
 
+/// Grids with more cells than this are refused unless asked for (`--max-cells`).
+pub const MAX_SURVEY_CELLS: usize = 200_000_000;
+
 impl Default for SurveyOptions {
     fn default() -> Self {
         Self {
             min_accumulation: 0.5,
-            max_spread_cells: Some(8.0),
+            max_spread_cells: Some(crate::nerf::export::DEFAULT_MAX_SPREAD_CELLS),
             consistency: Some(Consistency::default()),
             scene_box: true,
             top: None,

@@ -330,7 +330,7 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
             .ok_or_else(|| fail(&"the flight's ground sampling distance is unknown (no sparse points): give --gsd"))?,
     };
     let bounds = seen_bounds(&mut run).map_err(|e| fail(&e))?;
-    let grid = SurveyGrid::covering(bounds, gsd, 200_000_000).map_err(|e| fail(&e))?;
+    let grid = SurveyGrid::covering(bounds, gsd, crate::nerf::survey::MAX_SURVEY_CELLS).map_err(|e| fail(&e))?;
     progress(&format!("    grid {} x {} cells of {gsd:.3} (world units)", grid.width, grid.height));
     let dir = o.project.join(paths::products());
     std::fs::create_dir_all(&dir).map_err(ProcessError::io(&dir))?;

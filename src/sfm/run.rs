@@ -89,6 +89,13 @@ pub struct SfmOptions {
     pub threads: usize,
 }
 
+/// Frames matched with each frame (sequential or spatial matching).
+pub const DEFAULT_OVERLAP: usize = 20;
+/// SIFT's peak threshold.
+pub const DEFAULT_PEAK_THRESHOLD: f64 = 0.002;
+/// GPS noise floor for the robust fit, and the fixes' standard deviation in the bundle adjustment (metres).
+pub const DEFAULT_GPS_ERROR_M: f64 = 1.0;
+
 impl SfmOptions {
     pub fn new(dataset: &Path) -> SfmOptions {
         SfmOptions {
@@ -97,13 +104,13 @@ impl SfmOptions {
             band: BandChoice::Auto,
             upsample: None,
             matcher: Matcher::Auto,
-            overlap: 20,
-            peak_threshold: 0.002,
+            overlap: DEFAULT_OVERLAP,
+            peak_threshold: DEFAULT_PEAK_THRESHOLD,
             max_features: None,
             refine_intrinsics: false,
             crs: None,
             no_georef: false,
-            gps_error_m: 1.0,
+            gps_error_m: DEFAULT_GPS_ERROR_M,
             no_adjust: false,
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
         }
