@@ -58,6 +58,41 @@ impl Batch {
         }
     }
 
+    /// Targets per ray: the bands and the ray's weight.
+    fn target_stride(&self) -> usize {
+        self.targets.len() / self.rays().max(1)
+    }
+
+    /// Ray `i`'s pixel: (camera or frame, row, column).
+    pub fn pixel(&self, i: usize) -> [u32; 3] {
+        [self.pixels[3 * i], self.pixels[3 * i + 1], self.pixels[3 * i + 2]]
+    }
+
+    /// Ray `i`'s band targets (NaN: the band is not observed there).
+    pub fn band_targets(&self, i: usize) -> &[f32] {
+        let s = self.target_stride();
+        &self.targets[i * s..(i + 1) * s - 1]
+    }
+
+    /// Ray `i`'s band targets, to change them (tests corrupt one this way).
+    pub fn band_targets_mut(&mut self, i: usize) -> &mut [f32] {
+        let s = self.target_stride();
+        &mut self.targets[i * s..(i + 1) * s - 1]
+    }
+
+    /// Ray `i`'s weight in the loss (0: the ray does not count).
+    pub fn ray_weight(&self, i: usize) -> f32 {
+        let s = self.target_stride();
+        self.targets[(i + 1) * s - 1]
+    }
+
+    /// Ray `i`'s depth target (distance along the ray, sigma), None without depth supervision or where the ray has
+    /// no target.
+    pub fn depth_target(&self, i: usize) -> Option<(f32, f32)> {
+        let d = self.depth.get(2 * i..2 * i + 2)?;
+        (d[0] > 0.0).then_some((d[0], d[1]))
+    }
+
     /// The (ray, band) targets that count: the sum over rays of the ray weight times its observed bands (eq. 3.1's
     /// normaliser: the loss is the weighted mean over observed targets).
     pub fn observed_targets(&self, bands: usize) -> f64 {
@@ -744,7 +779,7 @@ impl Pipeline {
                 ),
             });
         }
-        let total_w: f64 = (0..n_rays).map(|i| batch.targets[i * (bands + 1) + bands] as f64).sum();
+        let total_w: f64 = (0..n_rays).map(|i| batch.ray_weight(i) as f64).sum();
         // Every target observed: `observed` is total_w * B, the per-band means of eq. 3.1 averaged over the bands.
         let observed = batch.observed_targets(bands).max(bands as f64);
         let norms = (

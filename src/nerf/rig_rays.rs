@@ -120,19 +120,24 @@ mod tests {
         rig.push(&mut batch, &px, false, Some(&mut *depth));
         assert_eq!(batch.pixels, [2 + 3, 5, 9, 2 + 1, 6, 10, 2 + 3 + 2, 7, 11, 2 + 3, 8, 12]);
         assert_eq!(batch.cameras, [1, 0, 1, 1]);
-        for (i, t) in batch.targets.chunks(4).enumerate() {
-            for (b, v) in t[..3].iter().enumerate() {
+        for i in 0..batch.rays() {
+            let t = batch.band_targets(i);
+            for (b, v) in t.iter().enumerate() {
                 assert_eq!(v.is_finite(), b == i % 3, "ray {i} band {b}");
             }
             assert_eq!(t[i % 3], px.values[i * 3 + i % 3]);
-            assert_eq!(t[3], if i == 2 { 0.0 } else { 1.0 });
+            assert_eq!(batch.ray_weight(i), if i == 2 { 0.0 } else { 1.0 });
         }
         assert_eq!(batch.depth, [6.0, 0.5, 0.0, 1.0, 0.0, 1.0, 9.0, 0.5]);
+        assert_eq!((batch.depth_target(0), batch.depth_target(1)), (Some((6.0, 0.5)), None));
         // Depth rays: the frame camera, the frame-camera bands observed.
         let mut depth_rays = Batch::default();
         rig.push(&mut depth_rays, &px, true, Some(depth));
-        assert_eq!(depth_rays.pixels[..3], [1, 5, 9]);
-        assert!(depth_rays.targets.chunks(4).all(|t| t[0].is_finite() && t[1].is_nan() && t[2].is_nan()));
+        assert_eq!(depth_rays.pixel(0), [1, 5, 9]);
+        assert!((0..depth_rays.rays()).all(|i| {
+            let t = depth_rays.band_targets(i);
+            t[0].is_finite() && t[1].is_nan() && t[2].is_nan()
+        }));
         assert_eq!(depth_rays.depth[..2], [6.0, 0.5]);
     }
 }

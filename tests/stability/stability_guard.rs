@@ -73,13 +73,13 @@ fn poisoned_steps_are_skipped_and_name_the_buffer() {
 
     // A NaN target is a band the ray did not observe (rig-aware training): the step goes on.
     let mut unobserved = batch(bands, 32, 3);
-    unobserved.targets[5 * (bands + 1) + 1] = f32::NAN;
+    unobserved.band_targets_mut(5)[1] = f32::NAN;
     let s = p.train_step(&unobserved).expect("step");
     assert!(!s.skipped && s.loss.is_finite(), "a NaN target is not observed, not poison: {s:?}");
 
     // An infinite target value (a corrupt pixel): the loss and every gradient are non-finite.
     let mut bad = batch(bands, 32, 2);
-    bad.targets[5 * (bands + 1) + 1] = f32::INFINITY;
+    bad.band_targets_mut(5)[1] = f32::INFINITY;
     let before = state(&p);
     let step0 = p.step;
     let s = p.train_step(&bad).expect("step");

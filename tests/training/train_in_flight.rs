@@ -55,7 +55,7 @@ fn batches(n: usize, poison_at: Option<usize>) -> Vec<Batch> {
                 b.targets.push(1.0);
             }
             if poison_at == Some(k) {
-                b.targets[7 * (BANDS + 1) + 2] = f32::INFINITY; // a corrupt value (NaN would mean "not observed")
+                b.band_targets_mut(7)[2] = f32::INFINITY; // a corrupt value (NaN would mean "not observed")
             }
             b
         })
