@@ -24,6 +24,7 @@ pub mod loader;
 pub mod outliers;
 pub mod png_reader;
 pub mod pose;
+pub mod pose_build;
 pub mod raster;
 pub mod reader;
 pub mod rig_cameras;

@@ -9,8 +9,8 @@
 
 use super::error::{NerfError, NerfResult};
 use crate::data::pose::Mat4;
+use crate::data::pose_build::{heading_pose, look_at};
 use crate::data::{Camera, Dataset, PoseTransform, Split};
-use crate::sim::cameras::{heading_pose, look_at};
 
 /// A camera to render that is not a dataset frame.
 #[derive(Clone, Debug, PartialEq)]

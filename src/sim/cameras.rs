@@ -12,11 +12,9 @@
 //!
 //! Intrinsics: fx = fy = (w/2) / tan(HFOV/2), principal point at the image centre (w/2, h/2).
 
-use glam::{DMat4, DVec3};
-
 use crate::data::camera::{Camera, CameraModel, Distortion};
-use crate::data::pose::from_dmat4;
 pub use crate::data::pose::Mat4;
+pub use crate::data::pose_build::{heading_pose, look_at};
 
 use super::scene::{CameraGroupDesc, SceneDesc};
 
@@ -33,37 +31,6 @@ pub fn intrinsics(width: u32, height: u32, hfov_deg: f64) -> Camera {
         height,
         distortion: Distortion::default(),
     }
-}
-
-fn norm(v: DVec3) -> DVec3 {
-    v / v.length()
-}
-
-/// The camera-to-world pose with these axes: columns right, up, −forward (OpenGL cameras look along −z), position.
-fn from_axes(pos: DVec3, right: DVec3, up: DVec3, fwd: DVec3) -> Mat4 {
-    from_dmat4(&DMat4::from_cols(right.extend(0.0), up.extend(0.0), (-fwd).extend(0.0), pos.extend(1.0)))
-}
-
-/// Pose at `pos` with horizontal unit heading `h` = (hx, hy) and gimbal tilt `tilt_deg`.
-pub fn heading_pose(pos: [f64; 3], h: [f64; 2], tilt_deg: f64) -> Mat4 {
-    let (st, ct) = tilt_deg.to_radians().sin_cos();
-    let fwd = norm(DVec3::new(ct * h[0], ct * h[1], st));
-    let right = DVec3::new(h[1], -h[0], 0.0);
-    let up = right.cross(fwd);
-    from_axes(pos.into(), right, up, fwd)
-}
-
-/// Pose at `pos` looking at `target` with `up` hint (+z when `None`; +y when looking straight along it).
-pub fn look_at(pos: [f64; 3], target: [f64; 3], up: Option<[f64; 3]>) -> Mat4 {
-    let pos = DVec3::from(pos);
-    let fwd = norm(DVec3::from(target) - pos);
-    let mut hint = up.map_or(DVec3::Z, DVec3::from);
-    if fwd.cross(hint).length_squared() < 1e-12 {
-        hint = DVec3::Y;
-    }
-    let right = norm(fwd.cross(hint));
-    let upv = right.cross(fwd);
-    from_axes(pos, right, upv, fwd)
 }
 
 /// Per-group view counts, with `views` (if given) spread over the orbit groups (exactly) or the grid groups
