@@ -27,6 +27,8 @@ pub const PIXEL_SIGMA: f64 = 1.0;
 pub const HUBER_PX: f64 = 2.0;
 /// Iterations at most.
 pub const MAX_ITERATIONS: usize = 50;
+/// Converged when an accepted step lowers the cost by less than this fraction (Ceres' `function_tolerance`).
+pub const FUNCTION_TOLERANCE: f64 = 1e-6;
 
 /// A camera of the problem.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -421,7 +423,7 @@ pub fn adjust(p: &Problem) -> Result<Solution, String> {
             if let Some((dc, dx)) = step(p, &nm, lambda) {
                 let next = apply(&s, &dc, &dx);
                 if let Some(c1) = cost(p, &next).filter(|c1| *c1 <= c0) {
-                    let done = c0 - c1 <= 1e-10 * c0.max(1e-12);
+                    let done = c0 - c1 <= FUNCTION_TOLERANCE * c0.max(1e-12);
                     s = next;
                     c0 = c1;
                     lambda = (lambda / 3.0).max(1e-12);

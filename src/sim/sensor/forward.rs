@@ -85,8 +85,23 @@ pub fn project(l: &Lens, rig: &RigPose, c2w: &[[f64; 4]; 4], p: [f64; 3]) -> Opt
     if b.z <= 0.0 {
         return None;
     }
-    let (xd, yd) = crate::rig::lens::distort(l, b.x / b.z, b.y / b.z);
+    let (x, y) = (b.x / b.z, b.y / b.z);
+    if !within_lens(l, x * x + y * y) {
+        return None;
+    }
+    let (xd, yd) = crate::rig::lens::distort(l, x, y);
     Some((l.fx * xd + l.cx, l.fy * yd + l.cy))
+}
+
+/// Whether the lens's radial polynomial is still increasing out to the normalised radius sqrt(`r2`): beyond its
+/// first turning point Brown's model folds far-off directions back into the frame (a point kilometres outside the
+/// field of view would land in the image).
+fn within_lens(l: &Lens, r2: f64) -> bool {
+    const STEPS: usize = 64;
+    (1..=STEPS).all(|i| {
+        let s = r2 * i as f64 / STEPS as f64;
+        1.0 + s * (3.0 * l.k1 + s * (5.0 * l.k2 + s * 7.0 * l.k3)) > 0.0
+    })
 }
 
 /// The vignetting polynomial `1 + k0 r + ... + k5 r^6` at raw pixel (x, y).
@@ -122,4 +137,26 @@ pub fn quantise(p: &SensorProfile, dn: f64, seed: u64, stream: u64, key: u64) ->
     let var = p.read_noise_dn * p.read_noise_dn + signal / p.electrons_per_dn;
     let noisy = adc + var.sqrt() * normal(seed, stream, key, 0);
     (noisy.round().clamp(0.0, top) * step) as u16
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A direction far outside the field of view, where Brown's polynomial folds back to the image centre, does not
+    /// project (a ground control point there would be a click in an image that never saw it).
+    #[test]
+    fn far_off_directions_do_not_fold_into_the_frame() {
+        let l = Lens { fx: 1000.0, fy: 1000.0, cx: 640.0, cy: 480.0, k1: -0.2, k2: 0.0, k3: 0.0, p1: 0.0, p2: 0.0 };
+        let rig = RigPose { ref_from_band: glam::DMat3::IDENTITY, center: glam::DVec3::ZERO };
+        // A nadir reference camera at 40 m (OpenGL: looking along -z).
+        let c2w = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 40.0], [0.0, 0.0, 0.0, 1.0]];
+        let (u, v) = project(&l, &rig, &c2w, [4.0, 0.0, 0.0]).expect("in view");
+        assert!((u - (640.0 + 1000.0 * 0.1 * (1.0 - 0.2 * 0.01))).abs() < 1e-9 && (v - 480.0).abs() < 1e-9);
+        // x / z = sqrt(5): r (1 + k1 r^2) = 0, the principal point.
+        let far = [40.0 * 5f64.sqrt(), 0.0, 0.0];
+        let (xd, _) = crate::rig::lens::distort(&l, 5f64.sqrt(), 0.0);
+        assert!(xd.abs() < 1e-12, "the polynomial folds back: {xd}");
+        assert_eq!(project(&l, &rig, &c2w, far), None);
+    }
 }
