@@ -497,14 +497,23 @@ impl ModelConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| ConfigError::Read { path: path.to_path_buf(), reason: e.to_string() })?;
-        Self::parse(&text).map_err(|e| e.in_profile(path.display().to_string()))
+        Self::parse_in(&text, path.parent()).map_err(|e| e.in_profile(path.display().to_string()))
     }
 
+    /// A profile's YAML; an `extends:` file is looked for relative to the working folder.
     pub fn parse(text: &str) -> Result<Self, ConfigError> {
+        Self::parse_in(text, None)
+    }
+
+    /// A profile's YAML from the folder `dir` (where its `extends:` file lies; `super::config_extends`).
+    fn parse_in(text: &str, dir: Option<&Path>) -> Result<Self, ConfigError> {
         if let Some(key) = crate::util::yaml::first_non_finite(text) {
             return Err(ConfigError::key(format!("{key}: not a finite number")));
         }
-        let c: ModelConfig = serde_yaml::from_str(text).map_err(|e| ConfigError::key(e.to_string()))?;
+        let c: ModelConfig = match super::config_extends::resolve_extends(text, dir)? {
+            Some(v) => serde_yaml::from_value(v).map_err(|e| ConfigError::key(e.to_string()))?,
+            None => serde_yaml::from_str(text).map_err(|e| ConfigError::key(e.to_string()))?,
+        };
         c.validate()?;
         Ok(c)
     }

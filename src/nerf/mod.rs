@@ -7,6 +7,7 @@ pub mod camera_path;
 pub mod camera_poses;
 pub mod config;
 pub mod config_error;
+pub mod config_extends;
 pub mod depth_targets;
 pub mod error;
 pub mod evaluate;
