@@ -223,6 +223,8 @@ struct Normal {
     gp: Vec<[f64; 3]>,
     /// Per observation: (camera, point, 6x3 block).
     w: Vec<(usize, usize, [[f64; 3]; 6])>,
+    /// Per point, its observations (indices into `w`).
+    by_point: Vec<Vec<usize>>,
 }
 
 fn assemble(p: &Problem, s: &State) -> Option<Normal> {
@@ -282,7 +284,11 @@ fn assemble(p: &Problem, s: &State) -> Option<Normal> {
             u[(ob + k) * n + ob + k] = 1.0;
         }
     }
-    Some(Normal { u, gc, v, gp, w })
+    let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); p.points.len()];
+    for (k, (_, j, _)) in w.iter().enumerate() {
+        by_point[*j].push(k);
+    }
+    Some(Normal { u, gc, v, gp, w, by_point })
 }
 
 fn inv3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
@@ -315,12 +321,7 @@ fn step(p: &Problem, nm: &Normal, lambda: f64) -> Option<(Vec<f64>, Vec<[f64; 3]
                 inv3(&d)
             })
             .collect::<Option<_>>()?;
-    // Observations grouped by point.
-    let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); p.points.len()];
-    for (k, (_, j, _)) in nm.w.iter().enumerate() {
-        by_point[*j].push(k);
-    }
-    for (j, obs) in by_point.iter().enumerate() {
+    for (j, obs) in nm.by_point.iter().enumerate() {
         let vi = &vinv[j];
         // W_o V^-1 for each observation of the point (6x3).
         let wv: Vec<[[f64; 3]; 6]> = obs
@@ -350,7 +351,7 @@ fn step(p: &Problem, nm: &Normal, lambda: f64) -> Option<(Vec<f64>, Vec<[f64; 3]
     let dx = (0..p.points.len())
         .map(|j| {
             let mut g = nm.gp[j].map(|v| -v);
-            for &k in &by_point[j] {
+            for &k in &nm.by_point[j] {
                 let (i, _, b) = &nm.w[k];
                 for m in 0..3 {
                     g[m] -= (0..6).map(|a| b[a][m] * dc[6 * i + a]).sum::<f64>();

@@ -161,7 +161,7 @@ pub fn robust_fit(names: &[String], model: &[[f64; 3]], gps: &[[f64; 3]], min_er
 }
 
 /// Root mean square of `v` (0 when empty).
-pub fn rms(v: impl Iterator<Item = f64>) -> f64 {
+fn rms(v: impl Iterator<Item = f64>) -> f64 {
     let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
     if n == 0 {
         0.0
@@ -237,7 +237,6 @@ pub fn fit_with_control(
         )
     })?;
     let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let len = |v: [f64; 3]| dist(v, [0.0; 3]);
     let points: Vec<ControlResidual> = control
         .iter()
         .enumerate()
@@ -249,7 +248,6 @@ pub fn fit_with_control(
             check_m: solve(Some(j)).map(|(t, _)| sub(t.apply(c.model), c.xyz)),
         })
         .collect();
-    let checks: Vec<f64> = points.iter().filter_map(|p| p.check_m.map(len)).collect();
     // The GPS residuals as the user sees them: against the final frame, the datum shift included.
     let res: Vec<f64> = kept.iter().map(|&i| dist(s.apply(model[i]), gps[i])).collect();
     Ok(GeoFit {
@@ -259,15 +257,31 @@ pub fn fit_with_control(
         rejected: gps_fit.map(|f| f.rejected).unwrap_or_default(),
         rms_m: rms(res.iter().copied()),
         max_m: res.iter().copied().fold(0.0, f64::max),
-        control: Some(ControlReport {
-            gps_shift_m: (!control.is_empty() && !kept.is_empty()).then_some(gps_shift),
-            rms_m: rms(points.iter().map(|p| len(p.residual_m))),
-            check_rms_m: (!checks.is_empty()).then(|| rms(checks.iter().copied())),
+        control: Some(ControlReport::new(
             points,
+            (!control.is_empty() && !kept.is_empty()).then_some(gps_shift),
             notes,
-            adjustment: None,
-        }),
+        )),
     })
+}
+
+impl ControlReport {
+    /// The report of `points`, their RMS and check RMS computed from them.
+    pub fn new(points: Vec<ControlResidual>, gps_shift_m: Option<[f64; 3]>, notes: Vec<String>) -> ControlReport {
+        let mut r =
+            ControlReport { points: Vec::new(), rms_m: 0.0, check_rms_m: None, gps_shift_m, notes, adjustment: None };
+        r.set_points(points);
+        r
+    }
+
+    /// Replaces the points, and the RMS and check RMS with theirs.
+    pub fn set_points(&mut self, points: Vec<ControlResidual>) {
+        let len = |v: [f64; 3]| dist(v, [0.0; 3]);
+        let checks: Vec<f64> = points.iter().filter_map(|p| p.check_m.map(len)).collect();
+        self.rms_m = rms(points.iter().map(|p| len(p.residual_m)));
+        self.check_rms_m = (!checks.is_empty()).then(|| rms(checks.iter().copied()));
+        self.points = points;
+    }
 }
 
 /// Applies `s` to every pose (rotation turned, centre mapped) and point of `m`.

@@ -622,14 +622,10 @@ fn adjust_on_control(
         super::adjusted::adjust_with_control(model, cm, &gps, gps_sigma, &placed)?;
     adj.similarity_rms_m = report.rms_m;
     adj.similarity_check_rms_m = report.check_rms_m;
-    let len = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    report.rms_m = georef::rms(points.iter().map(|p| len(p.residual_m)));
-    let checks: Vec<f64> = points.iter().filter_map(|p| p.check_m.map(len)).collect();
-    report.check_rms_m = (!checks.is_empty()).then(|| georef::rms(checks.iter().copied()));
+    report.set_points(points);
     if offset.is_some() {
         report.gps_shift_m = offset;
     }
-    report.points = points;
     report.adjustment = Some(adj);
     Ok(())
 }
