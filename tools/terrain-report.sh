@@ -24,7 +24,8 @@ truth="$work/data/truth"
   "$bin" export trees --chm "$p/chm.tif" --dtm "$p/dtm.tif" --ortho "$p/ortho.tif" --out "$p/trees.geojson"
 } | grep -v '^->' | tee "$log/products.txt"
 for x in dsm dtm chm; do
-  "$bin" compare-raster --pred "$p/$x.tif" --ref "$truth/$x.tif" --classes "$truth/classes.tif" --json > "$log/compare-$x.json"
+  "$bin" compare-raster --pred "$p/$x.tif" --ref "$truth/$x.tif" --classes "$truth/classes.tif" --quality "$p/${x}_quality.tif" \
+    --json > "$log/compare-$x.json"
 done
 "$bin" compare-trees --pred "$p/trees.geojson" --truth "$truth/trees.geojson" --classes "$truth/classes.tif" --json \
   > "$log/compare-trees.json"

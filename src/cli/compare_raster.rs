@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use crate::output::compare::parse_within;
-use crate::output::compare_raster::{compare_rasters, RasterCompareOptions};
+use crate::output::compare_raster::{compare_rasters, QualityLayer, RasterCompareOptions};
 use crate::output::raster::geotiff_read::read_geotiff;
 
 #[derive(clap::Args, Debug)]
@@ -20,6 +20,10 @@ pub struct CompareRasterArgs {
     /// interior cells
     #[arg(long)]
     pub classes: Option<PathBuf>,
+    /// The prediction's quality raster (a DSM's `<stem>_quality.tif`) for statistics per code over every cell:
+    /// measured, interpolated, field only
+    #[arg(long)]
+    pub quality: Option<PathBuf>,
     /// Tolerances (raster units, comma-separated) for the fractions of cells within each
     #[arg(long, default_value = "0.1,0.25,0.5,1.0")]
     pub within: String,
@@ -34,6 +38,14 @@ pub struct CompareRasterArgs {
     pub output: Option<PathBuf>,
 }
 
+/// The DSM quality codes' names (`nerf::survey::quality`).
+fn quality_names() -> Vec<(i64, String)> {
+    use crate::nerf::survey::quality::{FIELD_ONLY, INTERPOLATED, MEASURED};
+    [(MEASURED, "measured"), (INTERPOLATED, "interpolated"), (FIELD_ONLY, "field only")]
+        .map(|(c, n)| (i64::from(c), n.to_string()))
+        .into()
+}
+
 pub fn run(args: &CompareRasterArgs) -> anyhow::Result<()> {
     let within = parse_within(&args.within)?;
     if let Some(p) = args.peak {
@@ -42,13 +54,16 @@ pub fn run(args: &CompareRasterArgs) -> anyhow::Result<()> {
     if let Some(out) = &args.output {
         let mut inputs = vec![("--pred", args.pred.as_path()), ("--ref", args.reference.as_path())];
         inputs.extend(args.classes.as_deref().map(|c| ("--classes", c)));
+        inputs.extend(args.quality.as_deref().map(|c| ("--quality", c)));
         crate::util::atomic::check_not_an_input(out, &inputs)?;
     }
     let pred = read_geotiff(&args.pred)?;
     let reference = read_geotiff(&args.reference)?;
     let classes = args.classes.as_ref().map(|c| read_geotiff(c)).transpose()?;
-    let report =
-        compare_rasters(&pred, &reference, classes.as_ref(), &RasterCompareOptions { within, peak: args.peak })?;
+    let quality_raster = args.quality.as_ref().map(|c| read_geotiff(c)).transpose()?;
+    let quality = quality_raster.as_ref().map(|raster| QualityLayer { raster, names: quality_names() });
+    let opts = RasterCompareOptions { within, peak: args.peak };
+    let report = compare_rasters(&pred, &reference, classes.as_ref(), quality.as_ref(), &opts)?;
     let json = report.to_json();
     if let Some(out) = &args.output {
         crate::output::atomic::write_bytes(out, format!("{json}\n").as_bytes())?;

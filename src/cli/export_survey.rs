@@ -63,13 +63,19 @@ pub struct SurveyArgs {
     #[command(flatten)]
     pub refine: RefineArgs,
     /// DSM: cells the images give no photometric support (uniform surfaces such as water, occlusions) and surfaces
-    /// the filters turned down: interpolated from the measured cells around them, the field's height, or nodata;
+    /// the filters turned down: `auto` interpolates the gaps and the unsupported cells whose field height lies within
+    /// --fill-tolerance of the interpolation and keeps the field's height where it stands out (crowns); or every
+    /// such cell interpolated from the measured cells around it, the field's height, or nodata;
     /// `<stem>_quality.tif` beside the DSM says which each cell is
     #[arg(long, value_enum, default_value_t = DsmFill::default())]
     pub fill: DsmFill,
     /// DSM: how far --fill interpolate reaches, in world units (default: 100 cells)
     #[arg(long, value_parser = super::positive_f64)]
     pub fill_max_distance: Option<f64>,
+    /// DSM: how close the field's height must lie to the interpolation for --fill auto to take the interpolation,
+    /// in world units
+    #[arg(long, value_parser = super::positive_f64, default_value_t = crate::nerf::survey::FILL_TOLERANCE)]
+    pub fill_tolerance: f64,
     /// Rays rendered per block (bounds host memory: about 100 bytes per ray)
     #[arg(long, default_value_t = SurveyOptions::default().block_rays)]
     pub block_rays: usize,
@@ -122,6 +128,7 @@ impl SurveyArgs {
             consistency,
             fill: self.fill,
             fill_max_distance: self.fill_max_distance,
+            fill_tolerance: self.fill_tolerance,
             image_budget_bytes: crate::nerf::export::REFINE_IMAGE_BUDGET,
         })
     }
@@ -178,7 +185,8 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
     );
     println!(
         "{} cells: {} with a height, {} without a surface, {} outside the scene box, {} with spread weights, {} \
-         inconsistent across views, {} refined photometrically, {} without photometric support; {} rays in {:.1} s",
+         inconsistent across views, {} refined photometrically, {} without photometric support ({} of them not \
+         confirmed by a second reference); {} rays in {:.1} s",
         s.cells,
         s.valid,
         s.no_surface,
@@ -187,6 +195,7 @@ pub fn run_survey(cli: &Cli, a: &SurveyArgs, mut outputs: SurveyOutputs) -> anyh
         s.inconsistent,
         s.refined,
         s.unsupported,
+        s.unconfirmed,
         s.rays,
         s.seconds
     );

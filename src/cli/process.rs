@@ -72,8 +72,9 @@ pub struct ProcessArgs {
     /// Vegetation indices written beside the ortho (comma-separated)
     #[arg(long, value_delimiter = ',', default_values_t = ["ndvi".to_string(), "ndre720".to_string()])]
     pub indices: Vec<String>,
-    /// DSM cells without photometric support: the field's height, interpolated from the measured cells around them,
-    /// or nodata (dsm_quality.tif says which each cell is)
+    /// DSM cells without photometric support and gaps: `auto` interpolates the gaps and the cells whose field height
+    /// agrees with the interpolation and keeps the field's height where it stands out (crowns); or all interpolated
+    /// from the measured cells around them, the field's height, or nodata (dsm_quality.tif says which each cell is)
     #[arg(long, value_enum, default_value_t = crate::nerf::survey::DsmFill::default())]
     pub fill: crate::nerf::survey::DsmFill,
     /// Stop after this stage

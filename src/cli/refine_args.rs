@@ -22,12 +22,27 @@ pub struct RefineArgs {
     /// below it keeps the field's position (a plane patch does not fit a tree crown's dome)
     #[arg(long, value_parser = super::finite_f64, default_value_t = RefineOptions::default().move_ncc)]
     pub refine_move_ncc: f64,
+    /// Photometric refinement: degree of the polynomial trend removed from every patch before it is correlated, so
+    /// that smooth shading (a sunlit slope, the vegetation's hotspot) does not pass for texture (0: none, 3 at most)
+    #[arg(long, default_value_t = RefineOptions::default().trend_degree)]
+    pub refine_trend: usize,
+    /// Photometric refinement of DSM cells: a second sweep from another reference view must find its best score within
+    /// this many pixel footprints of the first's, or the cell is not measured (0: off; the cloud does not use it)
+    #[arg(long, value_parser = super::finite_f64, default_value_t = RefineOptions::default().cross_check.unwrap_or(0.0))]
+    pub refine_cross_check: f64,
 }
 
 impl Default for RefineArgs {
     fn default() -> Self {
         let o = RefineOptions::default();
-        Self { no_refine: false, refine_range: o.range, refine_min_ncc: o.min_ncc, refine_move_ncc: o.move_ncc }
+        Self {
+            no_refine: false,
+            refine_range: o.range,
+            refine_min_ncc: o.min_ncc,
+            refine_move_ncc: o.move_ncc,
+            refine_trend: o.trend_degree,
+            refine_cross_check: o.cross_check.unwrap_or(0.0),
+        }
     }
 }
 
@@ -57,6 +72,12 @@ impl RefineArgs {
             self.refine_move_ncc,
             self.refine_min_ncc
         );
+        anyhow::ensure!(self.refine_trend <= 3, "--refine-trend must be 0 to 3, got {}", self.refine_trend);
+        anyhow::ensure!(
+            self.refine_cross_check >= 0.0,
+            "--refine-cross-check must be a non-negative number of footprints, got {}",
+            self.refine_cross_check
+        );
         if self.no_refine || !runs {
             return Ok(None);
         }
@@ -72,6 +93,8 @@ impl RefineArgs {
             drop_unsupported: !keep_unsupported,
             // A point has at most its agreeing views as partners, so `--min-agree 1` lets one score it.
             min_views: min_agree.clamp(1, d.min_views),
+            trend_degree: self.refine_trend,
+            cross_check: (self.refine_cross_check > 0.0).then_some(self.refine_cross_check),
             ..d
         }))
     }

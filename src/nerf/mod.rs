@@ -8,6 +8,7 @@ pub mod camera_poses;
 pub mod config;
 pub mod config_error;
 pub mod config_extends;
+pub mod cross_check;
 pub mod depth_targets;
 pub mod error;
 pub mod evaluate;

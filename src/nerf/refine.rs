@@ -8,6 +8,9 @@
 //! - at each candidate, a (2 `half` + 1)^2 grid of points on the plane through P(s) with normal n, spaced one
 //!   footprint apart, is projected into every view and sampled bilinearly (pixel centres at +0.5, as the ray
 //!   generator's);
+//! - each view's patch loses its least-squares polynomial trend (`trend_degree`, quadratic by default): smooth
+//!   shading (a sunlit slope, the vegetation's hotspot, an albedo ramp) correlates between views at any height, so
+//!   on a uniform surface plain NCC finds a high score at a height it made up; what is left is texture;
 //! - the score is the mean over the partner views (all but the reference, `views[0]`) of the NCC between the
 //!   reference's samples and the partner's, averaged over the bands where both patches vary (an NCC is blind to a
 //!   band's gain and offset, so a dark, weakly textured material counts as much as a bright one: a plain squared
@@ -25,6 +28,8 @@
 //! surface is there but do not place it better than the field does; on the campus run the broadleaf crowns' median
 //! distance to the truth was 0.16 m where the field put them and 0.46 m where every supported point moved
 //! (docs/geometry.md).
+//!
+//! The DSM checks each supported cell with a second sweep from another reference ([`super::cross_check`]).
 //!
 //! Everything is f64 on the CPU; no kernel. The test (`tests/outputs/photometric_refine.rs`) checks it against an
 //! independent NCC written from the formula and on rendered planes of known height.
@@ -45,14 +50,31 @@ pub struct RefineOptions {
     pub move_ncc: f64,
     /// Partner views (besides the reference) a score needs.
     pub min_views: usize,
+    /// Degree of the polynomial trend removed from every patch before it is correlated (0: the mean only, which the
+    /// NCC removes anyway). Shading that varies smoothly across an image (a sunlit slope, the vegetation's hotspot,
+    /// vignetting left in the images) correlates between views at any height, and on uniform surfaces a sweep's best
+    /// score then lies at a wrong height with a high NCC; without its quadratic trend a patch keeps only texture.
+    pub trend_degree: usize,
     /// Drop the points the images do not support (no score, a best NCC below `min_ncc`, or a peak at the end of the
     /// range), as MVS fusion drops pixels without photometric support; false keeps them where the field put them.
     pub drop_unsupported: bool,
+    /// Cross-check of the DSM's cells: a second sweep with another reference view must find its peak within this
+    /// many reference footprints of the first, or the cell is not supported (stereo's left-right check). None: off.
+    pub cross_check: Option<f64>,
 }
 
 impl Default for RefineOptions {
     fn default() -> Self {
-        Self { half: 3, range: 8, min_ncc: 0.5, move_ncc: 0.85, min_views: 2, drop_unsupported: true }
+        Self {
+            half: 3,
+            range: 8,
+            min_ncc: 0.5,
+            move_ncc: 0.85,
+            min_views: 2,
+            trend_degree: 2,
+            drop_unsupported: true,
+            cross_check: Some(1.0),
+        }
     }
 }
 
@@ -77,6 +99,8 @@ pub struct Refined {
     pub moved: bool,
     /// Whether the images support a surface at or near the point (`moved` implies it).
     pub supported: bool,
+    /// Offset of the best score along the search direction whether or not the point moved (NaN when unsupported).
+    pub peak: f64,
 }
 
 /// Bilinear sample of `plane` (width w, height h) at image position (u, v), pixel centres at +0.5; None outside the
@@ -115,6 +139,40 @@ pub fn ncc(a: &[f64], b: &[f64]) -> Option<f64> {
     Some((sab / (saa * sbb).sqrt()).clamp(-1.0, 1.0))
 }
 
+/// Orthonormal basis (Gram-Schmidt, in f64) of the polynomials in the patch's two axes of total degree <= `degree`,
+/// sampled on its `side` x `side` grid (row-major, centred): 1, x, y, x^2, xy, y^2, ...
+pub fn trend_basis(side: usize, degree: usize) -> Vec<Vec<f64>> {
+    let h = (side as f64 - 1.0) / 2.0;
+    let mut out: Vec<Vec<f64>> = Vec::new();
+    for d in 0..=degree {
+        for px in 0..=d {
+            let py = d - px;
+            let mut v: Vec<f64> = (0..side * side)
+                .map(|k| ((k / side) as f64 - h).powi(px as i32) * ((k % side) as f64 - h).powi(py as i32))
+                .collect();
+            for q in &out {
+                let dot: f64 = q.iter().zip(&v).map(|(a, b)| a * b).sum();
+                v.iter_mut().zip(q).for_each(|(x, qq)| *x -= dot * qq);
+            }
+            // A term the grid cannot tell from the earlier ones (a patch too small for the degree) is left out.
+            let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if n > 1e-9 {
+                v.iter_mut().for_each(|x| *x /= n);
+                out.push(v);
+            }
+        }
+    }
+    out
+}
+
+/// Removes from `patch` its projection on the orthonormal `basis` ([`trend_basis`]): its least-squares polynomial.
+pub fn remove_trend(patch: &mut [f64], basis: &[Vec<f64>]) {
+    for q in basis {
+        let d: f64 = q.iter().zip(patch.iter()).map(|(a, b)| a * b).sum();
+        patch.iter_mut().zip(q).for_each(|(x, qq)| *x -= d * qq);
+    }
+}
+
 /// Two unit vectors spanning the plane with normal `n` (the first horizontal when n is not vertical).
 pub fn plane_axes(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
     let n = glam::DVec3::from(n).normalize();
@@ -125,12 +183,14 @@ pub fn plane_axes(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
 }
 
 /// Mean NCC of the patch on the plane through `p` (spanned by `axes`, samples `spacing` apart) between `views[0]`
-/// and each other view, over every band, with the number of partners that scored. `scratch` is reused.
+/// and each other view, over every band, with the number of partners that scored. Each patch's polynomial `trend`
+/// ([`trend_basis`] of its side; empty: none) is removed first. `scratch` is reused.
 pub fn score(
     p: [f64; 3],
     axes: ([f64; 3], [f64; 3]),
     spacing: f64,
     half: usize,
+    trend: &[Vec<f64>],
     views: &[PatchView],
     scratch: &mut Vec<f64>,
 ) -> (Option<f64>, usize) {
@@ -165,6 +225,20 @@ pub fn score(
     if !ok[0] {
         return (None, 0);
     }
+    // Each patch's trend (a smooth shading ramp or a hotspot that moves with the camera) is removed, so that only
+    // its texture correlates. A patch whose texture is below 1e-10 of its mean square counts as flat (as `ncc`
+    // judges a patch before the trend is removed).
+    let mut flat = vec![false; views.len() * nb];
+    if !trend.is_empty() {
+        for vi in (0..views.len()).filter(|&vi| ok[vi]) {
+            for bi in 0..nb {
+                let patch = &mut scratch[(vi * nb + bi) * m..(vi * nb + bi + 1) * m];
+                let before: f64 = patch.iter().map(|x| x * x).sum();
+                remove_trend(patch, trend);
+                flat[vi * nb + bi] = patch.iter().map(|x| x * x).sum::<f64>() <= 1e-10 * before;
+            }
+        }
+    }
     let (mut sum, mut partners) = (0.0, 0usize);
     for vi in 1..views.len() {
         if !ok[vi] {
@@ -174,6 +248,9 @@ pub fn score(
         for bi in 0..nb {
             let a = &scratch[bi * m..(bi + 1) * m];
             let b = &scratch[(vi * nb + bi) * m..(vi * nb + bi + 1) * m];
+            if flat[bi] || flat[vi * nb + bi] {
+                continue;
+            }
             if let Some(c) = ncc(a, b) {
                 s += c;
                 k += 1;
@@ -238,15 +315,16 @@ pub fn refine(
     views: &[PatchView],
     o: &RefineOptions,
 ) -> Refined {
-    let keep = |ncc: f64| Refined { s: 0.0, ncc, moved: false, supported: false };
+    let keep = |ncc: f64| Refined { s: 0.0, ncc, moved: false, supported: false, peak: f64::NAN };
     if views.len() < 1 + o.min_views.max(1) || footprint.is_nan() || footprint <= 0.0 {
         return keep(f64::NAN);
     }
     let axes = plane_axes(n);
+    let trend = if o.trend_degree == 0 { Vec::new() } else { trend_basis(2 * o.half + 1, o.trend_degree) };
     let mut scratch = Vec::new();
     let mut eval = |s: f64| {
         let p = [0, 1, 2].map(|k| p0[k] + s * u[k]);
-        match score(p, axes, footprint, o.half, views, &mut scratch) {
+        match score(p, axes, footprint, o.half, &trend, views, &mut scratch) {
             (Some(c), partners) if partners >= o.min_views => Some(c),
             _ => None,
         }
@@ -280,7 +358,7 @@ pub fn refine(
     }
     let ncc = ncc.max(best_c);
     if ncc < o.move_ncc {
-        return Refined { s: 0.0, ncc, moved: false, supported: true };
+        return Refined { s: 0.0, ncc, moved: false, supported: true, peak: s };
     }
-    Refined { s, ncc, moved: true, supported: true }
+    Refined { s, ncc, moved: true, supported: true, peak: s }
 }

@@ -49,6 +49,16 @@ pub struct PointResult {
     pub moved: bool,
     /// Whether the images support a surface at or near the point (`moved` implies it).
     pub supported: bool,
+    /// Offset of the best score along the ray whether or not the point moved (normalised units; NaN: unsupported).
+    pub peak: f64,
+    /// One pixel footprint of the reference view at the point (normalised units).
+    pub footprint: f64,
+}
+
+impl PointResult {
+    fn none() -> Self {
+        Self { shift: 0.0, ncc: f64::NAN, moved: false, supported: false, peak: f64::NAN, footprint: f64::NAN }
+    }
 }
 
 /// Decoded planes of the frames a group needs, bounded by `budget` bytes; kept across calls of [`refine_points`]
@@ -104,8 +114,7 @@ pub fn refine_points(
 ) -> NerfResult<(Vec<PointResult>, RefineStats)> {
     let budget_bytes = store.budget;
     let mut stats = RefineStats { points: points.len(), ..Default::default() };
-    let mut results: Vec<PointResult> =
-        points.iter().map(|_| PointResult { shift: 0.0, ncc: f64::NAN, moved: false, supported: false }).collect();
+    let mut results: Vec<PointResult> = points.iter().map(|_| PointResult::none()).collect();
     let ds = &run.ds;
     let bands: Vec<usize> = (0..ds.bands.len())
         .filter(|&b| ds.band_camera(b).is_none_or(|bc| ds.frames.iter().all(|f| bc.is_frame_camera(&f.camera))))
@@ -248,7 +257,7 @@ fn refine_one(
     };
     let mut views = Vec::with_capacity(1 + pt.partners.len());
     let Some(reference) = view(pt.frame) else {
-        return PointResult { shift: 0.0, ncc: f64::NAN, moved: false, supported: false };
+        return PointResult::none();
     };
     let footprint = footprint(&cams[pt.frame], reference.origin, pt.p);
     views.push(reference);
@@ -257,5 +266,12 @@ fn refine_one(
     // cloud's median distance went from 0.034 to 0.14-0.16 m; docs/geometry.md).
     let n = up.unwrap_or([-pt.dir[0], -pt.dir[1], -pt.dir[2]]);
     let r = refine(pt.p, pt.dir, n, footprint, &views, opts);
-    PointResult { shift: if r.moved { r.s } else { 0.0 }, ncc: r.ncc, moved: r.moved, supported: r.supported }
+    PointResult {
+        shift: if r.moved { r.s } else { 0.0 },
+        ncc: r.ncc,
+        moved: r.moved,
+        supported: r.supported,
+        peak: r.peak,
+        footprint,
+    }
 }

@@ -16,17 +16,19 @@
 //!   near-nadir, which is what the ortho shows. Nodata only where accumulation is below the floor (the colour of an
 //!   empty ray is the background's, not the surface's).
 //!
-//! Every DSM cell gets a [`quality`] code: measured (the refinement placed or confirmed its height), the field's
-//! height only, or a gap (a surface the filters turned down); [`DsmFill`] then decides what the DSM makes of the
+//! Every DSM cell gets a [`quality`] code: measured (the refinement placed or confirmed its height, and a second
+//! sweep from another reference found the same height: [`super::cross_check`]), the field's height only, or a gap
+//! (a surface the filters turned down); [`DsmFill`] then decides what the DSM makes of the
 //! unsupported cells and gaps (`super::survey_products::finish_dsm`), and the codes are written beside it.
 //!
 //! The grid is rendered in blocks of whole rows (at most [`SurveyOptions::block_rays`] rays each, consistency rays
 //! included in the bound); each block goes to a sink (the GeoTIFF writers), so host memory stays bounded whatever the
 //! raster size.
 
+use super::cross_check;
 use super::export::{consistency, field_cell_size, Consistency, REFINE_IMAGE_BUDGET};
 use super::refine::{holds_sweep, RefineOptions};
-use super::refine_points::{normalised_poses, refine_points, FrameStore, RefinePoint};
+use super::refine_points::{normalised_poses, refine_points, FrameStore, PointResult, RefinePoint};
 use super::run::LoadedRun;
 use super::views::NovelView;
 use crate::data::{Camera, CameraModel, Distortion, Split};
@@ -132,14 +134,19 @@ pub mod quality {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum DsmFill {
+    /// The default. Cells without photometric support are interpolated as `interpolate` does where the field's
+    /// height lies within `fill_tolerance` of the interpolation (a uniform lawn, a pond, a sports field: the field
+    /// adds only its error there) and keep the field's height where it stands out (a crown or a wall a plane patch
+    /// cannot place, which interpolation would flatten). Gaps (surfaces the filters turned down) are interpolated
+    /// unless the interpolation lies more than `fill_tolerance` above the field's height there: the field errs
+    /// upwards (floaters), and an interpolation above it bridges a step down (from a roof over the foot of its wall).
+    #[default]
+    Auto,
     /// Interpolated from the measured cells around them (inverse distance, eight directions, up to a distance,
     /// never across a step steeper than 45 degrees): a flat, textureless field comes out at the height of its
     /// supported edges; farther cells and steps stay nodata.
     Interpolate,
-    /// The field's own height (it may sit above a surface it could not see texture on). The default until the
-    /// geometry figures (docs/geometry.md) are measured again with `interpolate`, which drops the field's heights
-    /// wherever the images cannot confirm them (a young field's roofs included).
-    #[default]
+    /// The field's own height (it may sit above a surface it could not see texture on); gaps stay nodata.
     Field,
     /// Nodata.
     None,
@@ -147,6 +154,10 @@ pub enum DsmFill {
 
 /// Default distance up to which [`DsmFill::Interpolate`] reaches, in cells.
 pub const FILL_MAX_CELLS: f64 = 100.0;
+
+/// Default [`SurveyOptions::fill_tolerance`], in world units (metres in a projected CRS): half the lowest tree
+/// `export trees` counts, above the field's error on open ground.
+pub const FILL_TOLERANCE: f64 = 1.0;
 
 /// What to render and how to judge it.
 #[derive(Debug, Clone)]
@@ -172,6 +183,9 @@ pub struct SurveyOptions {
     pub fill: DsmFill,
     /// How far [`DsmFill::Interpolate`] reaches, in world units (None: [`FILL_MAX_CELLS`] cells).
     pub fill_max_distance: Option<f64>,
+    /// How close the field's height must lie to the interpolation for [`DsmFill::Auto`] to take the interpolation,
+    /// in world units.
+    pub fill_tolerance: f64,
     /// Host bytes of decoded training images the refinement may hold (as [`super::export::ExportOptions`]).
     pub image_budget_bytes: u64,
 }
@@ -191,6 +205,7 @@ impl Default for SurveyOptions {
             refine: Some(RefineOptions { drop_unsupported: false, ..Default::default() }),
             fill: DsmFill::default(),
             fill_max_distance: None,
+            fill_tolerance: FILL_TOLERANCE,
             image_budget_bytes: REFINE_IMAGE_BUDGET,
         }
     }
@@ -212,8 +227,11 @@ pub struct SurveyStats {
     pub inconsistent: usize,
     /// Cells whose height the photometric refinement moved (DSM only).
     pub refined: usize,
-    /// Cells without photometric support, nodata unless the refinement keeps them (DSM only).
+    /// Cells without photometric support, nodata unless the refinement keeps them (DSM only; the cross-check's
+    /// unconfirmed cells among them).
     pub unsupported: usize,
+    /// Cells one sweep supported that the cross-check's second sweep did not confirm (DSM only).
+    pub unconfirmed: usize,
     /// Of the DSM's cells with a height: measured (photometric support), interpolated, the field's height only.
     pub measured: usize,
     pub interpolated: usize,
@@ -244,7 +262,8 @@ pub struct RowBlock {
     /// First grid row of the block.
     pub row0: usize,
     pub rows: usize,
-    /// rows x width heights (world z), NaN where nodata.
+    /// rows x width heights (world z), NaN where nodata; a [`quality::GAP`] cell holds the field's height it was
+    /// turned down with (NaN when unknown), which the DSM's fill may consult but never writes.
     pub height: Vec<f32>,
     /// rows x width x B band values (pixel-interleaved), NaN where nodata.
     pub values: Vec<f32>,
@@ -429,6 +448,7 @@ pub fn render_survey(
                 if spread.is_nan() || spread > max_cells * field_cell_size(p, max_res, contraction) {
                     stats.spread += 1;
                     q[i] = quality::GAP;
+                    height[i] = run.transform.to_world(p)[2] as f32;
                     continue;
                 }
             }
@@ -472,14 +492,43 @@ pub fn render_survey(
                     (k, RefinePoint { p, dir: down, frame, partners })
                 })
                 .unzip();
+            // The cross-check: a second sweep from another reference must find the first's height.
             let (res, rs) = refine_points(run, &mut pts, r, store).map_err(SurveyError::Render)?;
+            let mut confirmed = vec![true; res.len()];
+            if let Some(tolerance) = r.cross_check {
+                let holds = |p: [f64; 3], f: u32| {
+                    let (origin, rot) = poses[f as usize];
+                    holds_sweep(&run.ds.frames[f as usize].camera, origin, &rot, p, down, up, r)
+                };
+                // From the field's height, where the first sweep started (`pts` holds the moved points).
+                let (idx, mut second): (Vec<usize>, Vec<RefinePoint>) = (0..pts.len())
+                    .filter(|&i| res[i].supported)
+                    .filter_map(|i| {
+                        let p = kept[ids[i]].1;
+                        let first = RefinePoint { p, partners: pts[i].partners.clone(), ..pts[i] };
+                        cross_check::second_reference(&first, &centres, |f| holds(p, f), |f| nadir(p, f))
+                            .map(|s| (i, s))
+                    })
+                    .unzip();
+                let (res2, _) = refine_points(run, &mut second, r, store).map_err(SurveyError::Render)?;
+                let mut by_cell: Vec<Option<&PointResult>> = vec![None; res.len()];
+                for (&i, r2) in idx.iter().zip(&res2) {
+                    by_cell[i] = Some(r2);
+                }
+                for (i, r1) in res.iter().enumerate() {
+                    confirmed[i] = !r1.supported || cross_check::confirmed(r1, by_cell[i], tolerance);
+                    if !confirmed[i] {
+                        stats.unconfirmed += 1;
+                    }
+                }
+            }
             if rs.skipped.is_none() {
-                for ((&k, pt), res) in ids.iter().zip(&pts).zip(&res) {
-                    if res.moved {
+                for (((&k, pt), res), &ok) in ids.iter().zip(&pts).zip(&res).zip(&confirmed) {
+                    if res.moved && ok {
                         z_of[k] = Some(run.transform.to_world(pt.p)[2]);
                         stats.refined += 1;
                     }
-                    if res.supported {
+                    if res.supported && ok {
                         q_of[k] = quality::MEASURED;
                     } else {
                         stats.unsupported += 1;
@@ -491,18 +540,23 @@ pub fn render_survey(
                 }
             }
         }
-        for (((&(i, _, _), ok), z), qk) in kept.iter().zip(agree).zip(z_of).zip(q_of) {
+        // A gap keeps the field's height it was turned down with, for `--fill auto`'s check.
+        for (((&(i, _, field_z), ok), z), qk) in kept.iter().zip(agree).zip(z_of).zip(q_of) {
             match (ok, z) {
                 (false, _) => {
                     stats.inconsistent += 1;
                     q[i] = quality::GAP;
+                    height[i] = field_z as f32;
                 }
                 (true, Some(z)) => {
                     height[i] = z as f32;
                     q[i] = qk;
                     stats.valid += 1;
                 }
-                (true, None) => q[i] = quality::GAP,
+                (true, None) => {
+                    q[i] = quality::GAP;
+                    height[i] = field_z as f32;
+                }
             }
         }
         sink(&RowBlock { row0, rows, height, values, quality: q })?;

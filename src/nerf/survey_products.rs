@@ -311,8 +311,8 @@ pub fn write_products(
     if let (Some(mut wr), Some(path)) = (dsm, &outputs.dsm) {
         let max_cells = opts.fill_max_distance.map_or(FILL_MAX_CELLS, |d| d / grid.gsd);
         let rise = crate::output::raster::fill::MAX_SLOPE * grid.gsd;
-        let fill = (opts.fill, max_cells, rise);
-        finish_dsm(&mut dsm_cells, &mut dsm_quality, w, h, fill, opts.refine.is_some(), &mut stats);
+        let fill = FillParams { mode: opts.fill, max_cells, max_rise_per_cell: rise, tolerance: opts.fill_tolerance };
+        finish_dsm(&mut dsm_cells, &mut dsm_quality, w, h, &fill, opts.refine.is_some(), &mut stats);
         let rows: Vec<f32> = dsm_cells.iter().map(|&z| if z.is_finite() { z } else { nd }).collect();
         wr.push_rows(&rows)?;
         let pv = wr.finish()?;
@@ -349,23 +349,31 @@ pub fn write_products(
     Ok(SurveyReport { grid: *grid, stats, files, notes })
 }
 
+/// How [`finish_dsm`] fills: the mode, the distance in cells and the steepest rise per cell an interpolation may
+/// bridge ([`crate::output::raster::fill`]), and [`DsmFill::Auto`]'s tolerance in world units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FillParams {
+    pub mode: DsmFill,
+    pub max_cells: f64,
+    pub max_rise_per_cell: f64,
+    pub tolerance: f64,
+}
+
 /// The DSM's final heights and quality codes: the cells without photometric support (when the refinement ran) and
-/// the surfaces the filters turned down are filled, kept or dropped as `fill` says (the mode, the distance in cells
-/// and the steepest rise per cell an interpolation may bridge, [`crate::output::raster::fill`]); `stats` counts the
-/// outcome.
+/// the surfaces the filters turned down are filled, kept or dropped as `fill` says; `stats` counts the outcome.
 pub fn finish_dsm(
     z: &mut [f32],
     q: &mut [u8],
     w: usize,
     h: usize,
-    (fill, max_cells, max_rise_per_cell): (DsmFill, f64, f64),
+    fill: &FillParams,
     refined: bool,
     stats: &mut SurveyStats,
 ) {
     // Without the refinement nothing is measured photometrically: the field's consistent heights are what there is.
     let source_code = if refined { quality::MEASURED } else { quality::FIELD_ONLY };
     let unsupported = |c: u8| c == quality::GAP || (refined && c == quality::FIELD_ONLY);
-    match fill {
+    match fill.mode {
         DsmFill::Field => {}
         DsmFill::None => {
             for (zi, qi) in z.iter_mut().zip(q.iter_mut()) {
@@ -375,15 +383,33 @@ pub fn finish_dsm(
                 }
             }
         }
-        DsmFill::Interpolate => {
+        DsmFill::Interpolate | DsmFill::Auto => {
             let source: Vec<bool> = q.iter().map(|&c| c == source_code).collect();
             let want: Vec<bool> = q.iter().map(|&c| unsupported(c)).collect();
-            let filled = crate::output::raster::fill::fill_idw(z, &source, &want, w, h, max_cells, max_rise_per_cell);
+            let filled =
+                crate::output::raster::fill::fill_idw(z, &source, &want, w, h, fill.max_cells, fill.max_rise_per_cell);
             for ((zi, qi), f) in z.iter_mut().zip(q.iter_mut()).zip(filled) {
                 if !unsupported(*qi) {
                     continue;
                 }
+                // Auto takes the interpolation for an unsupported cell only where the field's height agrees with
+                // it, and for a gap unless it lies above the height the gap was turned down with (the field errs
+                // upwards, with floaters; an interpolation above it bridges a step down, as from a roof over the
+                // foot of its wall). Otherwise an unsupported cell keeps the field's height, a gap stays a gap.
+                let tol = fill.tolerance;
+                let disagrees = fill.mode == DsmFill::Auto
+                    && f.is_none_or(|v| {
+                        // NaN (a gap turned down without a height) disagrees.
+                        let above = (v - *zi) as f64;
+                        let off = if *qi == quality::GAP { above } else { above.abs() };
+                        off.is_nan() || off > tol
+                    });
                 match f {
+                    _ if disagrees && *qi == quality::FIELD_ONLY => {}
+                    _ if disagrees => {
+                        *zi = f32::NAN;
+                        *qi = quality::NODATA;
+                    }
                     Some(v) => {
                         *zi = v;
                         *qi = quality::INTERPOLATED;

@@ -9,6 +9,10 @@
 //! With a class raster (integer codes, band named like `classes 1=ground 2=roof 3=object`), the same statistics per
 //! class over **interior** cells only: cells whose 3 x 3 neighbourhood in the class raster is one class, so that a
 //! footprint-sized misplacement of an edge does not count as a height error there (edges are judged separately).
+//!
+//! With the prediction's own quality raster (a DSM's `_quality.tif`, on the prediction's grid), the same statistics
+//! per quality code over every cell: how far the cells labelled measured, interpolated or field only lie from the
+//! reference.
 
 use serde::Serialize;
 
@@ -37,6 +41,12 @@ pub struct ClassErrors {
     pub bands: Vec<BandErrors>,
 }
 
+/// The prediction's quality raster (same grid) and the names of its codes.
+pub struct QualityLayer<'a> {
+    pub raster: &'a GeoRaster,
+    pub names: Vec<(i64, String)>,
+}
+
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct RasterCompareReport {
     /// Valid predicted cells.
@@ -49,6 +59,8 @@ pub struct RasterCompareReport {
     pub completeness: f64,
     pub bands: Vec<BandErrors>,
     pub classes: Vec<ClassErrors>,
+    /// Per code of the prediction's quality raster, every cell (empty without one).
+    pub quality: Vec<ClassErrors>,
 }
 
 /// Options of [`compare_rasters`].
@@ -106,9 +118,23 @@ pub fn compare_rasters(
     pred: &GeoRaster,
     reference: &GeoRaster,
     classes: Option<&GeoRaster>,
+    quality: Option<&QualityLayer>,
     opts: &RasterCompareOptions,
 ) -> Result<RasterCompareReport> {
     let (p, r) = (&pred.grid, &reference.grid);
+    if let Some(q) = quality {
+        if (q.raster.grid.width, q.raster.grid.height) != (p.width, p.height) {
+            return Err(OutputError::invalid(
+                "--quality",
+                format!(
+                    "{} x {} cells against the prediction's {} x {}: not its quality raster",
+                    q.raster.grid.width, q.raster.grid.height, p.width, p.height
+                ),
+            ));
+        }
+    }
+    let quality_names: &[(i64, String)] = quality.map_or(&[], |q| &q.names);
+    let mut per_quality: Vec<Vec<Vec<f64>>> = vec![vec![Vec::new(); p.bands]; quality_names.len()];
     if p.bands != r.bands {
         return Err(OutputError::invalid("--ref", format!("{} bands against the prediction's {}", r.bands, p.bands)));
     }
@@ -151,11 +177,18 @@ pub fn compare_rasters(
             }
             compared += 1;
             let k = class_at(x, y).and_then(|k| names.iter().position(|(c, _)| *c == k));
+            let qk = quality.and_then(|q| {
+                let v = q.raster.value(0, col, row);
+                quality_names.iter().position(|(c, _)| v.is_finite() && *c == v as i64)
+            });
             for b in 0..nb {
                 let e = pv[b] as f64 - rv[b] as f64;
                 d[b].push(e);
                 if let Some(i) = k {
                     per_class[i][b].push(e);
+                }
+                if let Some(i) = qk {
+                    per_quality[i][b].push(e);
                 }
             }
         }
@@ -183,6 +216,15 @@ pub fn compare_rasters(
             bands: (0..nb).map(|b| errors(&band_name(b), &mut dd[b], opts)).collect(),
         })
         .collect();
+    let quality = quality_names
+        .iter()
+        .zip(per_quality.iter_mut())
+        .map(|((code, name), dd)| ClassErrors {
+            code: *code,
+            name: name.clone(),
+            bands: (0..nb).map(|b| errors(&band_name(b), &mut dd[b], opts)).collect(),
+        })
+        .collect();
     Ok(RasterCompareReport {
         pred_cells,
         ref_cells,
@@ -190,6 +232,7 @@ pub fn compare_rasters(
         completeness: if ref_cells > 0 { compared as f64 / ref_cells as f64 } else { f64::NAN },
         bands,
         classes,
+        quality,
     })
 }
 
@@ -236,6 +279,11 @@ impl RasterCompareReport {
         if !absent.is_empty() {
             let names: Vec<&str> = absent.iter().map(|c| c.name.as_str()).collect();
             s += &format!("classes without interior cells: {}\n", names.join(", "));
+        }
+        for c in self.quality.iter().filter(|c| c.bands.iter().any(|e| e.cells > 0)) {
+            for e in &c.bands {
+                line(&mut s, &format!("[{}] ", c.name), e);
+            }
         }
         s
     }

@@ -351,12 +351,14 @@ pub(super) fn survey(o: &ProcessOptions, progress: Progress) -> Result<StageDone
     }
     let notes = vec![
         format!(
-            "{} cells: {} with a height ({:.1} %), {} refined photometrically, {} without photometric support",
+            "{} cells: {} with a height ({:.1} %), {} refined photometrically, {} without photometric support ({} of \
+             them not confirmed by a second reference)",
             s.cells,
             s.valid,
             100.0 * s.valid as f64 / s.cells.max(1) as f64,
             s.refined,
-            s.unsupported
+            s.unsupported,
+            s.unconfirmed
         ),
         s.quality_line(),
     ];

@@ -6,10 +6,16 @@
 //! - a flat, textureless pond between level banks comes out exactly at the banks' height; a gap wider than the
 //!   distance limit stays a hole; a cell with sources on one side only is not extrapolated; the gap between a
 //!   roof and the ground is not bridged;
-//! - the three `--fill` modes on a synthetic DSM: what each code becomes, and the counts.
+//! - the four `--fill` modes on a synthetic DSM: what each code becomes, and the counts; `auto` interpolates a field
+//!   height within its tolerance of the interpolation and keeps one that stands out (a crown); it interpolates a gap
+//!   unless the interpolation lies above the height the gap was turned down with (a step down), which stays a hole.
 
 use msnerf::nerf::survey::{quality, DsmFill, SurveyStats};
-use msnerf::nerf::survey_products::finish_dsm;
+use msnerf::nerf::survey_products::{finish_dsm, FillParams};
+
+fn params(mode: DsmFill) -> FillParams {
+    FillParams { mode, max_cells: 100.0, max_rise_per_cell: 1000.0, tolerance: 1.0 }
+}
 use msnerf::output::raster::fill::fill_idw;
 
 /// The definition, cell by cell, in f64.
@@ -139,7 +145,7 @@ fn the_fill_modes_decide_what_unsupported_cells_become() {
             q.iter_mut().filter(|c| **c == MEASURED).for_each(|c| *c = FIELD_ONLY);
         }
         let mut st = SurveyStats { cells: w * h, ..Default::default() };
-        finish_dsm(&mut z, &mut q, w, h, (fill, 100.0, 1000.0), refined, &mut st);
+        finish_dsm(&mut z, &mut q, w, h, &params(fill), refined, &mut st);
         (z, q, st)
     };
     let (z, q, st) = run(DsmFill::Interpolate, true);
@@ -163,4 +169,61 @@ fn the_fill_modes_decide_what_unsupported_cells_become() {
     assert_eq!(z[1], 99.0);
     assert!((z[2] - (99.0 + 20.0) / 2.0).abs() < 1e-4, "{z:?}");
     assert_eq!((st.measured, st.field_only, st.interpolated), (0, 3, 1));
+    // Auto: the field-only cell at 99 stands 87 above its interpolation (12) and is kept; the gap, turned down at
+    // a field height of 18.4 (its interpolation: 18), is interpolated; at 16.5 (the interpolation 1.5 above it) or
+    // without a height, it stays a hole.
+    let auto = |gap_z: f32| {
+        let (mut z, mut q) = (z0.clone(), q0.clone());
+        z[2] = gap_z;
+        let mut st = SurveyStats { cells: w * h, ..Default::default() };
+        finish_dsm(&mut z, &mut q, w, h, &params(DsmFill::Auto), true, &mut st);
+        (z, q, st)
+    };
+    let (z, q, st) = auto(18.4);
+    assert_eq!(q, vec![MEASURED, FIELD_ONLY, quality::INTERPOLATED, MEASURED, NODATA]);
+    assert_eq!(z[1], 99.0);
+    assert!((z[2] - (10.0 / 4.0 + 20.0) / 1.25).abs() < 1e-5, "{z:?}");
+    assert_eq!((st.measured, st.interpolated, st.field_only, st.valid), (2, 1, 1, 4));
+    // Turned down at 25, above its interpolation (a floater): interpolated too.
+    let (z, q, _) = auto(25.0);
+    assert!(q[2] == quality::INTERPOLATED && (z[2] - 18.0).abs() < 1e-5, "{q:?} {z:?}");
+    for gap_z in [16.5, f32::NAN] {
+        let (z, q, st) = auto(gap_z);
+        assert_eq!(q, vec![MEASURED, FIELD_ONLY, NODATA, MEASURED, NODATA], "gap at {gap_z}");
+        assert!(z[2].is_nan() && st.interpolated == 0, "gap at {gap_z}: {z:?}");
+    }
+}
+
+/// `auto` on a lawn with a tree: measured lawn at 0 m round a square of unsupported cells, the field's height
+/// within the tolerance on the lawn's part (0.4-0.9 m: the field's error) and a crown 8 m high in the middle. The
+/// lawn's cells come out at the interpolated 0 m, the crown keeps the field's height.
+#[test]
+fn auto_fills_a_lawn_and_keeps_a_crown() {
+    use quality::{FIELD_ONLY, INTERPOLATED, MEASURED};
+    let (w, h) = (21, 21);
+    let mut z = vec![0.0f32; w * h];
+    let mut q = vec![MEASURED; w * h];
+    for r in 3..18 {
+        for c in 3..18 {
+            let i = r * w + c;
+            q[i] = FIELD_ONLY;
+            let crown = (r as i32 - 10).abs() <= 2 && (c as i32 - 10).abs() <= 2;
+            z[i] = if crown { 8.0 } else { 0.4 + 0.5 * ((r + c) % 2) as f32 };
+        }
+    }
+    let before = z.clone();
+    let mut st = SurveyStats { cells: w * h, ..Default::default() };
+    finish_dsm(&mut z, &mut q, w, h, &params(DsmFill::Auto), true, &mut st);
+    for r in 3..18 {
+        for c in 3..18 {
+            let i = r * w + c;
+            if before[i] == 8.0 {
+                assert_eq!((q[i], z[i]), (FIELD_ONLY, 8.0), "crown cell ({r}, {c})");
+            } else {
+                assert_eq!(q[i], INTERPOLATED, "lawn cell ({r}, {c})");
+                assert!(z[i].abs() < 1e-6, "lawn cell ({r}, {c}) at {}", z[i]);
+            }
+        }
+    }
+    assert_eq!((st.field_only, st.interpolated), (25, 15 * 15 - 25));
 }

@@ -290,9 +290,12 @@ fn survey_products(tmp: &std::path::Path, data: &std::path::Path, run: &str) {
             }
         }
     }
-    assert!(codes[1] > 500 && codes[3] > 0 && codes[2] == 0, "by default the field's heights stay: {codes:?}");
+    // By default (`--fill auto`) the gaps are interpolated and so is every unsupported cell whose field height
+    // agrees with its interpolation.
+    assert!(codes[1] > 500 && codes[2] > 0, "measured and interpolated cells by default: {codes:?}");
     assert!(text.contains("measured (photometric support)"), "{text}");
-    // `--fill none`: only measured cells (fewer, none new); `--fill interpolate`: the cells the images do not support
+    // `--fill field`: the field's heights stay, the gaps stay nodata; `--fill none`: only measured cells (fewer,
+    // none new); `--fill interpolate`: the cells the images do not support
     // interpolated from the measured ones around them, and on the flat ground they stay on the ground.
     let align = truth.join("dsm.tif");
     let fill_codes = |mode: &str| {
@@ -306,6 +309,8 @@ fn survey_products(tmp: &std::path::Path, data: &std::path::Path, run: &str) {
         }
         (out, k)
     };
+    let (_, field) = fill_codes("field");
+    assert!(field[2] == 0 && field[3] > 0 && field[1] == codes[1], "--fill field: {field:?} against {codes:?}");
     let (dropped, none) = fill_codes("none");
     assert!(none[2] == 0 && none[3] == 0 && none[1] == codes[1], "{none:?} against {codes:?}");
     let hd = compare(&dropped, "dsm.tif", &[]);
@@ -348,30 +353,40 @@ fn survey_products(tmp: &std::path::Path, data: &std::path::Path, run: &str) {
     // The box's outline: cells above half its height (ground 20 m, roof 27 m) within 6.5 m of its centre (local
     // (6, 4); the nearest tree crown is 7.4 m away), against the truth's.
     let half = 20.0 + 3.5;
-    let (mut both, mut either, mut cp, mut ct, mut np, mut nt) = (0, 0, [0.0; 2], [0.0; 2], 0.0, 0.0);
-    for r in 0..hgt {
-        for c in 0..w {
-            let [x, y] = tr.grid.centre(c, r);
-            if (x - 500_006.0).hypot(y - 4_000_004.0) > 6.5 {
-                continue;
-            }
-            let (p, t) = (pred.value(0, c, r), tr.value(0, c, r));
-            let (in_p, in_t) = (!pred.is_nodata(p) && p > half, t.is_finite() && t > half);
-            both += usize::from(in_p && in_t);
-            either += usize::from(in_p || in_t);
-            if in_p {
-                cp = [cp[0] + x, cp[1] + y];
-                np += 1.0;
-            }
-            if in_t {
-                ct = [ct[0] + x, ct[1] + y];
-                nt += 1.0;
+    let outline = |path: &std::path::Path| {
+        let pred = read_geotiff(path).unwrap();
+        let (mut both, mut either, mut cp, mut ct, mut np, mut nt) = (0, 0, [0.0; 2], [0.0; 2], 0.0, 0.0);
+        for r in 0..hgt {
+            for c in 0..w {
+                let [x, y] = tr.grid.centre(c, r);
+                if (x - 500_006.0).hypot(y - 4_000_004.0) > 6.5 {
+                    continue;
+                }
+                let (p, t) = (pred.value(0, c, r), tr.value(0, c, r));
+                let (in_p, in_t) = (!pred.is_nodata(p) && p > half, t.is_finite() && t > half);
+                both += usize::from(in_p && in_t);
+                either += usize::from(in_p || in_t);
+                if in_p {
+                    cp = [cp[0] + x, cp[1] + y];
+                    np += 1.0;
+                }
+                if in_t {
+                    ct = [ct[0] + x, ct[1] + y];
+                    nt += 1.0;
+                }
             }
         }
-    }
-    let iou = both as f64 / either.max(1) as f64;
-    let shift = ((cp[0] / np - ct[0] / nt).powi(2) + (cp[1] / np - ct[1] / nt).powi(2)).sqrt() / fp;
-    eprintln!("box outline: IoU {iou:.3}, centroid {shift:.2} footprints from the truth's ({np} and {nt} cells)");
+        let iou = both as f64 / either.max(1) as f64;
+        let shift = ((cp[0] / np - ct[0] / nt).powi(2) + (cp[1] / np - ct[1] / nt).powi(2)).sqrt() / fp;
+        eprintln!(
+            "box outline ({}): IoU {iou:.3}, centroid {shift:.2} footprints from the truth's ({np} and {nt} cells)",
+            path.display()
+        );
+        (iou, shift)
+    };
+    outline(&tmp.join("dsm-fill-field.tif"));
+    outline(&tmp.join("dsm-fill-interpolate.tif"));
+    let (iou, shift) = outline(&dsm);
     assert!(iou > MIN_BOX_IOU, "box outline IoU {iou:.3}");
     assert!(shift < MAX_BOX_SHIFT_FP, "box centroid {shift:.2} footprints off");
 

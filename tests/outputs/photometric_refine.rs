@@ -6,7 +6,10 @@
 //!   with the plane: a point started 4 footprints in front of the plane comes back onto it within 0.1 footprint,
 //!   and a texture a hundred times darker and weaker gives the same answer; a uniform plane, a start beyond the
 //!   search range, and too few partner views leave the point where it was, unsupported; a best correlation below the
-//!   move threshold leaves it there too, supported.
+//!   move threshold leaves it there too, supported;
+//! - the trend removed from each patch against a least-squares polynomial fitted here from the normal equations, and
+//!   a uniform plane under smooth shading (an albedo ramp, view-dependent shading, noise), which plain NCC correlates
+//!   at every height and the default leaves unsupported.
 
 use msnerf::data::camera::{Camera, CameraModel, Distortion};
 use msnerf::nerf::refine::{bilinear, ncc, refine, PatchView, RefineOptions};
@@ -143,10 +146,15 @@ fn a_point_in_front_of_a_textured_plane_comes_back_onto_it() {
     let (r, fp) = refine_from(&bright, -4.0, 4, &opts);
     eprintln!("bright: moved {} by {:.4} footprints, NCC {:.4}", r.moved, r.s / fp, r.ncc);
     assert!(r.moved && r.ncc > 0.9, "{r:?}");
-    assert!((r.s / fp - 4.0).abs() < 0.1, "ended {:.3} footprints off the plane", r.s / fp - 4.0);
+    // Removing each patch's quadratic trend (the default) leaves this two-octave texture its finer octave, which
+    // the images' bilinear sampling blurs by a different phase per view: within 0.15 footprint, where plain NCC
+    // (the trend left in) comes within 0.1.
+    assert!((r.s / fp - 4.0).abs() < 0.15, "ended {:.3} footprints off the plane", r.s / fp - 4.0);
+    let (plain, _) = refine_from(&bright, -4.0, 4, &RefineOptions { trend_degree: 0, ..opts.clone() });
+    assert!(plain.moved && (plain.s / fp - 4.0).abs() < 0.1, "plain NCC: {plain:?}");
     // Behind the plane too.
     let (r2, _) = refine_from(&bright, 3.0, 4, &opts);
-    assert!(r2.moved && (r2.s / fp + 3.0).abs() < 0.1, "from behind: {r2:?}");
+    assert!(r2.moved && (r2.s / fp + 3.0).abs() < 0.15, "from behind: {r2:?}");
 
     // A hundred times darker and weaker: the same surface (NCC is blind to gain and offset; an MSE is not).
     let dark = scene(0.004, 0.0015);
@@ -179,7 +187,7 @@ fn a_weak_correlation_supports_the_point_without_moving_it() {
     // The same refinement with the move threshold just above and just below the correlation it reaches.
     let bright = scene(0.4, 0.15);
     let (free, fp) = refine_from(&bright, -4.0, 4, &RefineOptions { move_ncc: -1.0, ..Default::default() });
-    assert!(free.moved && free.supported && (free.s / fp - 4.0).abs() < 0.1, "{free:?}");
+    assert!(free.moved && free.supported && (free.s / fp - 4.0).abs() < 0.15, "{free:?}");
     let above = RefineOptions { move_ncc: free.ncc + 1e-9, ..Default::default() };
     let (r, _) = refine_from(&bright, -4.0, 4, &above);
     assert!(r.supported && !r.moved && r.s == 0.0, "a best NCC below move_ncc keeps the point: {r:?}");
@@ -223,7 +231,7 @@ fn a_reference_holds_the_sweep_exactly_when_every_candidate_scores() {
                 let mut scratch = Vec::new();
                 let all = (-(opts.range as i64)..=opts.range as i64).all(|k| {
                     let p = [p0[0], p0[1], p0[2] + k as f64 * fp * down[2]];
-                    score(p, plane_axes(up), fp, opts.half, &pair, &mut scratch).0.is_some()
+                    score(p, plane_axes(up), fp, opts.half, &[], &pair, &mut scratch).0.is_some()
                 });
                 assert_eq!(holds, all, "pixel ({row}, {col}) of the camera at {eye:?}");
                 seen[holds as usize] += 1;
@@ -231,4 +239,124 @@ fn a_reference_holds_the_sweep_exactly_when_every_candidate_scores() {
         }
     }
     assert!(seen[0] > 50 && seen[1] > 200, "both outcomes met: {seen:?}");
+}
+
+/// One band over the plane z = 0: a smooth albedo ramp (a 38 m period: nearly linear over a patch), `amp` of the
+/// texture, shading that depends on the viewing direction only (a lobe about one direction, the same for every
+/// view: it moves with the camera and lies at no height), and sensor noise of standard deviation `noise` (a sum of 12
+/// uniforms).
+fn render_shaded(cam: &Camera, c2w: &[[f64; 4]; 4], amp: f64, noise: f64, seed: u64) -> Vec<f32> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let lobe = glam::DVec3::new(0.35, -0.2, -0.9).normalize();
+    let mut img = Vec::with_capacity((W * H) as usize);
+    for row in 0..H {
+        for col in 0..W {
+            let ray = cam.ray_f64(c2w, row, col);
+            let t = -ray.origin[2] / ray.direction[2];
+            let p = [0, 1, 2].map(|k| ray.origin[k] + t * ray.direction[k]);
+            let ramp = 0.05 * (p[0] / 6.0 + 0.4 * p[1] / 6.0).sin();
+            let shade = 0.02 * (1.0 + glam::DVec3::from(ray.direction).normalize().dot(lobe)).powi(3);
+            let n: f64 = (0..12).map(|_| rng.random::<f64>()).sum::<f64>() - 6.0;
+            img.push((0.3 + ramp + shade + amp * texture(p[0], p[1]) + noise * n) as f32);
+        }
+    }
+    img
+}
+
+fn shaded_scene(amp: f64, noise: f64) -> Scene {
+    let cam = camera();
+    let eyes = [[0.0, -16.0, 22.0], [13.0, -6.0, 22.0], [-13.0, -7.0, 21.0], [2.0, 12.0, 23.0]];
+    let poses: Vec<_> = eyes.iter().map(|&e| look_at(e, [0.0, 0.0, 0.0], None)).collect();
+    let images = poses.iter().enumerate().map(|(i, p)| render_shaded(&cam, p, amp, noise, 11 + i as u64)).collect();
+    Scene { cam, poses, images }
+}
+
+/// A uniform plane whose brightness varies smoothly (an albedo ramp, view-dependent shading, noise): plain NCC (no
+/// trend removed) correlates above 0.9 at every height of the sweep, so its best score places nothing; with the
+/// default quadratic trend removed only the noise is left and the point is unsupported. A textured plane under the
+/// same ramp, shading and noise still comes back onto itself.
+#[test]
+fn smooth_shading_is_not_texture() {
+    use msnerf::nerf::refine::{plane_axes, score, trend_basis};
+    let uniform = shaded_scene(0.0, 2e-4);
+    let (o, d, t, fp) = uniform.ray(30, 50);
+    let views = uniform.views(4);
+    let opts = RefineOptions::default();
+    let mut scratch = Vec::new();
+    let sweep = |trend: &[Vec<f64>], scratch: &mut Vec<f64>| -> Vec<f64> {
+        (-(opts.range as i64)..=opts.range as i64)
+            .map(|k| {
+                let p = [0, 1, 2].map(|i| o[i] + (t + k as f64 * fp) * d[i]);
+                score(p, plane_axes([0.0, 0.0, 1.0]), fp, opts.half, trend, &views, scratch).0.unwrap_or(f64::NAN)
+            })
+            .collect()
+    };
+    let plain = sweep(&[], &mut scratch);
+    eprintln!("plain NCC along the sweep: {plain:.3?}");
+    assert!(plain.iter().all(|&c| c > 0.9), "plain NCC should correlate the ramp at every height: {plain:.3?}");
+    let detrended = sweep(&trend_basis(2 * opts.half + 1, opts.trend_degree), &mut scratch);
+    eprintln!("with the quadratic trend removed: {detrended:.3?}");
+    assert!(detrended.iter().all(|&c| c < opts.min_ncc), "{detrended:.3?}");
+    let (r, _) = refine_from(&uniform, -4.0, 4, &opts);
+    assert!(!r.supported && !r.moved, "{r:?}");
+
+    let textured = shaded_scene(0.05, 2e-4);
+    let (r, fp) = refine_from(&textured, -4.0, 4, &opts);
+    eprintln!("textured: {r:?}");
+    assert!(r.moved && (r.s / fp - 4.0).abs() < 0.15, "textured under shading: {r:?}");
+}
+
+/// `remove_trend(trend_basis(side, 2))` leaves the residual of the least-squares quadratic, computed here from the
+/// normal equations (Gaussian elimination with partial pivoting, plain f64); degree 1 likewise with a plane.
+#[test]
+fn the_trend_removed_is_the_least_squares_polynomial() {
+    use msnerf::nerf::refine::{remove_trend, trend_basis};
+    let side = 7;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    for degree in [1usize, 2] {
+        let terms: Vec<(i32, i32)> = (0..=degree as i32).flat_map(|d| (0..=d).map(move |px| (px, d - px))).collect();
+        for _ in 0..20 {
+            let patch: Vec<f64> = (0..side * side).map(|_| rng.random::<f64>()).collect();
+            let h = (side as f64 - 1.0) / 2.0;
+            let row = |k: usize| -> Vec<f64> {
+                let (x, y) = ((k / side) as f64 - h, (k % side) as f64 - h);
+                terms.iter().map(|&(a, b)| x.powi(a) * y.powi(b)).collect()
+            };
+            let n = terms.len();
+            let mut m = vec![vec![0.0; n + 1]; n];
+            for (k, &v) in patch.iter().enumerate() {
+                let r = row(k);
+                for i in 0..n {
+                    for j in 0..n {
+                        m[i][j] += r[i] * r[j];
+                    }
+                    m[i][n] += r[i] * v;
+                }
+            }
+            for c in 0..n {
+                let p = (c..n).max_by(|&a, &b| m[a][c].abs().total_cmp(&m[b][c].abs())).unwrap();
+                m.swap(c, p);
+                let pivot = m[c].clone();
+                for (r, row) in m.iter_mut().enumerate() {
+                    if r != c {
+                        let f = row[c] / pivot[c];
+                        row.iter_mut().zip(&pivot).skip(c).for_each(|(x, p)| *x -= f * p);
+                    }
+                }
+            }
+            let coef: Vec<f64> = (0..n).map(|i| m[i][n] / m[i][i]).collect();
+            let mut got = patch.clone();
+            remove_trend(&mut got, &trend_basis(side, degree));
+            for (k, &v) in patch.iter().enumerate() {
+                let fit: f64 = row(k).iter().zip(&coef).map(|(a, b)| a * b).sum();
+                assert!(
+                    (got[k] - (v - fit)).abs() < 1e-10,
+                    "degree {degree}, sample {k}: {} against {}",
+                    got[k],
+                    v - fit
+                );
+            }
+        }
+    }
+    assert_eq!(trend_basis(1, 2).len(), 1, "a one-sample patch holds only the constant");
 }

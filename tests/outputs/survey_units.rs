@@ -7,7 +7,7 @@
 use crate::common;
 use common::TempDir;
 use msnerf::nerf::survey::SurveyGrid;
-use msnerf::output::compare_raster::{compare_rasters, RasterCompareOptions};
+use msnerf::output::compare_raster::{compare_rasters, QualityLayer, RasterCompareOptions};
 use msnerf::output::image::band;
 use msnerf::output::raster::geotiff_read::read_geotiff;
 use msnerf::output::raster::hillshade::{hillshade, Sun};
@@ -118,7 +118,7 @@ fn raster_comparison_matches_the_definitions() {
     write(&cp, rw, rh, rorigin, 0.5, "classes 1=left 2=right 3=absent", classes.clone());
     let (rr, pr, cr) = (read_geotiff(&rp).unwrap(), read_geotiff(&pp).unwrap(), read_geotiff(&cp).unwrap());
     let opts = RasterCompareOptions { within: vec![0.04, 0.06], peak: Some(4.0) };
-    let rep = compare_rasters(&pr, &rr, Some(&cr), &opts).expect("compare");
+    let rep = compare_rasters(&pr, &rr, Some(&cr), None, &opts).expect("compare");
 
     // Independently: prediction cell (c, r) centre = (1000.25 + c + 0.5, 1999.75 - r - 0.5) lies in reference cell
     // (2c + 1, 2r + 1).
@@ -170,6 +170,43 @@ fn raster_comparison_matches_the_definitions() {
         !table.contains("[absent interior]") && table.contains("classes without interior cells: absent"),
         "{table}"
     );
+    // Per code of the prediction's quality raster, over every cell (no interior rule): code 1 on even columns,
+    // 3 on odd ones, against the errors collected here by column.
+    let qp = tmp.path().join("pred_quality.tif");
+    write(&qp, pw, ph, porigin, 1.0, "quality", (0..pw * ph).map(|i| if i % 2 == 0 { 1.0 } else { 3.0 }).collect());
+    let qr = read_geotiff(&qp).unwrap();
+    let names = vec![(1, "measured".to_string()), (2, "interpolated".to_string()), (3, "field only".to_string())];
+    let layer = QualityLayer { raster: &qr, names };
+    let rq = compare_rasters(&pr, &rr, None, Some(&layer), &opts).expect("compare with quality");
+    let (mut even, mut odd) = (Vec::new(), Vec::new());
+    for r in 0..ph {
+        for c in 0..pw {
+            let (p, q) = (pred[r * pw + c], reference[(2 * r + 1) * rw + 2 * c + 1]);
+            if p != -9999.0 && q != -9999.0 {
+                let e = p as f64 - q as f64;
+                if (r * pw + c) % 2 == 0 {
+                    even.push(e)
+                } else {
+                    odd.push(e)
+                }
+            }
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert_eq!((rq.quality[0].bands[0].cells, rq.quality[1].bands[0].cells), (even.len(), 0));
+    assert_eq!(rq.quality[2].bands[0].cells, odd.len());
+    assert!(
+        (rq.quality[0].bands[0].bias - mean(&even)).abs() < 1e-6
+            && (rq.quality[2].bands[0].bias - mean(&odd)).abs() < 1e-6
+    );
+    let table = rq.table();
+    assert!(
+        table.contains("[measured] ") && table.contains("[field only] ") && !table.contains("[interpolated]"),
+        "{table}"
+    );
+    // A quality raster on another grid is not the prediction's.
+    let err = compare_rasters(&pr, &rr, None, Some(&QualityLayer { raster: &rr, names: vec![] }), &opts).unwrap_err();
+    assert!(err.to_string().contains("not its quality raster"), "{err}");
     // A different CRS or band count is refused by name.
     let other = tmp.path().join("other.tif");
     let img =
@@ -183,11 +220,11 @@ fn raster_comparison_matches_the_definitions() {
         },
     )
     .unwrap();
-    let err = compare_rasters(&pr, &read_geotiff(&other).unwrap(), None, &opts).unwrap_err().to_string();
+    let err = compare_rasters(&pr, &read_geotiff(&other).unwrap(), None, None, &opts).unwrap_err().to_string();
     assert!(err.contains("2 bands"), "{err}");
     // Rasters that do not overlap: refused, saying so, instead of NaN statistics and exit 0.
     let far = tmp.path().join("far.tif");
     write(&far, rw, rh, [rorigin[0] + 1.0e5, rorigin[1]], 0.5, "height", reference.clone());
-    let err = compare_rasters(&pr, &read_geotiff(&far).unwrap(), None, &opts).unwrap_err().to_string();
+    let err = compare_rasters(&pr, &read_geotiff(&far).unwrap(), None, None, &opts).unwrap_err().to_string();
     assert!(err.contains("no cell to compare") && err.contains("0 reference cells"), "{err}");
 }

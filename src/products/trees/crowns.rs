@@ -21,6 +21,8 @@ pub struct CrownParams {
     /// its height, [`super::TopParams::radius`]) is not a tree: a spike or a fragment of another crown.
     pub min_area_fraction: f64,
     /// A crown needs at least this share of its cells measured or interpolated in the DSM (when its quality is known).
+    /// Off (0) by default: since the DSM's cross-check, a crown's cells are field-only by design (a plane patch does
+    /// not fit a dome), and the lawn blobs this once set apart are no longer measured.
     pub min_support: f64,
 }
 
@@ -32,7 +34,7 @@ impl Default for CrownParams {
             crown_fraction: 0.55,
             max_diameter: 20.0,
             min_area_fraction: 0.5,
-            min_support: 0.1,
+            min_support: 0.0,
         }
     }
 }
