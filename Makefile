@@ -84,11 +84,11 @@ survey-report: build
 clean:
 	$(CARGO) clean
 
-# docs/bench-import-<date>.json: raw rig import speed on the real RedEdge flight capture, replicated 16 times (~2 min).
+# docs/results/log/bench-import-<date>.json: raw rig import speed on the real RedEdge flight capture, replicated 16 times (~2 min).
 import-bench: build
 	bash tools/import-bench.sh
 
-# docs/rig-parallax-<date>.json: rig-aware training against homography-warped (per frame and shared) and naive bands on the simulated
+# docs/results/log/rig-parallax-<date>.json: rig-aware training against homography-warped (per frame and shared) and naive bands on the simulated
 # rig-low flight, 200 s of training each (~15 min on 2 cores with lavapipe; docs/radiometry.md quotes it).
 rig-parallax: build
 	bash tools/rig-parallax.sh rig-parallax-output 200
@@ -99,7 +99,7 @@ rig-parallax: build
 test-slurm: build
 	bash tools/test-slurm.sh
 
-# issue 23's acceptance (docs/scale-acceptance-<date>.json, quoted in docs/scale.md): campus trained as one run and as
+# issue 23's acceptance (docs/results/log/scale-acceptance-<date>.json, quoted in docs/scale.md): campus trained as one run and as
 # 2x2 blocks at the same total steps, both clouds and DSMs against the truth (~20 min on 2 cores with lavapipe).
 scale-acceptance: build
 	bash tools/scale-acceptance.sh scale-acceptance-output 8000

@@ -5,7 +5,7 @@
 # (`msnerf dataset register`: one homography per band and frame, the import's alignment), shared (one median
 # homography per band for the whole flight, as `import rig --register rig` and ODM) and naive (the unwarped bands
 # treated as one camera: `--no-rig-cameras`). Each run is scored against the registered truth the simulator writes.
-# Writes docs/rig-parallax-<date>.json. Usage: tools/rig-parallax.sh [WORK_DIR] [SECONDS_PER_RUN] (~15 min at 200).
+# Writes docs/results/log/rig-parallax-<date>.json. Usage: tools/rig-parallax.sh [WORK_DIR] [SECONDS_PER_RUN] (~15 min at 200).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 work="${1:-rig-parallax-output}"
@@ -23,7 +23,7 @@ for v in aware warped shared naive; do
   $bin train --data "$data" $flag --model tiny --out "$work/run-$v" --max-steps 100000 --time-budget "$budget" --quiet
   $bin eval "$work/run-$v" --registered-truth "$work/aware/truth/registered" --output "$work/run-$v/eval.json"
 done
-out="docs/rig-parallax-$(date -u +%Y-%m-%d).json"
+out="docs/results/log/rig-parallax-$(date -u +%Y-%m-%d).json"
 {
   printf '{\n"machine": "%s",\n"date": "%s",\n"budget_s": %s,\n"register_warped": %s,\n"register_shared": %s,\n' \
     "$(uname -m), $(nproc) cores" "$(date -u +%Y-%m-%d)" "$budget" "$(cat "$work/register-warped.json")" \

@@ -4,7 +4,7 @@
 # with DS-NeRF depth supervision for STEPS steps as one run, partitions the flight 2x2 (overlap 0.15) and trains each
 # block for STEPS/4 steps (`msnerf train-blocks`, one at a time), then exports both clouds (the careful export) and
 # both DSMs on the truth's grid, and compares them with the simulator's ground truth (compare-cloud, compare-raster).
-# Writes docs/scale-acceptance-<date>.json and prints the verdict: the merged cloud's median accuracy and
+# Writes docs/results/log/scale-acceptance-<date>.json and prints the verdict: the merged cloud's median accuracy and
 # completeness within 10 % of the single run's, and no point in two blocks' cores (checked by the merge itself).
 # About 20 minutes on 2 cores with lavapipe at the default 8000 steps. Usage: tools/scale-acceptance.sh [WORKDIR] [STEPS]
 set -euo pipefail
@@ -40,7 +40,7 @@ for v in single merged; do
   "$bin" compare-raster --pred "$work/dsm-$v.tif" --ref "$truth/dsm.tif" --classes "$truth/classes.tif" \
     --within 0.18,0.36,0.72 --json > "$work/compare-dsm-$v.json"
 done
-out="docs/scale-acceptance-$(date -u +%Y-%m-%d).json"
+out="docs/results/log/scale-acceptance-$(date -u +%Y-%m-%d).json"
 python3 - "$work" "$steps" "$per_block" "$single_s" "$blocks_s" "$(( $(date +%s) - t0 ))" "$out" <<'EOF'
 import json, platform, sys
 work, steps, per_block, single_s, blocks_s, total_s, out = sys.argv[1:]

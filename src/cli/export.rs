@@ -135,7 +135,13 @@ impl PointcloudArgs {
             normals: self.normals,
             max_spread_cells,
             scene_box: !self.keep_outside_box,
-            refine: self.refine.options(true, consistency.is_some(), self.min_agree, self.keep_unsupported)?,
+            refine: self.refine.options(
+                true,
+                consistency.is_some(),
+                self.min_agree,
+                self.keep_unsupported,
+                crate::nerf::refine::RefineOptions::default(),
+            )?,
             consistency,
             image_budget_bytes: crate::nerf::export::REFINE_IMAGE_BUDGET,
         })

@@ -10,6 +10,7 @@ use super::refine_args::RefineArgs;
 use super::Cli;
 use crate::gpu::Context;
 use crate::nerf::export::{Consistency, DEFAULT_MAX_SPREAD_CELLS};
+use crate::nerf::refine::RefineOptions;
 use crate::nerf::run::LoadedRun;
 use crate::nerf::survey::{seen_bounds, DsmFill, SurveyGrid, SurveyOptions, MAX_SURVEY_CELLS};
 use crate::nerf::survey_products::{export_survey, SurveyOutputs};
@@ -117,7 +118,7 @@ impl SurveyArgs {
             anyhow::ensure!(t.is_finite(), "--top must be a height, got {t}");
         }
         // Unsupported cells keep a height through the refinement; --fill decides what the DSM makes of them.
-        let refine = self.refine.options(dsm, consistency.is_some(), self.min_agree, true)?;
+        let refine = self.refine.options(dsm, consistency.is_some(), self.min_agree, true, RefineOptions::dsm())?;
         Ok(SurveyOptions {
             min_accumulation: self.min_accumulation,
             max_spread_cells,

@@ -23,13 +23,15 @@ pub struct RefineArgs {
     #[arg(long, value_parser = super::finite_f64, default_value_t = RefineOptions::default().move_ncc)]
     pub refine_move_ncc: f64,
     /// Photometric refinement: degree of the polynomial trend removed from every patch before it is correlated, so
-    /// that smooth shading (a sunlit slope, the vegetation's hotspot) does not pass for texture (0: none, 3 at most)
-    #[arg(long, default_value_t = RefineOptions::default().trend_degree)]
-    pub refine_trend: usize,
+    /// that smooth shading (a sunlit slope, the vegetation's hotspot) does not pass for texture (0: none, 3 at most;
+    /// default 0 for the cloud, 2 for the DSM)
+    #[arg(long)]
+    pub refine_trend: Option<usize>,
     /// Photometric refinement of DSM cells: a second sweep from another reference view must find its best score within
-    /// this many pixel footprints of the first's, or the cell is not measured (0: off; the cloud does not use it)
-    #[arg(long, value_parser = super::finite_f64, default_value_t = RefineOptions::default().cross_check.unwrap_or(0.0))]
-    pub refine_cross_check: f64,
+    /// this many pixel footprints of the first's, or the cell is not measured (0: off; default 1 for the DSM; the
+    /// cloud does not use it)
+    #[arg(long, value_parser = super::finite_f64)]
+    pub refine_cross_check: Option<f64>,
 }
 
 impl Default for RefineArgs {
@@ -40,8 +42,8 @@ impl Default for RefineArgs {
             refine_range: o.range,
             refine_min_ncc: o.min_ncc,
             refine_move_ncc: o.move_ncc,
-            refine_trend: o.trend_degree,
-            refine_cross_check: o.cross_check.unwrap_or(0.0),
+            refine_trend: None,
+            refine_cross_check: None,
         }
     }
 }
@@ -50,13 +52,15 @@ impl RefineArgs {
     /// The refinement these flags ask for, None with `--no-refine` or when `runs` is false (nothing to refine: an
     /// ortho alone). `consistency`: whether the multi-view check is on (its agreeing views are the
     /// refinement's partners, and `min_agree` of them may be all a point has); `keep_unsupported`: keep the points
-    /// without photometric support where the field put them. Errors name the flag.
+    /// without photometric support where the field put them; `base`: the product's defaults
+    /// ([`RefineOptions::default`] for the cloud, [`RefineOptions::dsm`] for the DSM). Errors name the flag.
     pub fn options(
         &self,
         runs: bool,
         consistency: bool,
         min_agree: usize,
         keep_unsupported: bool,
+        base: RefineOptions,
     ) -> anyhow::Result<Option<RefineOptions>> {
         anyhow::ensure!(
             (1..=64).contains(&self.refine_range),
@@ -72,12 +76,13 @@ impl RefineArgs {
             self.refine_move_ncc,
             self.refine_min_ncc
         );
-        anyhow::ensure!(self.refine_trend <= 3, "--refine-trend must be 0 to 3, got {}", self.refine_trend);
-        anyhow::ensure!(
-            self.refine_cross_check >= 0.0,
-            "--refine-cross-check must be a non-negative number of footprints, got {}",
-            self.refine_cross_check
-        );
+        let trend = self.refine_trend.unwrap_or(base.trend_degree);
+        anyhow::ensure!(trend <= 3, "--refine-trend must be 0 to 3, got {trend}");
+        let cross_check = match self.refine_cross_check {
+            None => base.cross_check,
+            Some(t) if t >= 0.0 => (t > 0.0).then_some(t),
+            Some(t) => anyhow::bail!("--refine-cross-check must be a non-negative number of footprints, got {t}"),
+        };
         if self.no_refine || !runs {
             return Ok(None);
         }
@@ -85,7 +90,7 @@ impl RefineArgs {
             consistency,
             "the photometric refinement needs the multi-view consistency check: --check-views 0 needs --no-refine"
         );
-        let d = RefineOptions::default();
+        let d = base;
         Ok(Some(RefineOptions {
             range: self.refine_range,
             min_ncc: self.refine_min_ncc,
@@ -93,8 +98,8 @@ impl RefineArgs {
             drop_unsupported: !keep_unsupported,
             // A point has at most its agreeing views as partners, so `--min-agree 1` lets one score it.
             min_views: min_agree.clamp(1, d.min_views),
-            trend_degree: self.refine_trend,
-            cross_check: (self.refine_cross_check > 0.0).then_some(self.refine_cross_check),
+            trend_degree: trend,
+            cross_check,
             ..d
         }))
     }

@@ -202,7 +202,7 @@ impl Default for SurveyOptions {
             scene_box: true,
             top: None,
             block_rays: 1 << 20,
-            refine: Some(RefineOptions { drop_unsupported: false, ..Default::default() }),
+            refine: Some(RefineOptions::dsm()),
             fill: DsmFill::default(),
             fill_max_distance: None,
             fill_tolerance: FILL_TOLERANCE,
