@@ -38,14 +38,6 @@ pub struct CompareRasterArgs {
     pub output: Option<PathBuf>,
 }
 
-/// The DSM quality codes' names (`nerf::survey::quality`).
-fn quality_names() -> Vec<(i64, String)> {
-    use crate::nerf::survey::quality::{FIELD_ONLY, INTERPOLATED, MEASURED};
-    [(MEASURED, "measured"), (INTERPOLATED, "interpolated"), (FIELD_ONLY, "field only")]
-        .map(|(c, n)| (i64::from(c), n.to_string()))
-        .into()
-}
-
 pub fn run(args: &CompareRasterArgs) -> anyhow::Result<()> {
     let within = parse_within(&args.within)?;
     if let Some(p) = args.peak {
@@ -61,7 +53,10 @@ pub fn run(args: &CompareRasterArgs) -> anyhow::Result<()> {
     let reference = read_geotiff(&args.reference)?;
     let classes = args.classes.as_ref().map(|c| read_geotiff(c)).transpose()?;
     let quality_raster = args.quality.as_ref().map(|c| read_geotiff(c)).transpose()?;
-    let quality = quality_raster.as_ref().map(|raster| QualityLayer { raster, names: quality_names() });
+    let quality = quality_raster.as_ref().map(|raster| QualityLayer {
+        raster,
+        names: crate::nerf::survey::quality::NAMES.iter().map(|&(c, n)| (i64::from(c), n.to_string())).collect(),
+    });
     let opts = RasterCompareOptions { within, peak: args.peak };
     let report = compare_rasters(&pred, &reference, classes.as_ref(), quality.as_ref(), &opts)?;
     let json = report.to_json();

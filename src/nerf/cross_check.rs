@@ -16,18 +16,20 @@ use super::refine_points::{PointResult, RefinePoint};
 /// The second reference stands at least this fraction of the first reference's distance to the cell from it.
 pub const MIN_BASELINE_RATIO: f64 = 0.2;
 
-/// The cross-check's sweep for `first` (its reference `first.frame`, its partners the other agreeing views): the most
-/// nadir partner (largest `nadir`) that `holds` the whole sweep and whose centre (`centres`, by frame) stands at least
+/// The cross-check's sweep for `first` (its reference `first.frame`, its partners the other agreeing views), started
+/// from `p0` (where the first sweep started; `first.p` may have moved since): the most nadir partner (largest
+/// `nadir`) that `holds` the whole sweep and whose centre (`centres`, by frame) stands at least
 /// [`MIN_BASELINE_RATIO`] of the first reference's distance from it; the first reference becomes a partner. None when
 /// no partner qualifies.
 pub fn second_reference(
     first: &RefinePoint,
+    p0: [f64; 3],
     centres: &[[f64; 3]],
     holds: impl Fn(u32) -> bool,
     nadir: impl Fn(u32) -> f64,
 ) -> Option<RefinePoint> {
     let c0 = glam::DVec3::from(centres[first.frame]);
-    let reach = (glam::DVec3::from(first.p) - c0).length() * MIN_BASELINE_RATIO;
+    let reach = (glam::DVec3::from(p0) - c0).length() * MIN_BASELINE_RATIO;
     let pick = (first.partners.iter().enumerate())
         .filter(|(_, &f)| (glam::DVec3::from(centres[f as usize]) - c0).length() >= reach)
         .filter(|(_, &f)| holds(f))
@@ -36,7 +38,7 @@ pub fn second_reference(
     let mut partners = first.partners.clone();
     let frame = partners.swap_remove(pick) as usize;
     partners.push(first.frame as u32);
-    Some(RefinePoint { p: first.p, dir: first.dir, frame, partners })
+    Some(RefinePoint { p: p0, dir: first.dir, frame, partners })
 }
 
 /// Whether the second sweep confirms the first (see the module): both supported, peaks within `tolerance` of the
@@ -78,12 +80,12 @@ mod tests {
         let centres = [[0.0, 0.0, 40.0], [2.0, 0.0, 40.0], [10.0, 0.0, 40.0], [-12.0, 0.0, 40.0], [20.0, 0.0, 40.0]];
         let first = RefinePoint { p: [0.0, 0.0, 0.0], dir: [0.0, 0.0, -1.0], frame: 0, partners: vec![1, 2, 3, 4] };
         let nadir = |f: u32| [1.0, 0.99, 0.9, 0.95, 0.97][f as usize];
-        let s = second_reference(&first, &centres, |f| f != 4, nadir).expect("a second reference");
+        let s = second_reference(&first, first.p, &centres, |f| f != 4, nadir).expect("a second reference");
         assert_eq!(s.frame, 3);
         let mut partners = s.partners.clone();
         partners.sort_unstable();
         assert_eq!(partners, vec![0, 1, 2, 4], "the first reference becomes a partner");
         assert_eq!((s.p, s.dir), (first.p, first.dir));
-        assert!(second_reference(&first, &centres, |f| f == 1, nadir).is_none(), "only a partner too close holds it");
+        assert!(second_reference(&first, first.p, &centres, |f| f == 1, nadir).is_none(), "only a partner too close");
     }
 }

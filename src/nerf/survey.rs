@@ -128,6 +128,9 @@ pub mod quality {
     pub const FIELD_ONLY: u8 = 3;
     /// A surface the DSM's filters turned down (spread, consistency): a gap to fill, never written as such.
     pub const GAP: u8 = 4;
+    /// The codes written to a quality raster, with their names.
+    pub const NAMES: [(u8, &str); 3] =
+        [(MEASURED, "measured"), (INTERPOLATED, "interpolated"), (FIELD_ONLY, "field only")];
 }
 
 /// What the DSM does with cells the images do not support.
@@ -474,17 +477,17 @@ pub fn render_survey(
                 let d = glam::DVec3::from(p) - glam::DVec3::from(centres[f as usize]);
                 d.normalize().dot(glam::DVec3::from(down))
             };
+            let holds = |p: [f64; 3], f: u32| {
+                let (origin, rot) = poses[f as usize];
+                holds_sweep(&run.ds.frames[f as usize].camera, origin, &rot, p, down, up, r)
+            };
             let (ids, mut pts): (Vec<usize>, Vec<RefinePoint>) = (0..kept.len())
                 .filter(|&k| agree[k] && !agreeing[k].is_empty())
                 .map(|k| {
                     let p = kept[k].1;
                     let mut partners = agreeing[k].clone();
                     // The most nadir view that holds the whole sweep in its image; the most nadir one if none does.
-                    let holds = |f: u32| {
-                        let (origin, rot) = poses[f as usize];
-                        holds_sweep(&run.ds.frames[f as usize].camera, origin, &rot, p, down, up, r)
-                    };
-                    let rank: Vec<(bool, f64)> = partners.iter().map(|&f| (holds(f), nadir(p, f))).collect();
+                    let rank: Vec<(bool, f64)> = partners.iter().map(|&f| (holds(p, f), nadir(p, f))).collect();
                     let best = (0..partners.len())
                         .max_by(|&a, &b| rank[a].0.cmp(&rank[b].0).then(rank[a].1.total_cmp(&rank[b].1)))
                         .unwrap_or(0);
@@ -496,17 +499,12 @@ pub fn render_survey(
             let (res, rs) = refine_points(run, &mut pts, r, store).map_err(SurveyError::Render)?;
             let mut confirmed = vec![true; res.len()];
             if let Some(tolerance) = r.cross_check {
-                let holds = |p: [f64; 3], f: u32| {
-                    let (origin, rot) = poses[f as usize];
-                    holds_sweep(&run.ds.frames[f as usize].camera, origin, &rot, p, down, up, r)
-                };
                 // From the field's height, where the first sweep started (`pts` holds the moved points).
                 let (idx, mut second): (Vec<usize>, Vec<RefinePoint>) = (0..pts.len())
                     .filter(|&i| res[i].supported)
                     .filter_map(|i| {
                         let p = kept[ids[i]].1;
-                        let first = RefinePoint { p, partners: pts[i].partners.clone(), ..pts[i] };
-                        cross_check::second_reference(&first, &centres, |f| holds(p, f), |f| nadir(p, f))
+                        cross_check::second_reference(&pts[i], p, &centres, |f| holds(p, f), |f| nadir(p, f))
                             .map(|s| (i, s))
                     })
                     .unzip();

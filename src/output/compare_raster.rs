@@ -207,24 +207,19 @@ pub fn compare_rasters(
     let band_name =
         |b: usize| p.descriptions.get(b).filter(|s| !s.is_empty()).cloned().unwrap_or(format!("band {}", b + 1));
     let bands = (0..nb).map(|b| errors(&band_name(b), &mut d[b], opts)).collect();
-    let classes = names
-        .iter()
-        .zip(per_class.iter_mut())
-        .map(|((code, name), dd)| ClassErrors {
-            code: *code,
-            name: name.clone(),
-            bands: (0..nb).map(|b| errors(&band_name(b), &mut dd[b], opts)).collect(),
-        })
-        .collect();
-    let quality = quality_names
-        .iter()
-        .zip(per_quality.iter_mut())
-        .map(|((code, name), dd)| ClassErrors {
-            code: *code,
-            name: name.clone(),
-            bands: (0..nb).map(|b| errors(&band_name(b), &mut dd[b], opts)).collect(),
-        })
-        .collect();
+    let groups = |names: &[(i64, String)], per: &mut [Vec<Vec<f64>>]| -> Vec<ClassErrors> {
+        names
+            .iter()
+            .zip(per.iter_mut())
+            .map(|((code, name), dd)| ClassErrors {
+                code: *code,
+                name: name.clone(),
+                bands: (0..nb).map(|b| errors(&band_name(b), &mut dd[b], opts)).collect(),
+            })
+            .collect()
+    };
+    let classes = groups(&names, &mut per_class);
+    let quality = groups(quality_names, &mut per_quality);
     Ok(RasterCompareReport {
         pred_cells,
         ref_cells,

@@ -82,18 +82,23 @@ fn texture(x: f64, y: f64) -> f64 {
     (0.9 * x + 0.3).sin() * (0.7 * y).cos() + 0.5 * (0.37 * x + 1.1 * y).sin() + 0.3 * (3.9 * x - 2.1 * y).sin()
 }
 
-/// One band: every pixel's ray meets the plane z = 0 at the texture `base + amp * texture`.
-fn render(cam: &Camera, c2w: &[[f64; 4]; 4], base: f64, amp: f64) -> Vec<f32> {
+/// One band: `value(ray direction, the point where the pixel's ray meets the plane z = 0)` per pixel.
+fn render_plane(cam: &Camera, c2w: &[[f64; 4]; 4], mut value: impl FnMut([f64; 3], [f64; 3]) -> f64) -> Vec<f32> {
     let mut img = Vec::with_capacity((W * H) as usize);
     for row in 0..H {
         for col in 0..W {
             let ray = cam.ray_f64(c2w, row, col);
             let t = -ray.origin[2] / ray.direction[2];
             let p = [0, 1, 2].map(|k| ray.origin[k] + t * ray.direction[k]);
-            img.push((base + amp * texture(p[0], p[1])) as f32);
+            img.push(value(ray.direction, p) as f32);
         }
     }
     img
+}
+
+/// One band: every pixel's ray meets the plane z = 0 at the texture `base + amp * texture`.
+fn render(cam: &Camera, c2w: &[[f64; 4]; 4], base: f64, amp: f64) -> Vec<f32> {
+    render_plane(cam, c2w, |_, p| base + amp * texture(p[0], p[1]))
 }
 
 struct Scene {
@@ -248,19 +253,12 @@ fn a_reference_holds_the_sweep_exactly_when_every_candidate_scores() {
 fn render_shaded(cam: &Camera, c2w: &[[f64; 4]; 4], amp: f64, noise: f64, seed: u64) -> Vec<f32> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let lobe = glam::DVec3::new(0.35, -0.2, -0.9).normalize();
-    let mut img = Vec::with_capacity((W * H) as usize);
-    for row in 0..H {
-        for col in 0..W {
-            let ray = cam.ray_f64(c2w, row, col);
-            let t = -ray.origin[2] / ray.direction[2];
-            let p = [0, 1, 2].map(|k| ray.origin[k] + t * ray.direction[k]);
-            let ramp = 0.05 * (p[0] / 6.0 + 0.4 * p[1] / 6.0).sin();
-            let shade = 0.02 * (1.0 + glam::DVec3::from(ray.direction).normalize().dot(lobe)).powi(3);
-            let n: f64 = (0..12).map(|_| rng.random::<f64>()).sum::<f64>() - 6.0;
-            img.push((0.3 + ramp + shade + amp * texture(p[0], p[1]) + noise * n) as f32);
-        }
-    }
-    img
+    render_plane(cam, c2w, |dir, p| {
+        let ramp = 0.05 * (p[0] / 6.0 + 0.4 * p[1] / 6.0).sin();
+        let shade = 0.02 * (1.0 + glam::DVec3::from(dir).normalize().dot(lobe)).powi(3);
+        let n: f64 = (0..12).map(|_| rng.random::<f64>()).sum::<f64>() - 6.0;
+        0.3 + ramp + shade + amp * texture(p[0], p[1]) + noise * n
+    })
 }
 
 fn shaded_scene(amp: f64, noise: f64) -> Scene {
